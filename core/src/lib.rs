@@ -1,0 +1,22 @@
+//! `jdbb-core`: everything about the J-DBB that both the firmware and the host must agree on.
+//!
+//! - [`geometry`]: encoder counts → decoupling-frame angles → joint deflection φ → ball distance D,
+//!   its inverse for simulation, and the sensitivity dD per count.
+//! - [`calib`]: the calibration parameters in force (one serde struct, sent on the wire).
+//! - [`quadrature`]: extending a wrapping hardware counter to a continuous `i64`, index referencing.
+//! - [`machine`]: seed 000's error equation (1) and its positioning-error models.
+//! - [`protocol`]: every message between device and host, and their framing (postcard, CRC-32, COBS).
+//! - [`math`]: the one place that names which floating-point implementation is used.
+//!
+//! `no_std`, no allocation. The `std` feature only adds conveniences for the host.
+#![cfg_attr(not(any(test, feature = "std")), no_std)]
+#![deny(missing_docs)]
+
+pub mod calib;
+pub mod geometry;
+pub mod machine;
+pub mod math;
+pub mod protocol;
+pub mod quadrature;
+
+pub use calib::{Calibration, EncoderCal};

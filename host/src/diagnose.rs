@@ -1,0 +1,1040 @@
+//! `jdbb diagnose`: what the ideal-machine simulation gets wrong in a circular test, which machine
+//! errors explain it, how large they are and how sure we are.
+//!
+//! Pipeline (see [`diagnose`]):
+//! 1. Baseline: the ideal machine predicts D = |p_nominal|; report RMS and peak-to-valley (µm).
+//! 2. Set-up: fit the table-ball offset c and the length offset e with the exact geometry
+//!    D = |p + c| + e. Set-up parameters the path cannot determine (c_z on a flat circle) are
+//!    held at zero and reported as confounded.
+//! 3. Candidate search: every candidate effect of [`crate::model`] becomes columns of a linear
+//!    model, linearised at the nominal path (seed 000 eq. 1: ΔR = u·δ, u = p/|p|), against the
+//!    residual of step 2. One pass over the samples accumulates the Gram matrix of all columns; the
+//!    forward selection then works on that small matrix only, which is why the whole search costs
+//!    one pass (O(m·n²)) plus O(n³) per trial.
+//! 4. Selection by BIC = m·ln(SSR/m) + k·ln(m): an effect is added while it lowers BIC. For one
+//!    added parameter this is a likelihood-ratio test at χ²₁ > ln m, i.e. a false-alarm rate of
+//!    P(χ²₁ > ln m) per candidate (0.16 % at m = 20 000; 2 parameters: P(χ²₂ > 2 ln m) = 5e-5).
+//! 5. Identifiability: columns that are linear combinations of others (rank test on the
+//!    column-scaled Gram matrix, singular values below 1e-7 of the largest) are never fitted
+//!    against each other. If the isotropic scale is confounded with the length offset (one radius),
+//!    the scale candidates become `scale_mismatch_ij` = scale_i − scale_j and the confounded group
+//!    is named; a candidate that lies in the span of the current model is skipped and named with
+//!    what it is confounded with.
+//! 6. The selected effects are refitted with the exact geometry ([`crate::model::ExactModel`]),
+//!    giving the reported values ± standard errors, then the residual's harmonics against angle.
+use std::path::{Path as FsPath, PathBuf};
+
+use nalgebra::{DMatrix, DVector, SymmetricEigen};
+
+use crate::fit::{least_squares, LsqOptions};
+use crate::model::{Axis, Column, Effect, EffectSet, ExactModel, Pair, Path};
+use crate::{Error, Result};
+
+/// Singular values of the column-scaled design below this fraction of the largest count as zero
+/// (the same rule as [`crate::fit`]).
+pub const RANK_TOLERANCE: f64 = 1e-7;
+
+/// Knobs of the diagnosis.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// At most this many machine effects are selected.
+    pub max_effects: usize,
+    /// BIC penalty multiplier: an effect with k parameters must lower m·ln(SSR/m) by more than
+    /// `penalty · k · ln m`. 1.0 is plain BIC.
+    pub penalty: f64,
+    /// Number of angle harmonics reported for the residual.
+    pub harmonics: usize,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            max_effects: 8,
+            penalty: 1.0,
+            harmonics: 8,
+        }
+    }
+}
+
+/// One reported effect: its fitted parameters (exact geometry) and the selection step that added it.
+#[derive(Debug, Clone)]
+pub struct Found {
+    pub effect: Effect,
+    pub params: Vec<f64>,
+    pub param_sigma: Vec<Option<f64>>,
+    pub value: f64,
+    pub sigma: Option<f64>,
+    /// RMS (µm) of the residual after this step of the selection.
+    pub rms_after_um: f64,
+    /// RMS before / RMS after this step.
+    pub rms_ratio: f64,
+    /// Change of BIC by this step (negative = better).
+    pub delta_bic: f64,
+}
+
+/// The result of [`diagnose`].
+#[derive(Debug, Clone)]
+pub struct Diagnosis {
+    pub samples: usize,
+    pub baseline_rms_um: f64,
+    pub baseline_pv_um: f64,
+    /// Set-up (setup_offset, length_offset) then machine effects, in the order selected.
+    pub effects: Vec<Found>,
+    /// Groups of names (effects, or effect components like `setup_offset.z`) the test cannot
+    /// tell apart.
+    pub confounded: Vec<Vec<String>>,
+    pub final_rms_um: f64,
+    /// baseline RMS / final RMS.
+    pub gain: f64,
+    /// Amplitude (µm) of residual harmonics 1..=n against the angle in the main plane.
+    pub harmonics_um: Vec<f64>,
+    /// Candidates that were tried (names).
+    pub candidates: Vec<String>,
+    /// Per sample: angle (rad) in the main plane, measured deviation from the set-up-corrected
+    /// ideal machine (µm), and the extended model's deviation (µm).
+    pub angle_rad: Vec<f64>,
+    pub measured_dev_um: Vec<f64>,
+    pub model_dev_um: Vec<f64>,
+    /// Main plane (axis indices) of the angle.
+    pub plane: (usize, usize),
+    /// ISO 230-4 style circular deviation G (µm, per direction, max) and hysteresis H (µm).
+    pub circular_deviation_g_um: f64,
+    pub hysteresis_h_um: f64,
+}
+
+/// Read `t_s,x_mm,y_mm,z_mm,d_mm` (columns by name, any order, extra columns ignored).
+/// Returns the path (with `pitch_mm` applied) and D. Errors name file, line and column.
+pub fn read_samples(file: &FsPath, pitch_mm: [Option<f64>; 3]) -> Result<(Path, Vec<f64>)> {
+    let text = std::fs::read_to_string(file).map_err(|source| Error::File {
+        action: "cannot read",
+        path: file.to_path_buf(),
+        source,
+    })?;
+    parse_samples(file, &text, pitch_mm)
+}
+
+/// [`read_samples`] on text already in memory; `file` names it in errors.
+pub fn parse_samples(
+    file: &FsPath,
+    text: &str,
+    pitch_mm: [Option<f64>; 3],
+) -> Result<(Path, Vec<f64>)> {
+    const NAMES: [&str; 5] = ["t_s", "x_mm", "y_mm", "z_mm", "d_mm"];
+    let mut lines = text.lines().enumerate();
+    let (_, header) = lines
+        .by_ref()
+        .find(|(_, l)| !l.trim().is_empty())
+        .ok_or_else(|| Error::input(file, 1, 0, "empty file; expected header t_s,x_mm,y_mm,z_mm,d_mm"))?;
+    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
+    let mut idx = [0usize; 5];
+    for (k, name) in NAMES.iter().enumerate() {
+        idx[k] = cols.iter().position(|c| c == name).ok_or_else(|| {
+            Error::input(
+                file,
+                1,
+                0,
+                format!(
+                    "missing column `{name}`; the header is `{header}` but must name t_s,x_mm,y_mm,z_mm,d_mm"
+                ),
+            )
+        })?;
+    }
+    let mut t = Vec::new();
+    let mut p = Vec::new();
+    let mut d = Vec::new();
+    let mut last_line = 1;
+    for (ln, line) in lines {
+        let line_no = ln + 1;
+        if line.trim().is_empty() || line.starts_with('#') {
+            continue;
+        }
+        last_line = line_no;
+        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        let mut v = [0.0f64; 5];
+        for k in 0..5 {
+            let col = idx[k] + 1;
+            let f = fields.get(idx[k]).ok_or_else(|| {
+                Error::input(
+                    file,
+                    line_no,
+                    col,
+                    format!("missing value for `{}` ({} fields on this line)", NAMES[k], fields.len()),
+                )
+            })?;
+            let x: f64 = f.parse().map_err(|_| {
+                Error::input(file, line_no, col, format!("`{f}` is not a number ({})", NAMES[k]))
+            })?;
+            if !x.is_finite() {
+                return Err(Error::input(
+                    file,
+                    line_no,
+                    col,
+                    format!("{} is {f}; every value must be finite", NAMES[k]),
+                ));
+            }
+            v[k] = x;
+        }
+        if let Some(&prev) = t.last() {
+            if v[0] <= prev {
+                return Err(Error::input(
+                    file,
+                    line_no,
+                    idx[0] + 1,
+                    format!("time goes backwards or stands still ({} s after {prev} s); samples must be in time order", v[0]),
+                ));
+            }
+        }
+        t.push(v[0]);
+        p.push([v[1], v[2], v[3]]);
+        d.push(v[4]);
+    }
+    if t.len() < MIN_SAMPLES {
+        return Err(Error::input(
+            file,
+            last_line,
+            0,
+            format!(
+                "only {} samples; a diagnosis needs at least {MIN_SAMPLES} (a full circle each way)",
+                t.len()
+            ),
+        ));
+    }
+    let path = Path::new(t, p, pitch_mm);
+    for a in Axis::ALL {
+        if pitch_mm[a.index()].is_some() && !path.moves(a) {
+            return Err(Error::input(
+                file,
+                1,
+                idx[1 + a.index()] + 1,
+                format!(
+                    "a pitch was given for axis {} but `{}` never changes; drop it from --pitch",
+                    a.letter(),
+                    NAMES[1 + a.index()]
+                ),
+            ));
+        }
+    }
+    Ok((path, d))
+}
+
+/// Fewer samples than this cannot support a candidate search.
+pub const MIN_SAMPLES: usize = 32;
+
+/// Column-scaled eigen-structure of a Gram block: (rank, unit null vectors in the block's index).
+fn null_space(g: &DMatrix<f64>) -> (usize, Vec<DVector<f64>>) {
+    let n = g.nrows();
+    if n == 0 {
+        return (0, vec![]);
+    }
+    let s: Vec<f64> = (0..n)
+        .map(|k| {
+            let d = g[(k, k)].max(0.0).sqrt();
+            if d > 0.0 {
+                d
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let a = DMatrix::from_fn(n, n, |i, j| g[(i, j)] / (s[i] * s[j]));
+    let eig = SymmetricEigen::new(a);
+    let emax = eig.eigenvalues.iter().cloned().fold(0.0f64, f64::max);
+    let thr = RANK_TOLERANCE * RANK_TOLERANCE * emax;
+    let mut nulls = vec![];
+    let mut rank = 0;
+    for (c, &e) in eig.eigenvalues.iter().enumerate() {
+        if e > thr && emax > 0.0 {
+            rank += 1;
+        } else {
+            nulls.push(eig.eigenvectors.column(c).into_owned());
+        }
+    }
+    (rank, nulls)
+}
+
+fn sub(g: &DMatrix<f64>, idx: &[usize]) -> DMatrix<f64> {
+    DMatrix::from_fn(idx.len(), idx.len(), |i, j| g[(idx[i], idx[j])])
+}
+
+/// Solve the normal equations on columns `idx` of the Gram `g` (whose last row/column is y):
+/// returns (coefficients, SSR, (GᵀG)⁻¹ on idx). None if the block is rank deficient.
+fn solve(g: &DMatrix<f64>, idx: &[usize], yy: f64, ycol: usize) -> Option<(Vec<f64>, f64, DMatrix<f64>)> {
+    let a = sub(g, idx);
+    let b = DVector::from_iterator(idx.len(), idx.iter().map(|&i| g[(i, ycol)]));
+    let (rank, _) = null_space(&a);
+    if rank < idx.len() {
+        return None;
+    }
+    let s: Vec<f64> = (0..idx.len()).map(|k| a[(k, k)].sqrt()).collect();
+    let scaled = DMatrix::from_fn(idx.len(), idx.len(), |i, j| a[(i, j)] / (s[i] * s[j]));
+    let chol = scaled.cholesky()?;
+    let inv_scaled = chol.inverse();
+    let inv = DMatrix::from_fn(idx.len(), idx.len(), |i, j| inv_scaled[(i, j)] / (s[i] * s[j]));
+    let x = &inv * &b;
+    let ssr = (yy - x.dot(&b)).max(0.0);
+    Some((x.iter().cloned().collect(), ssr, inv))
+}
+
+/// A parameter column: which effect, which of its parameters.
+#[derive(Debug, Clone, Copy)]
+struct ParamRef {
+    effect: usize,
+    k: usize,
+}
+
+/// The linearised design: all candidate effects' columns at the nominal u, with y last.
+struct Design {
+    effects: Vec<Effect>,
+    set: EffectSet,
+    params: Vec<ParamRef>,
+    gram: DMatrix<f64>,
+    yy: f64,
+    m: usize,
+}
+
+impl Design {
+    /// One pass: accumulate the Gram matrix of u·dp + dd (µm per unit parameter) and y (µm).
+    fn build(path: &Path, y_um: &[f64], effects: Vec<Effect>) -> Design {
+        let set = EffectSet::new(effects.clone());
+        let n = set.n_params;
+        let mut params = Vec::with_capacity(n);
+        for (e, eff) in effects.iter().enumerate() {
+            for k in 0..eff.n_params() {
+                params.push(ParamRef { effect: e, k });
+            }
+        }
+        let w = n + 1;
+        let mut acc = vec![0.0f64; w * w];
+        let mut cols = vec![Column::default(); n];
+        let mut x = vec![0.0f64; w];
+        for (i, &y) in y_um.iter().enumerate() {
+            set.columns(path, i, &mut cols);
+            let p = path.p_mm[i];
+            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+            let u = [p[0] / r, p[1] / r, p[2] / r];
+            for (xk, c) in x.iter_mut().zip(&cols) {
+                *xk = 1e3 * (u[0] * c.dp_mm[0] + u[1] * c.dp_mm[1] + u[2] * c.dp_mm[2] + c.dd_mm);
+            }
+            x[n] = y;
+            for a in 0..w {
+                let xa = x[a];
+                if xa == 0.0 {
+                    continue;
+                }
+                let row = &mut acc[a * w..a * w + a + 1];
+                for (r, &xb) in row.iter_mut().zip(&x[..=a]) {
+                    *r += xa * xb;
+                }
+            }
+        }
+        let gram = DMatrix::from_fn(w, w, |i, j| {
+            if j <= i {
+                acc[i * w + j]
+            } else {
+                acc[j * w + i]
+            }
+        });
+        let yy = gram[(n, n)];
+        Design {
+            effects,
+            set,
+            params,
+            gram,
+            yy,
+            m: y_um.len(),
+        }
+    }
+
+    fn ycol(&self) -> usize {
+        self.set.n_params
+    }
+
+    fn cols_of(&self, e: usize) -> Vec<usize> {
+        let o = self.set.offsets[e];
+        (o..o + self.effects[e].n_params()).collect()
+    }
+
+    /// Name of parameter column i for confounding reports: the effect, or `effect.component`
+    /// for multi-parameter set-up.
+    fn param_name(&self, i: usize) -> String {
+        let pr = self.params[i];
+        let eff = self.effects[pr.effect];
+        match eff {
+            Effect::SetupOffset => format!("setup_offset.{}", ['x', 'y', 'z'][pr.k]),
+            _ => eff.name(),
+        }
+    }
+
+    /// Names of the columns (among `idx`) loaded by the null vectors of the block `idx`.
+    fn confounded_names(&self, idx: &[usize]) -> Vec<Vec<String>> {
+        let (_, nulls) = null_space(&sub(&self.gram, idx));
+        let mut out = vec![];
+        for v in nulls {
+            let mut names: Vec<String> = (0..idx.len())
+                .filter(|&k| v[k].abs() >= 0.1)
+                .map(|k| self.param_name(idx[k]))
+                .collect();
+            names.dedup();
+            if !names.is_empty() && !out.contains(&names) {
+                out.push(names);
+            }
+        }
+        out
+    }
+
+    /// Greedy: keep columns of `order` that raise the rank of what is kept.
+    fn independent(&self, order: &[usize]) -> Vec<usize> {
+        let mut kept: Vec<usize> = vec![];
+        for &c in order {
+            let mut trial = kept.clone();
+            trial.push(c);
+            let (rank, _) = null_space(&sub(&self.gram, &trial));
+            if rank == trial.len() {
+                kept = trial;
+            }
+        }
+        kept
+    }
+
+    /// m·ln(SSR/m) + penalty·k·ln m.
+    fn bic(&self, ssr: f64, k: usize, penalty: f64) -> f64 {
+        let m = self.m as f64;
+        m * (ssr.max(1e-300) / m).ln() + penalty * k as f64 * m.ln()
+    }
+}
+
+/// The candidate machine effects the path can show: axes that move, pairs that both move,
+/// periodic effects only where a pitch is known.
+pub fn candidate_effects(path: &Path) -> Vec<Effect> {
+    let mut v = vec![];
+    let moving: Vec<Axis> = Axis::ALL.into_iter().filter(|&a| path.moves(a)).collect();
+    for &a in &moving {
+        v.push(Effect::Scale(a));
+    }
+    for &a in &moving {
+        v.push(Effect::Scale2(a));
+        v.push(Effect::Backlash(a));
+        if path.pitch_mm[a.index()].is_some() {
+            v.push(Effect::Cyclic(a));
+            v.push(Effect::Interference(a));
+        }
+    }
+    for pair in Pair::ALL {
+        let (i, j) = pair.axes();
+        if path.moves(i) && path.moves(j) {
+            v.push(Effect::Squareness(pair));
+            v.push(Effect::ServoMismatch(pair));
+        }
+    }
+    v
+}
+
+/// Diagnose a circular test: baseline, set-up, forward selection of machine effects, exact refit,
+/// residual harmonics, G and H. See the module docs.
+pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> {
+    let m = d_mm.len();
+    if m != path.len() || m < MIN_SAMPLES {
+        return Err(Error::Numerics(format!(
+            "diagnose needs at least {MIN_SAMPLES} samples with a path each (got {m})"
+        )));
+    }
+    // 1. Baseline.
+    let base: Vec<f64> = path
+        .p_mm
+        .iter()
+        .zip(d_mm)
+        .map(|(p, d)| 1e3 * (d - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt()))
+        .collect();
+    let baseline_rms_um = rms(&base);
+    let baseline_pv_um = pv(&base);
+
+    // 2. Structure of set-up and scale candidates (nominal linearisation, on the baseline residual).
+    let mut candidates = candidate_effects(path);
+    let setup = [Effect::SetupOffset, Effect::LengthOffset];
+    let mut all = setup.to_vec();
+    all.extend(candidates.iter().copied());
+    let probe = Design::build(path, &base, all);
+    // Set-up columns 0..4 = c_x, c_y, c_z, e; keep e first, then c_x, c_y, c_z.
+    let setup_free = probe.independent(&[3, 0, 1, 2]);
+    let mut confounded: Vec<Vec<String>> = probe.confounded_names(&[0, 1, 2, 3]);
+    let scale_cols: Vec<usize> = candidates
+        .iter()
+        .enumerate()
+        .filter(|(_, e)| matches!(e, Effect::Scale(_)))
+        .map(|(i, _)| probe.cols_of(i + 2)[0])
+        .collect();
+    let mut block: Vec<usize> = setup_free.clone();
+    block.extend(&scale_cols);
+    if probe.independent(&block).len() < block.len() {
+        // Isotropic scale ≡ length offset on this path: fit the identifiable mismatches instead.
+        let mut with_all_setup = vec![0, 1, 2, 3];
+        with_all_setup.extend(&scale_cols);
+        for g in probe.confounded_names(&with_all_setup) {
+            if g.iter().any(|n| n.starts_with("scale_")) && !confounded.contains(&g) {
+                confounded.push(g);
+            }
+        }
+        let moving: Vec<Axis> = Axis::ALL.into_iter().filter(|&a| path.moves(a)).collect();
+        candidates.retain(|e| !matches!(e, Effect::Scale(_)));
+        let mut mism = vec![];
+        for pair in Pair::ALL {
+            let (i, j) = pair.axes();
+            if moving.contains(&i) && moving.contains(&j) {
+                mism.push(Effect::ScaleMismatch(pair));
+            }
+        }
+        // Put them first, where the scale candidates were.
+        mism.extend(candidates);
+        candidates = mism;
+    }
+    confounded.retain(|g| !g.is_empty());
+
+    // 3. Exact set-up fit.
+    let setup_set = EffectSet::new(setup.to_vec());
+    let free_setup: Vec<usize> = setup_free.clone(); // parameter indices in setup_set (same layout)
+    let setup_fit = fit_exact(path, d_mm, &setup_set, &free_setup, &vec![0.0; 4])?;
+    let setup_theta = setup_fit.0.clone();
+    let mut buf = vec![Column::default(); setup_set.n_params];
+    let y: Vec<f64> = (0..m)
+        .map(|i| 1e3 * (d_mm[i] - setup_set.distance_mm(path, i, &setup_theta, &mut buf)))
+        .collect();
+
+    // 4. Linear forward selection on the Gram of [set-up, candidates, y].
+    let mut effects = setup.to_vec();
+    effects.extend(candidates.iter().copied());
+    let design = Design::build(path, &y, effects);
+    let ycol = design.ycol();
+    let mut current: Vec<usize> = free_setup.clone();
+    let (_, mut ssr, _) = solve(&design.gram, &current, design.yy, ycol)
+        .ok_or_else(|| Error::Numerics("set-up columns are degenerate".into()))?;
+    let setup_rms = (ssr / m as f64).sqrt();
+    let mut bic = design.bic(ssr, current.len(), opts.penalty);
+    let mut chosen: Vec<(usize, f64, f64, f64)> = vec![]; // (effect idx, rms after, ratio, dbic)
+    let mut remaining: Vec<usize> = (2..design.effects.len()).collect();
+    while chosen.len() < opts.max_effects {
+        let mut best: Option<(usize, f64, f64)> = None; // (effect, ssr, bic)
+        let mut skip = vec![];
+        for &e in &remaining {
+            let mut trial = current.clone();
+            trial.extend(design.cols_of(e));
+            match solve(&design.gram, &trial, design.yy, ycol) {
+                None => {
+                    // Confounded with the current model (or a dead column): name it and drop it.
+                    for g in design.confounded_names(&trial) {
+                        if g.len() > 1 && !confounded.contains(&g) {
+                            confounded.push(g);
+                        }
+                    }
+                    skip.push(e);
+                }
+                Some((_, s, _)) => {
+                    let b = design.bic(s, trial.len(), opts.penalty);
+                    if best.is_none_or(|(_, _, bb)| b < bb) {
+                        best = Some((e, s, b));
+                    }
+                }
+            }
+        }
+        remaining.retain(|e| !skip.contains(e));
+        let Some((e, s, b)) = best else { break };
+        if b >= bic {
+            break;
+        }
+        let before = (ssr / m as f64).sqrt();
+        let after = (s / m as f64).sqrt();
+        current.extend(design.cols_of(e));
+        chosen.push((e, after, before / after.max(1e-300), b - bic));
+        ssr = s;
+        bic = b;
+        remaining.retain(|&x| x != e);
+    }
+
+    // 5. Exact refit of set-up + chosen effects.
+    let mut final_effects = setup.to_vec();
+    final_effects.extend(chosen.iter().map(|c| design.effects[c.0]));
+    let final_set = EffectSet::new(final_effects.clone());
+    let mut free = free_setup.clone();
+    let mut start = setup_theta.clone();
+    // Start from the linear solution for the chosen parameters (set-up from its exact fit).
+    if let Some((x, _, _)) = solve(&design.gram, &current, design.yy, ycol) {
+        // current = free set-up columns then chosen effects' columns, in order.
+        for (k, &col) in current.iter().enumerate() {
+            if col < 4 {
+                start[col] += x[k];
+            }
+        }
+        let mut at = free_setup.len();
+        for c in &chosen {
+            let n = design.effects[c.0].n_params();
+            start.extend(&x[at..at + n]);
+            at += n;
+        }
+    }
+    for i in 4..final_set.n_params {
+        free.push(i);
+    }
+    let (theta, sig, cov, final_ssr) = fit_exact(path, d_mm, &final_set, &free, &start)?;
+    let final_rms_um = (final_ssr / m as f64).sqrt();
+
+    // Report.
+    let mut found = vec![];
+    for (ei, eff) in final_effects.iter().enumerate() {
+        let o = final_set.offsets[ei];
+        let n = eff.n_params();
+        let params = theta[o..o + n].to_vec();
+        let psig: Vec<Option<f64>> = sig[o..o + n].to_vec();
+        let block: Vec<Vec<f64>> = (0..n)
+            .map(|i| (0..n).map(|j| cov[(o + i, o + j)]).collect())
+            .collect();
+        let (value, mut sigma) = eff.value(&params, &block);
+        if psig.iter().all(|s| s.is_none()) {
+            sigma = None;
+        }
+        let (rms_after_um, rms_ratio, delta_bic) = if ei < 2 {
+            (setup_rms, baseline_rms_um / setup_rms.max(1e-300), f64::NAN)
+        } else {
+            let c = chosen[ei - 2];
+            (c.1, c.2, c.3)
+        };
+        found.push(Found {
+            effect: *eff,
+            params,
+            param_sigma: psig,
+            value,
+            sigma,
+            rms_after_um,
+            rms_ratio,
+            delta_bic,
+        });
+    }
+
+    // Residual structure, G and H.
+    let plane = main_plane(path);
+    let mut buf = vec![Column::default(); final_set.n_params];
+    let mut angle = Vec::with_capacity(m);
+    let mut meas = Vec::with_capacity(m);
+    let mut model = Vec::with_capacity(m);
+    let mut setup_only = theta.clone();
+    for t in setup_only.iter_mut().skip(4) {
+        *t = 0.0;
+    }
+    let mut resid = Vec::with_capacity(m);
+    for i in 0..m {
+        let p = path.p_mm[i];
+        angle.push(p[plane.1].atan2(p[plane.0]));
+        let ideal = final_set.distance_mm(path, i, &setup_only, &mut buf);
+        let full = final_set.distance_mm(path, i, &theta, &mut buf);
+        meas.push(1e3 * (d_mm[i] - ideal));
+        model.push(1e3 * (full - ideal));
+        resid.push(1e3 * (d_mm[i] - full));
+    }
+    let harmonics_um = harmonics(&angle, &resid, opts.harmonics);
+    let (g, h) = circularity(&angle, &meas);
+    Ok(Diagnosis {
+        samples: m,
+        baseline_rms_um,
+        baseline_pv_um,
+        effects: found,
+        confounded,
+        final_rms_um,
+        gain: baseline_rms_um / final_rms_um.max(1e-300),
+        harmonics_um,
+        candidates: candidates.iter().map(|e| e.name()).collect(),
+        angle_rad: angle,
+        measured_dev_um: meas,
+        model_dev_um: model,
+        plane,
+        circular_deviation_g_um: g,
+        hysteresis_h_um: h,
+    })
+}
+
+/// Exact-geometry fit of `set` with only parameters `free` varying (others held at `start`).
+/// Returns (θ, σ, covariance, SSR in µm²).
+#[allow(clippy::type_complexity)]
+fn fit_exact(
+    path: &Path,
+    d_mm: &[f64],
+    set: &EffectSet,
+    free: &[usize],
+    start: &[f64],
+) -> Result<(Vec<f64>, Vec<Option<f64>>, DMatrix<f64>, f64)> {
+    let model = ExactModel { path, d_mm, set };
+    let restricted = Restricted {
+        inner: &model,
+        free,
+        base: start,
+    };
+    let p0: Vec<f64> = free.iter().map(|&i| start[i]).collect();
+    let opts = LsqOptions {
+        max_iterations: 50,
+        tolerance: 1e-10,
+        ..Default::default()
+    };
+    let fit = least_squares(&restricted, &p0, &opts)?;
+    let n = set.n_params;
+    let mut theta = start.to_vec();
+    let mut sig = vec![None; n];
+    let mut cov = DMatrix::zeros(n, n);
+    for (a, &i) in free.iter().enumerate() {
+        theta[i] = fit.params[a];
+        sig[i] = fit.sigma[a];
+        for (b, &j) in free.iter().enumerate() {
+            cov[(i, j)] = fit.covariance[(a, b)];
+        }
+    }
+    Ok((theta, sig, cov, fit.ssr))
+}
+
+/// A problem with some parameters held fixed.
+struct Restricted<'a> {
+    inner: &'a dyn crate::fit::Problem,
+    free: &'a [usize],
+    base: &'a [f64],
+}
+
+impl crate::fit::Problem for Restricted<'_> {
+    fn n_params(&self) -> usize {
+        self.free.len()
+    }
+    fn n_residuals(&self) -> usize {
+        self.inner.n_residuals()
+    }
+    fn eval(&self, p: &[f64], visit: &mut dyn FnMut(usize, f64, &[f64])) {
+        let mut full = self.base.to_vec();
+        for (a, &i) in self.free.iter().enumerate() {
+            full[i] = p[a];
+        }
+        let mut g = vec![0.0; self.free.len()];
+        self.inner.eval(&full, &mut |i, r, grad| {
+            for (a, &k) in self.free.iter().enumerate() {
+                g[a] = grad[k];
+            }
+            visit(i, r, &g);
+        });
+    }
+}
+
+/// The two axes with the largest travel (the plane of the circle).
+pub fn main_plane(path: &Path) -> (usize, usize) {
+    let mut idx = [0usize, 1, 2];
+    idx.sort_by(|&a, &b| path.range_mm[b].total_cmp(&path.range_mm[a]));
+    let (a, b) = (idx[0].min(idx[1]), idx[0].max(idx[1]));
+    // Keep a right-handed order: (x,y), (y,z), (z,x).
+    match (a, b) {
+        (0, 2) => (2, 0),
+        ab => ab,
+    }
+}
+
+/// Amplitudes (µm) of harmonics 1..=n of `r` against `angle` (least squares with a constant).
+pub fn harmonics(angle: &[f64], r: &[f64], n: usize) -> Vec<f64> {
+    let w = 2 * n + 1;
+    let mut g = DMatrix::<f64>::zeros(w, w);
+    let mut b = DVector::<f64>::zeros(w);
+    let mut x = vec![0.0; w];
+    for (&a, &y) in angle.iter().zip(r) {
+        x[0] = 1.0;
+        for k in 1..=n {
+            let (s, c) = (k as f64 * a).sin_cos();
+            x[2 * k - 1] = c;
+            x[2 * k] = s;
+        }
+        for i in 0..w {
+            b[i] += x[i] * y;
+            for j in 0..w {
+                g[(i, j)] += x[i] * x[j];
+            }
+        }
+    }
+    let coef = match g.clone().cholesky() {
+        Some(ch) => ch.solve(&b),
+        None => return vec![0.0; n],
+    };
+    (1..=n)
+        .map(|k| coef[2 * k - 1].hypot(coef[2 * k]))
+        .collect()
+}
+
+/// ISO 230-4 style circular deviation G and hysteresis H from the deviations (µm) from the
+/// set-up-corrected ideal circle (least-squares centre, not the minimum zone). Runs are split by
+/// the sign of the angular velocity; G is the larger peak-to-valley of the two directions, H the
+/// largest difference of the two directions' mean deviation in 1° angle bins.
+pub fn circularity(angle: &[f64], dev: &[f64]) -> (f64, f64) {
+    let n = angle.len();
+    let mut bins = [vec![(0.0f64, 0usize); 360], vec![(0.0f64, 0usize); 360]];
+    let mut lo = [f64::INFINITY; 2];
+    let mut hi = [f64::NEG_INFINITY; 2];
+    for i in 0..n {
+        let (a, b) = if i + 1 < n { (i, i + 1) } else { (i.saturating_sub(1), i) };
+        let mut da = angle[b] - angle[a];
+        if da > std::f64::consts::PI {
+            da -= std::f64::consts::TAU;
+        } else if da < -std::f64::consts::PI {
+            da += std::f64::consts::TAU;
+        }
+        let d = usize::from(da < 0.0);
+        lo[d] = lo[d].min(dev[i]);
+        hi[d] = hi[d].max(dev[i]);
+        let deg = angle[i].to_degrees().rem_euclid(360.0);
+        let k = (deg as usize).min(359);
+        bins[d][k].0 += dev[i];
+        bins[d][k].1 += 1;
+    }
+    let g = (0..2)
+        .filter(|&d| hi[d] >= lo[d])
+        .map(|d| hi[d] - lo[d])
+        .fold(0.0, f64::max);
+    let mut h = 0.0f64;
+    for k in 0..360 {
+        let (a, b) = (bins[0][k], bins[1][k]);
+        if a.1 > 0 && b.1 > 0 {
+            h = h.max((a.0 / a.1 as f64 - b.0 / b.1 as f64).abs());
+        }
+    }
+    (g, h)
+}
+
+fn rms(v: &[f64]) -> f64 {
+    (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt()
+}
+
+fn pv(v: &[f64]) -> f64 {
+    let lo = v.iter().cloned().fold(f64::INFINITY, f64::min);
+    let hi = v.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    hi - lo
+}
+
+/// Human summary of a diagnosis.
+pub fn summary(d: &Diagnosis) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let _ = writeln!(s, "{} samples", d.samples);
+    let _ = writeln!(
+        s,
+        "ideal machine (D = |p|): RMS {:.3} µm, peak-to-valley {:.3} µm",
+        d.baseline_rms_um, d.baseline_pv_um
+    );
+    for (i, f) in d.effects.iter().enumerate() {
+        let step = if i < 2 { "set-up".to_string() } else { format!("step {}", i - 1) };
+        let sig = f.sigma.map(|s| format!(" ± {s:.4}")).unwrap_or_else(|| " (undetermined)".into());
+        let _ = writeln!(
+            s,
+            "{step}: {} = {:.4}{sig} {} — {}",
+            f.effect.name(),
+            f.value,
+            f.effect.unit(),
+            f.effect.cause()
+        );
+        let params: Vec<String> = f
+            .effect
+            .param_names()
+            .iter()
+            .zip(&f.params)
+            .zip(&f.param_sigma)
+            .map(|((n, v), s)| match s {
+                Some(s) => format!("{n} = {v:.4} ± {s:.4}"),
+                None => format!("{n} = {v:.4} (undetermined, held)"),
+            })
+            .collect();
+        let _ = writeln!(s, "    {}", params.join(", "));
+        if i >= 2 || i == 1 {
+            let _ = writeln!(
+                s,
+                "    RMS after {:.3} µm, gain ×{:.2}{}",
+                f.rms_after_um,
+                f.rms_ratio,
+                if f.delta_bic.is_finite() {
+                    format!(", ΔBIC {:.1}", f.delta_bic)
+                } else {
+                    String::new()
+                }
+            );
+        }
+    }
+    if d.effects.len() <= 2 {
+        let _ = writeln!(s, "no machine effect is supported by the data");
+    }
+    for g in &d.confounded {
+        let _ = writeln!(s, "confounded (this test cannot tell apart): {}", g.join(", "));
+    }
+    let _ = writeln!(
+        s,
+        "final: RMS {:.3} µm, gain ×{:.2} over the ideal machine",
+        d.final_rms_um, d.gain
+    );
+    let _ = writeln!(
+        s,
+        "circular deviation G {:.3} µm, hysteresis H {:.3} µm (ISO 230-4 style, least-squares centre)",
+        d.circular_deviation_g_um, d.hysteresis_h_um
+    );
+    let h: Vec<String> = d
+        .harmonics_um
+        .iter()
+        .enumerate()
+        .map(|(k, a)| format!("{}:{:.3}", k + 1, a))
+        .collect();
+    let _ = writeln!(s, "residual harmonics vs angle (order:µm): {}", h.join(" "));
+    s
+}
+
+/// The documented JSON (see the README): samples, baseline, effects, confounded, final, gain.
+pub fn to_json(d: &Diagnosis) -> serde_json::Value {
+    use serde_json::{json, Map, Value};
+    let num = |x: f64| if x.is_finite() { json!(x) } else { Value::Null };
+    let effects: Vec<Value> = d
+        .effects
+        .iter()
+        .map(|f| {
+            let mut params = Map::new();
+            let mut psig = Map::new();
+            for ((n, v), s) in f.effect.param_names().iter().zip(&f.params).zip(&f.param_sigma) {
+                params.insert((*n).into(), num(*v));
+                psig.insert((*n).into(), s.map(num).unwrap_or(Value::Null));
+            }
+            json!({
+                "name": f.effect.name(),
+                "value": num(f.value),
+                "unit": f.effect.unit(),
+                "sigma": f.sigma.map(num).unwrap_or(Value::Null),
+                "params": params,
+                "params_sigma": psig,
+                "rms_after_um": num(f.rms_after_um),
+                "rms_ratio": num(f.rms_ratio),
+                "delta_bic": num(f.delta_bic),
+                "setup": f.effect.is_setup(),
+                "cause": f.effect.cause(),
+            })
+        })
+        .collect();
+    json!({
+        "samples": d.samples,
+        "baseline": {"rms_um": num(d.baseline_rms_um), "pv_um": num(d.baseline_pv_um)},
+        "effects": effects,
+        "confounded": d.confounded,
+        "final": {"rms_um": num(d.final_rms_um)},
+        "gain": num(d.gain),
+        "harmonics_um": d.harmonics_um,
+        "circular_deviation_g_um": num(d.circular_deviation_g_um),
+        "hysteresis_h_um": num(d.hysteresis_h_um),
+        "candidates": d.candidates,
+    })
+}
+
+/// Arguments of `jdbb diagnose`.
+#[derive(Debug, clap::Args)]
+pub struct DiagnoseArgs {
+    /// CSV `t_s,x_mm,y_mm,z_mm,d_mm` (nominal path and measured D), e.g. from `jdbb simulate`.
+    #[arg(long)]
+    pub samples: PathBuf,
+    /// Ball-screw or scale pitch per axis in mm, e.g. `x=10,y=10,z=5`; enables cyclic_k and
+    /// interference_k for those axes.
+    #[arg(long)]
+    pub pitch: Option<String>,
+    /// Print the documented JSON instead of the human summary.
+    #[arg(long)]
+    pub json: bool,
+    /// Write polar plots (SVG and PNG) and the JSON to this directory.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+}
+
+/// Parse `x=10,y=10,z=5`.
+pub fn parse_pitch(s: &str) -> Result<[Option<f64>; 3]> {
+    let mut out = [None; 3];
+    for part in s.split(',').filter(|p| !p.trim().is_empty()) {
+        let (k, v) = part.split_once('=').ok_or_else(|| {
+            Error::Usage(format!("--pitch: `{part}` should look like x=10 (axis=pitch in mm)"))
+        })?;
+        let axis = match k.trim() {
+            "x" => 0,
+            "y" => 1,
+            "z" => 2,
+            other => {
+                return Err(Error::Usage(format!(
+                    "--pitch: unknown axis `{other}`; use x, y or z"
+                )))
+            }
+        };
+        let p: f64 = v
+            .trim()
+            .parse()
+            .ok()
+            .filter(|p: &f64| p.is_finite() && *p > 0.0)
+            .ok_or_else(|| Error::Usage(format!("--pitch: `{v}` is not a positive pitch in mm")))?;
+        out[axis] = Some(p);
+    }
+    Ok(out)
+}
+
+/// Run `jdbb diagnose`.
+pub fn run(args: &DiagnoseArgs) -> Result<()> {
+    let pitch = match &args.pitch {
+        Some(s) => parse_pitch(s)?,
+        None => [None; 3],
+    };
+    let (path, d) = read_samples(&args.samples, pitch)?;
+    let diag = diagnose(&path, &d, &Options::default())?;
+    let json = to_json(&diag);
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&json).expect("JSON of plain values"));
+    } else {
+        print!("{}", summary(&diag));
+    }
+    if let Some(dir) = &args.report {
+        crate::report::write_report(dir, &diag, &json)?;
+        if !args.json {
+            println!("report written to {}", dir.display());
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pitch_parses_and_rejects() {
+        assert_eq!(parse_pitch("x=10,z=5").unwrap(), [Some(10.0), None, Some(5.0)]);
+        assert!(parse_pitch("w=1").is_err());
+        assert!(parse_pitch("x=-1").is_err());
+        assert!(parse_pitch("x").is_err());
+    }
+
+    #[test]
+    fn csv_errors_name_line_and_column() {
+        let f = FsPath::new("s.csv");
+        let e = parse_samples(f, "t_s,x_mm,y_mm,z_mm\n0,1,2,3\n", [None; 3]).unwrap_err();
+        assert!(e.to_string().starts_with("s.csv:1: missing column `d_mm`"), "{e}");
+        let e = parse_samples(f, "t_s,x_mm,y_mm,z_mm,d_mm\n0,1,2,3,4\n1,1,NaN,3,4\n", [None; 3])
+            .unwrap_err();
+        assert!(e.to_string().starts_with("s.csv:3:3:"), "{e}");
+        let e = parse_samples(f, "t_s,x_mm,y_mm,z_mm,d_mm\n0,1,2,3,4\n0,1,2,3,4\n", [None; 3])
+            .unwrap_err();
+        assert!(e.to_string().starts_with("s.csv:3:1: time goes backwards"), "{e}");
+        let e = parse_samples(f, "t_s,x_mm,y_mm,z_mm,d_mm\n0,1,2,3,4\n", [None; 3]).unwrap_err();
+        assert!(e.to_string().contains("only 1 samples"), "{e}");
+        let mut text = String::from("d_mm,t_s,x_mm,y_mm,z_mm\n");
+        for i in 0..40 {
+            text.push_str(&format!("50,{i},{},{},0\n", (i as f64).cos(), (i as f64).sin()));
+        }
+        let (p, d) = parse_samples(f, &text, [None; 3]).unwrap();
+        assert_eq!(d.len(), 40);
+        assert!(p.moves(Axis::X) && !p.moves(Axis::Z));
+        let e = parse_samples(f, &text, [None, None, Some(5.0)]).unwrap_err();
+        assert!(e.to_string().starts_with("s.csv:1:5: a pitch was given for axis z"), "{e}");
+    }
+
+    #[test]
+    fn harmonics_recover_amplitudes() {
+        let a: Vec<f64> = (0..720).map(|i| (i as f64).to_radians() * 0.5).collect();
+        let r: Vec<f64> = a
+            .iter()
+            .map(|&t| 0.3 + 2.0 * (t + 0.4).cos() + 0.5 * (3.0 * t).sin())
+            .collect();
+        let h = harmonics(&a, &r, 4);
+        assert!((h[0] - 2.0).abs() < 1e-9 && h[1].abs() < 1e-9);
+        assert!((h[2] - 0.5).abs() < 1e-9 && h[3].abs() < 1e-9);
+    }
+}

@@ -1,0 +1,364 @@
+//! `jdbb simulate`: a circular test (ISO 230-4 style: each circle counter-clockwise, then
+//! clockwise) on a machine with chosen errors, written as the `t_s,x_mm,y_mm,z_mm,d_mm` CSV that
+//! `jdbb diagnose` reads. For users (what does backlash look like?) and for the tests.
+//!
+//! The machine errors come from `jdbb_core::machine` (the shared seed 000 models); set-up
+//! offset, length offset and servo mismatch are added here. D is the exact distance
+//! |p + δ + c| + e, then noise and reading resolution are applied.
+use std::io::Write;
+use std::path::PathBuf;
+
+use jdbb_core::machine::{AxisErrors, MachineErrors};
+use rand::SeedableRng;
+use rand_distr::{Distribution, Normal};
+
+use crate::model::{Effect, Path};
+use crate::{Error, Result};
+
+/// One effect with its parameters (in the effect's parameter units, see
+/// [`Effect::param_names`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct EffectValue {
+    pub effect: Effect,
+    pub params: Vec<f64>,
+}
+
+/// Parse `name=value[@phase_deg]` or `name=v1,v2,..` (all parameters, e.g. `setup_offset=5,-3,0`).
+pub fn parse_effect(s: &str) -> Result<EffectValue> {
+    let (name, val) = s.split_once('=').ok_or_else(|| {
+        Error::Usage(format!(
+            "--effect `{s}`: expected name=value, e.g. scale_x=20 or cyclic_x=3@45"
+        ))
+    })?;
+    let effect = Effect::parse(name.trim()).ok_or_else(|| {
+        let names: Vec<String> = Effect::all().iter().map(|e| e.name()).collect();
+        Error::Usage(format!(
+            "--effect: unknown effect `{name}`; known: {}",
+            names.join(", ")
+        ))
+    })?;
+    let num = |t: &str| -> Result<f64> {
+        t.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| Error::Usage(format!("--effect {name}: `{t}` is not a number")))
+    };
+    let (vals, phase) = match val.split_once('@') {
+        Some((v, ph)) => (v, Some(num(ph)?.to_radians())),
+        None => (val, None),
+    };
+    let list: Vec<f64> = vals.split(',').map(num).collect::<Result<_>>()?;
+    let params = if list.len() == effect.n_params() && phase.is_none() && list.len() > 1 {
+        list
+    } else if list.len() == 1 && effect != Effect::SetupOffset {
+        effect.params_from_value(list[0], phase.unwrap_or(0.0))
+    } else {
+        return Err(Error::Usage(format!(
+            "--effect {name}: give one value{} or all {} parameters ({})",
+            if effect.periodic_axis().is_some() { " [@phase_deg]" } else { "" },
+            effect.n_params(),
+            effect.param_names().join(",")
+        )));
+    };
+    Ok(EffectValue { effect, params })
+}
+
+/// The path of a test: circles of the given radii at the given heights in a plane.
+#[derive(Debug, Clone)]
+pub struct PathSpec {
+    pub radii_mm: Vec<f64>,
+    pub heights_mm: Vec<f64>,
+    /// Plane axes (i, j) and normal axis n, e.g. (0, 1, 2) for xy.
+    pub plane: (usize, usize, usize),
+    pub feed_mm_min: f64,
+    pub rate_hz: f64,
+}
+
+/// Sample the nominal path: for every (radius, height) a full circle counter-clockwise from
+/// angle 0, then clockwise back, with a 1 s pause between circles.
+pub fn nominal_path(spec: &PathSpec) -> (Vec<f64>, Vec<[f64; 3]>) {
+    let mut t = vec![];
+    let mut p = vec![];
+    let mut t0 = 0.0;
+    let dt = 1.0 / spec.rate_hz;
+    for &h in &spec.heights_mm {
+        for &r in &spec.radii_mm {
+            let omega = spec.feed_mm_min / 60.0 / r; // rad/s
+            let period = std::f64::consts::TAU / omega;
+            let n = (period / dt).round().max(8.0) as usize;
+            for dirn in [1.0, -1.0] {
+                for s in 0..n {
+                    let frac = s as f64 / n as f64;
+                    let th = if dirn > 0.0 {
+                        std::f64::consts::TAU * frac
+                    } else {
+                        std::f64::consts::TAU * (1.0 - frac)
+                    };
+                    let mut q = [0.0; 3];
+                    q[spec.plane.0] = r * th.cos();
+                    q[spec.plane.1] = r * th.sin();
+                    q[spec.plane.2] = h;
+                    t.push(t0 + s as f64 * dt);
+                    p.push(q);
+                }
+                t0 += n as f64 * dt;
+            }
+            t0 += 1.0;
+        }
+    }
+    (t, p)
+}
+
+/// Exact distances (mm) of a machine with `effects` along `path` (velocity and direction from the
+/// path), before noise.
+pub fn distances_mm(path: &Path, effects: &[EffectValue]) -> Result<Vec<f64>> {
+    let mut m = MachineErrors::default();
+    let mut c_um = [0.0; 3];
+    let mut e_um = 0.0;
+    let mut servo = [0.0f64; 3]; // per-axis lag τ_k (ms)
+    for ev in effects {
+        let p = &ev.params;
+        let pitch = |k: usize| {
+            path.pitch_mm[k].ok_or_else(|| {
+                Error::Usage(format!(
+                    "{} needs the pitch of axis {}: add --pitch {}=..",
+                    ev.effect.name(),
+                    ['x', 'y', 'z'][k],
+                    ['x', 'y', 'z'][k]
+                ))
+            })
+        };
+        match ev.effect {
+            Effect::SetupOffset => c_um = [p[0], p[1], p[2]],
+            Effect::LengthOffset => e_um += p[0],
+            Effect::Scale(a) => m.axes[a.index()].scale_um_per_m += p[0],
+            Effect::ScaleMismatch(pair) => {
+                let (i, j) = pair.axes();
+                m.axes[i.index()].scale_um_per_m += 0.5 * p[0];
+                m.axes[j.index()].scale_um_per_m -= 0.5 * p[0];
+            }
+            Effect::Scale2(a) => m.axes[a.index()].scale2_um_per_m2 += p[0],
+            Effect::Backlash(a) => m.axes[a.index()].backlash_um += p[0],
+            Effect::Cyclic(a) => {
+                let ax: &mut AxisErrors = &mut m.axes[a.index()];
+                ax.pitch_mm = pitch(a.index())?;
+                ax.cyclic_um = p[0].hypot(p[1]);
+                ax.cyclic_phase_rad = p[1].atan2(p[0]);
+            }
+            Effect::Interference(a) => {
+                let ax: &mut AxisErrors = &mut m.axes[a.index()];
+                ax.pitch_mm = pitch(a.index())?;
+                ax.interference_um_per_mm_s = p[0].hypot(p[1]);
+                ax.interference_phase_rad = p[1].atan2(p[0]);
+            }
+            Effect::Squareness(pair) => {
+                let k = match pair {
+                    crate::model::Pair::Xy => 0,
+                    crate::model::Pair::Yz => 1,
+                    crate::model::Pair::Zx => 2,
+                };
+                m.squareness_um_per_m[k] += p[0];
+            }
+            Effect::ServoMismatch(pair) => {
+                let (i, j) = pair.axes();
+                servo[i.index()] += 0.5 * p[0];
+                servo[j.index()] -= 0.5 * p[0];
+            }
+        }
+    }
+    Ok((0..path.len())
+        .map(|i| {
+            let v = path.v_mm_s[i];
+            let dir = path.dir[i];
+            let d = m.error_um(path.p_mm[i], v, dir);
+            let mut q = path.p_mm[i];
+            for k in 0..3 {
+                // δ_k = −τ_k·v_k: ms · mm/s = µm.
+                let servo_um = -servo[k] * v[k];
+                q[k] += (d[k] + servo_um + c_um[k]) * 1e-3;
+            }
+            (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() + e_um * 1e-3
+        })
+        .collect())
+}
+
+/// Add Gaussian noise (σ µm) and round to the reading resolution (µm, 0 = none).
+pub fn measure(d_mm: &mut [f64], sigma_um: f64, resolution_um: f64, seed: u64) {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    let normal = Normal::new(0.0, sigma_um.max(0.0)).expect("finite sigma");
+    for d in d_mm.iter_mut() {
+        if sigma_um > 0.0 {
+            *d += normal.sample(&mut rng) * 1e-3;
+        }
+        if resolution_um > 0.0 {
+            let q = resolution_um * 1e-3;
+            *d = (*d / q).round() * q;
+        }
+    }
+}
+
+/// Write the diagnosis CSV.
+pub fn write_csv(out: &mut dyn Write, path: &Path, d_mm: &[f64]) -> std::io::Result<()> {
+    writeln!(out, "t_s,x_mm,y_mm,z_mm,d_mm")?;
+    for i in 0..path.len() {
+        let p = path.p_mm[i];
+        writeln!(
+            out,
+            "{:.6},{:.7},{:.7},{:.7},{:.8}",
+            path.t_s[i], p[0], p[1], p[2], d_mm[i]
+        )?;
+    }
+    Ok(())
+}
+
+/// Arguments of `jdbb simulate`.
+#[derive(Debug, clap::Args)]
+pub struct SimulateArgs {
+    /// Circle radius in mm (repeat for several radii: the J-DBB's bar length is free).
+    #[arg(long = "radius", default_value = "50")]
+    pub radii_mm: Vec<f64>,
+    /// Height of the circle's plane above the table ball, mm (repeat for several heights).
+    #[arg(long = "height", default_value = "0")]
+    pub heights_mm: Vec<f64>,
+    /// Plane of the circles: xy, yz or zx.
+    #[arg(long, default_value = "xy")]
+    pub plane: String,
+    /// Feed along the circle, mm/min.
+    #[arg(long, default_value_t = 1000.0)]
+    pub feed: f64,
+    /// Sample rate, Hz.
+    #[arg(long, default_value_t = 500.0)]
+    pub rate: f64,
+    /// A machine effect, `name=value[@phase_deg]` or `name=p1,p2,..`; repeat. Names as in
+    /// `jdbb diagnose` (scale_x, backlash_y, cyclic_x, servo_mismatch_xy, setup_offset, ...).
+    #[arg(long = "effect")]
+    pub effects: Vec<String>,
+    /// Pitch per axis in mm (x=10,y=10), needed by cyclic_k and interference_k.
+    #[arg(long)]
+    pub pitch: Option<String>,
+    /// Gaussian reading noise, µm (1 σ).
+    #[arg(long, default_value_t = 0.0)]
+    pub sigma_um: f64,
+    /// Reading resolution, µm (D is rounded to it; 0 = none).
+    #[arg(long, default_value_t = 0.0)]
+    pub resolution_um: f64,
+    /// Seed of the noise.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Output CSV (stdout if absent).
+    #[arg(long, short)]
+    pub out: Option<PathBuf>,
+}
+
+/// Parse `xy`, `yz`, `zx` into (i, j, normal).
+pub fn parse_plane(s: &str) -> Result<(usize, usize, usize)> {
+    match s {
+        "xy" => Ok((0, 1, 2)),
+        "yz" => Ok((1, 2, 0)),
+        "zx" => Ok((2, 0, 1)),
+        _ => Err(Error::Usage(format!(
+            "--plane `{s}`: use xy, yz or zx"
+        ))),
+    }
+}
+
+/// Run `jdbb simulate`.
+pub fn run(args: &SimulateArgs) -> Result<()> {
+    if args.radii_mm.iter().any(|r| !(r.is_finite() && *r > 0.0)) {
+        return Err(Error::Usage("--radius must be positive (mm)".into()));
+    }
+    if !(args.feed > 0.0 && args.rate > 0.0) {
+        return Err(Error::Usage("--feed and --rate must be positive".into()));
+    }
+    let spec = PathSpec {
+        radii_mm: args.radii_mm.clone(),
+        heights_mm: args.heights_mm.clone(),
+        plane: parse_plane(&args.plane)?,
+        feed_mm_min: args.feed,
+        rate_hz: args.rate,
+    };
+    let pitch = match &args.pitch {
+        Some(s) => crate::diagnose::parse_pitch(s)?,
+        None => [None; 3],
+    };
+    let effects: Vec<EffectValue> = args
+        .effects
+        .iter()
+        .map(|s| parse_effect(s))
+        .collect::<Result<_>>()?;
+    let (t, p) = nominal_path(&spec);
+    let path = Path::new(t, p, pitch);
+    let mut d = distances_mm(&path, &effects)?;
+    measure(&mut d, args.sigma_um, args.resolution_um, args.seed);
+    match &args.out {
+        Some(file) => {
+            let f = std::fs::File::create(file).map_err(|source| Error::File {
+                action: "cannot create",
+                path: file.clone(),
+                source,
+            })?;
+            let mut w = std::io::BufWriter::new(f);
+            write_csv(&mut w, &path, &d)
+                .and_then(|_| w.flush())
+                .map_err(|source| Error::File {
+                    action: "cannot write",
+                    path: file.clone(),
+                    source,
+                })
+        }
+        None => {
+            let stdout = std::io::stdout();
+            let mut w = std::io::BufWriter::new(stdout.lock());
+            write_csv(&mut w, &path, &d)
+                .and_then(|_| w.flush())
+                .map_err(|source| Error::File {
+                    action: "cannot write",
+                    path: PathBuf::from("<stdout>"),
+                    source,
+                })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn effect_arguments_parse() {
+        let e = parse_effect("scale_x=20").unwrap();
+        assert_eq!(e.params, vec![20.0]);
+        let e = parse_effect("cyclic_y=2@90").unwrap();
+        assert!(e.params[0].abs() < 1e-12 && (e.params[1] - 2.0).abs() < 1e-12);
+        let e = parse_effect("setup_offset=5,-3,1").unwrap();
+        assert_eq!(e.params, vec![5.0, -3.0, 1.0]);
+        assert!(parse_effect("scale_w=1").unwrap_err().to_string().contains("unknown effect"));
+        assert!(parse_effect("setup_offset=5").is_err());
+        assert!(parse_effect("scale_x").is_err());
+    }
+
+    #[test]
+    fn ideal_machine_on_a_circle_gives_the_radius() {
+        let spec = PathSpec {
+            radii_mm: vec![50.0],
+            heights_mm: vec![0.0],
+            plane: (0, 1, 2),
+            feed_mm_min: 1000.0,
+            rate_hz: 100.0,
+        };
+        let (t, p) = nominal_path(&spec);
+        // One circle each way: 2π·50 mm at 1000/60 mm/s, 100 Hz.
+        let n = (std::f64::consts::TAU * 50.0 / (1000.0 / 60.0) * 100.0).round() as usize;
+        assert_eq!(t.len(), 2 * n);
+        let path = Path::new(t, p, [None; 3]);
+        let d = distances_mm(&path, &[]).unwrap();
+        assert!(d.iter().all(|d| (d - 50.0).abs() < 1e-12));
+        // Backlash f on x: D changes by ±(f/2)·cos θ (seed 000 eq. 16).
+        let ev = parse_effect("backlash_x=10").unwrap();
+        let d = distances_mm(&path, &[ev]).unwrap();
+        let i = n / 8 + 3; // ccw, θ ≈ 45°: moving −x → −f/2 · cos θ
+        let th = path.p_mm[i][1].atan2(path.p_mm[i][0]);
+        assert!(((d[i] - 50.0) * 1e3 + 5.0 * th.cos()).abs() < 1e-3);
+    }
+}
