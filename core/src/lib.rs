@@ -6,6 +6,7 @@
 //! - [`quadrature`]: extending a wrapping hardware counter to a continuous `i64`, index referencing.
 //! - [`machine`]: seed 000's error equation (1) and its positioning-error models.
 //! - [`protocol`]: every message between device and host, and their framing (postcard, CRC-32, COBS).
+//! - [`sim`]: a simulated circular test producing encoder counts (QEMU build, tests).
 //! - [`math`]: the one place that names which floating-point implementation is used.
 //!
 //! `no_std`, no allocation. The `std` feature only adds conveniences for the host.
@@ -18,5 +19,6 @@ pub mod machine;
 pub mod math;
 pub mod protocol;
 pub mod quadrature;
+pub mod sim;
 
 pub use calib::{Calibration, EncoderCal};

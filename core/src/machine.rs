@@ -37,6 +37,18 @@ pub struct AxisErrors {
 }
 
 impl AxisErrors {
+    /// A perfect axis (usable in `const` contexts, unlike `Default`).
+    pub const ZERO: AxisErrors = AxisErrors {
+        scale_um_per_m: 0.0,
+        scale2_um_per_m2: 0.0,
+        cyclic_um: 0.0,
+        cyclic_phase_rad: 0.0,
+        interference_um_per_mm_s: 0.0,
+        interference_phase_rad: 0.0,
+        pitch_mm: 0.0,
+        backlash_um: 0.0,
+    };
+
     /// Positioning error δ (µm) of this axis at nominal coordinate `k_mm`, velocity `v_mm_s` and last
     /// direction of motion `dir` (+1 or −1; holds its sign through a standstill).
     pub fn error_um(&self, k_mm: f64, v_mm_s: f64, dir: i8) -> f64 {
