@@ -7,6 +7,7 @@
 //! - [`machine`]: seed 000's error equation (1) and its positioning-error models.
 //! - [`protocol`]: every message between device and host, and their framing (postcard, CRC-32, COBS).
 //! - [`sim`]: a simulated circular test producing encoder counts (QEMU build, tests).
+//! - [`sampler`]: the device's sample path (counts → D → batches, counted drops), hardware-free.
 //! - [`math`]: the one place that names which floating-point implementation is used.
 //!
 //! `no_std`, no allocation. The `std` feature only adds conveniences for the host.
@@ -19,6 +20,7 @@ pub mod machine;
 pub mod math;
 pub mod protocol;
 pub mod quadrature;
+pub mod sampler;
 pub mod sim;
 
 pub use calib::{Calibration, EncoderCal};

@@ -22,12 +22,64 @@
 //!    what it is confounded with.
 //! 6. The selected effects are refitted with the exact geometry ([`crate::model::ExactModel`]),
 //!    giving the reported values ± standard errors, then the residual's harmonics against angle.
+//!
+//! # Input
+//! - `--samples FILE`: CSV with header `t_s,x_mm,y_mm,z_mm,d_mm` (any column order, extra
+//!   columns ignored): time, the nominal (commanded) spindle-ball centre relative to the table ball
+//!   in machine axes, and the measured ball distance D. `jdbb simulate` writes this.
+//! - `--record FILE --path FILE [--path-offset-s S]`: a `jdbb record` file
+//!   (`seq,t_us,enc1,enc2,d_mm`) and the nominal path as CSV `t_s,x_mm,y_mm,z_mm`, whose t_s = 0
+//!   lies S seconds after the record's first sample. The path is interpolated linearly at each
+//!   record time; record samples outside the path's span are left out.
+//!
+//! # JSON (`--json`, and `diagnosis.json` in `--report DIR`)
+//! ```text
+//! samples                  number of samples used
+//! baseline.rms_um          RMS of D − |p| (ideal machine), µm
+//! baseline.pv_um           peak-to-valley of D − |p|, µm
+//! effects[]                set-up first (setup_offset, length_offset), then machine effects in
+//!                          the order the selection added them
+//!   .name                  effect name (setup_offset, length_offset, scale_k, scale2_k,
+//!                          backlash_k, cyclic_k, interference_k, squareness_ij,
+//!                          servo_mismatch_ij, or the identifiable scale_mismatch_ij)
+//!   .value                 |c| for setup_offset, amplitude for cyclic/interference, else the
+//!                          single parameter; from the exact-geometry refit
+//!   .unit                  um, um/m, um/m^2, um/(mm/s) or ms
+//!   .sigma                 standard error of value (delta method), null if undetermined
+//!   .params                {parameter: value}: setup_offset {x_um,y_um,z_um}, length_offset
+//!                          {e_um}, scale/scale_mismatch {a_um_per_m}, scale2 {b_um_per_m2},
+//!                          backlash {f_um}, cyclic {sin_um,cos_um} (A·sin(w+φ) = sin_um·sin w +
+//!                          cos_um·cos w, w = 2πk/pitch), interference {sin_um_per_mm_s,
+//!                          cos_um_per_mm_s}, squareness {s_um_per_m}, servo_mismatch {dtau_ms}
+//!   .params_sigma          {parameter: standard error or null (undetermined, held at 0)}
+//!   .rms_after_um          RMS of the residual after the step that added this effect (linear
+//!                          search); for the set-up, after the set-up fit
+//!   .rms_ratio             RMS before / after that step
+//!   .delta_bic             BIC change of that step (null for the set-up)
+//!   .setup                 true for setup_offset and length_offset
+//!   .cause                 the physical cause in words
+//! confounded[][]           groups of names the test cannot tell apart (effects, or set-up
+//!                          components setup_offset.x/.y/.z); a group of one is a parameter the
+//!                          path does not excite at all
+//! final.rms_um             RMS of the residual of the exact refit, µm
+//! gain                     baseline.rms_um / final.rms_um
+//! harmonics_um[]           amplitude of residual harmonics 1..8 against the angle in the plane
+//!                          of the two axes with the largest travel, µm
+//! circular_deviation_g_um  ISO 230-4 style G (least-squares centre), µm
+//! hysteresis_h_um          ISO 230-4 style H, µm
+//! candidates[]             the candidate effects that were tried
+//! ```
+// Index loops over the axes (k in 0..3) and samples mirror the equations; keep them.
+#![allow(clippy::needless_range_loop)]
+#[path = "diagnose/rotary.rs"]
+pub mod rotary;
+
 use std::path::{Path as FsPath, PathBuf};
 
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
-use crate::fit::{least_squares, LsqOptions};
-use crate::model::{Axis, Column, Effect, EffectSet, ExactModel, Pair, Path};
+use crate::fit::{least_squares, GramAccumulator, LsqOptions};
+use crate::model::{Axis, Effect, EffectSet, ExactModel, Pair, Path};
 use crate::{Error, Result};
 
 /// Singular values of the column-scaled design below this fraction of the largest count as zero
@@ -124,7 +176,14 @@ pub fn parse_samples(
     let (_, header) = lines
         .by_ref()
         .find(|(_, l)| !l.trim().is_empty())
-        .ok_or_else(|| Error::input(file, 1, 0, "empty file; expected header t_s,x_mm,y_mm,z_mm,d_mm"))?;
+        .ok_or_else(|| {
+            Error::input(
+                file,
+                1,
+                0,
+                "empty file; expected header t_s,x_mm,y_mm,z_mm,d_mm",
+            )
+        })?;
     let cols: Vec<&str> = header.split(',').map(str::trim).collect();
     let mut idx = [0usize; 5];
     for (k, name) in NAMES.iter().enumerate() {
@@ -158,11 +217,20 @@ pub fn parse_samples(
                     file,
                     line_no,
                     col,
-                    format!("missing value for `{}` ({} fields on this line)", NAMES[k], fields.len()),
+                    format!(
+                        "missing value for `{}` ({} fields on this line)",
+                        NAMES[k],
+                        fields.len()
+                    ),
                 )
             })?;
             let x: f64 = f.parse().map_err(|_| {
-                Error::input(file, line_no, col, format!("`{f}` is not a number ({})", NAMES[k]))
+                Error::input(
+                    file,
+                    line_no,
+                    col,
+                    format!("`{f}` is not a number ({})", NAMES[k]),
+                )
             })?;
             if !x.is_finite() {
                 return Err(Error::input(
@@ -217,6 +285,159 @@ pub fn parse_samples(
     Ok((path, d))
 }
 
+/// Read the named numeric columns of a CSV with a header; rows as (line number, values).
+/// Errors name file, line and column.
+fn read_table(file: &FsPath, names: &[&str]) -> Result<Vec<(usize, Vec<f64>)>> {
+    let text = std::fs::read_to_string(file).map_err(|source| Error::File {
+        action: "cannot read",
+        path: file.to_path_buf(),
+        source,
+    })?;
+    let mut lines = text.lines().enumerate();
+    let (_, header) = lines
+        .by_ref()
+        .find(|(_, l)| !l.trim().is_empty())
+        .ok_or_else(|| {
+            Error::input(
+                file,
+                1,
+                0,
+                format!("empty file; expected header {}", names.join(",")),
+            )
+        })?;
+    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
+    let idx: Vec<usize> = names
+        .iter()
+        .map(|n| {
+            cols.iter().position(|c| c == n).ok_or_else(|| {
+                Error::input(
+                    file,
+                    1,
+                    0,
+                    format!(
+                        "missing column `{n}`; the header is `{header}` but must name {}",
+                        names.join(",")
+                    ),
+                )
+            })
+        })
+        .collect::<Result<_>>()?;
+    let mut rows = vec![];
+    for (ln, line) in lines {
+        if line.trim().is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        let mut v = Vec::with_capacity(names.len());
+        for (k, &c) in idx.iter().enumerate() {
+            let f = fields.get(c).ok_or_else(|| {
+                Error::input(
+                    file,
+                    ln + 1,
+                    c + 1,
+                    format!("missing value for `{}`", names[k]),
+                )
+            })?;
+            let x: f64 = f
+                .parse()
+                .ok()
+                .filter(|x: &f64| x.is_finite())
+                .ok_or_else(|| {
+                    Error::input(
+                        file,
+                        ln + 1,
+                        c + 1,
+                        format!("`{f}` is not a finite number ({})", names[k]),
+                    )
+                })?;
+            v.push(x);
+        }
+        if let Some((_, prev)) = rows.last() {
+            let prev: &Vec<f64> = prev;
+            if v[0] <= prev[0] {
+                return Err(Error::input(
+                    file,
+                    ln + 1,
+                    idx[0] + 1,
+                    format!(
+                        "time goes backwards or stands still ({} after {})",
+                        v[0], prev[0]
+                    ),
+                ));
+            }
+        }
+        rows.push((ln + 1, v));
+    }
+    Ok(rows)
+}
+
+/// A `jdbb record` file (`seq,t_us,enc1,enc2,d_mm`) with its nominal path (`t_s,x_mm,y_mm,z_mm`,
+/// t_s = 0 at `offset_s` after the record's first sample). The path is interpolated linearly at
+/// each record time; record samples outside the path's time span are left out.
+pub fn read_record_with_path(
+    record: &FsPath,
+    nominal: &FsPath,
+    offset_s: f64,
+    pitch_mm: [Option<f64>; 3],
+) -> Result<(Path, Vec<f64>)> {
+    let rec = read_table(record, &["t_us", "d_mm"])?;
+    let nom = read_table(nominal, &["t_s", "x_mm", "y_mm", "z_mm"])?;
+    if nom.len() < 2 {
+        return Err(Error::input(
+            nominal,
+            nom.last().map_or(1, |r| r.0),
+            0,
+            "the path needs at least 2 points",
+        ));
+    }
+    let t0 = rec.first().map_or(0.0, |r| r.1[0]);
+    let mut t = vec![];
+    let mut p = vec![];
+    let mut d = vec![];
+    let mut j = 0;
+    for (_, r) in &rec {
+        let ts = (r[0] - t0) * 1e-6 - offset_s;
+        if ts < nom[0].1[0] || ts > nom[nom.len() - 1].1[0] {
+            continue;
+        }
+        while j + 2 < nom.len() && nom[j + 1].1[0] < ts {
+            j += 1;
+        }
+        let (a, b) = (&nom[j].1, &nom[j + 1].1);
+        let f = ((ts - a[0]) / (b[0] - a[0])).clamp(0.0, 1.0);
+        p.push([
+            a[1] + f * (b[1] - a[1]),
+            a[2] + f * (b[2] - a[2]),
+            a[3] + f * (b[3] - a[3]),
+        ]);
+        t.push(ts);
+        d.push(r[1]);
+    }
+    if t.len() < MIN_SAMPLES {
+        return Err(Error::input(
+            record,
+            rec.last().map_or(1, |r| r.0),
+            0,
+            format!(
+                "only {} record samples fall inside the path's time span; check --path-offset-s (need {MIN_SAMPLES})",
+                t.len()
+            ),
+        ));
+    }
+    let path = Path::new(t, p, pitch_mm);
+    for a in Axis::ALL {
+        if pitch_mm[a.index()].is_some() && !path.moves(a) {
+            return Err(Error::input(
+                nominal,
+                1,
+                2 + a.index(),
+                format!("a pitch was given for axis {} but the path never moves it; drop it from --pitch", a.letter()),
+            ));
+        }
+    }
+    Ok((path, d))
+}
+
 /// Fewer samples than this cannot support a candidate search.
 pub const MIN_SAMPLES: usize = 32;
 
@@ -226,17 +447,17 @@ fn null_space(g: &DMatrix<f64>) -> (usize, Vec<DVector<f64>>) {
     if n == 0 {
         return (0, vec![]);
     }
-    let s: Vec<f64> = (0..n)
-        .map(|k| {
-            let d = g[(k, k)].max(0.0).sqrt();
-            if d > 0.0 {
-                d
-            } else {
-                1.0
-            }
-        })
-        .collect();
-    let a = DMatrix::from_fn(n, n, |i, j| g[(i, j)] / (s[i] * s[j]));
+    // Dead columns (norm below 1e-10 of the largest) count as exactly zero, as in crate::fit.
+    let norms: Vec<f64> = (0..n).map(|k| g[(k, k)].max(0.0).sqrt()).collect();
+    let dmax = norms.iter().cloned().fold(0.0, f64::max);
+    let dead: Vec<bool> = norms.iter().map(|&d| d <= 1e-10 * dmax).collect();
+    let a = DMatrix::from_fn(n, n, |i, j| {
+        if dead[i] || dead[j] {
+            0.0
+        } else {
+            g[(i, j)] / (norms[i] * norms[j])
+        }
+    });
     let eig = SymmetricEigen::new(a);
     let emax = eig.eigenvalues.iter().cloned().fold(0.0f64, f64::max);
     let thr = RANK_TOLERANCE * RANK_TOLERANCE * emax;
@@ -258,7 +479,12 @@ fn sub(g: &DMatrix<f64>, idx: &[usize]) -> DMatrix<f64> {
 
 /// Solve the normal equations on columns `idx` of the Gram `g` (whose last row/column is y):
 /// returns (coefficients, SSR, (GᵀG)⁻¹ on idx). None if the block is rank deficient.
-fn solve(g: &DMatrix<f64>, idx: &[usize], yy: f64, ycol: usize) -> Option<(Vec<f64>, f64, DMatrix<f64>)> {
+fn solve(
+    g: &DMatrix<f64>,
+    idx: &[usize],
+    yy: f64,
+    ycol: usize,
+) -> Option<(Vec<f64>, f64, DMatrix<f64>)> {
     let a = sub(g, idx);
     let b = DVector::from_iterator(idx.len(), idx.iter().map(|&i| g[(i, ycol)]));
     let (rank, _) = null_space(&a);
@@ -269,7 +495,9 @@ fn solve(g: &DMatrix<f64>, idx: &[usize], yy: f64, ycol: usize) -> Option<(Vec<f
     let scaled = DMatrix::from_fn(idx.len(), idx.len(), |i, j| a[(i, j)] / (s[i] * s[j]));
     let chol = scaled.cholesky()?;
     let inv_scaled = chol.inverse();
-    let inv = DMatrix::from_fn(idx.len(), idx.len(), |i, j| inv_scaled[(i, j)] / (s[i] * s[j]));
+    let inv = DMatrix::from_fn(idx.len(), idx.len(), |i, j| {
+        inv_scaled[(i, j)] / (s[i] * s[j])
+    });
     let x = &inv * &b;
     let ssr = (yy - x.dot(&b)).max(0.0);
     Some((x.iter().cloned().collect(), ssr, inv))
@@ -289,7 +517,6 @@ struct Design {
     params: Vec<ParamRef>,
     gram: DMatrix<f64>,
     yy: f64,
-    m: usize,
 }
 
 impl Design {
@@ -304,36 +531,26 @@ impl Design {
             }
         }
         let w = n + 1;
-        let mut acc = vec![0.0f64; w * w];
-        let mut cols = vec![Column::default(); n];
-        let mut x = vec![0.0f64; w];
-        for (i, &y) in y_um.iter().enumerate() {
-            set.columns(path, i, &mut cols);
-            let p = path.p_mm[i];
-            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-            let u = [p[0] / r, p[1] / r, p[2] / r];
-            for (xk, c) in x.iter_mut().zip(&cols) {
-                *xk = 1e3 * (u[0] * c.dp_mm[0] + u[1] * c.dp_mm[1] + u[2] * c.dp_mm[2] + c.dd_mm);
+        let mut acc = GramAccumulator::new(w);
+        let mut u = Vec::with_capacity(GramAccumulator::ROWS);
+        let mut i0 = 0;
+        while i0 < y_um.len() {
+            let len = GramAccumulator::ROWS.min(y_um.len() - i0);
+            u.clear();
+            u.extend(path.p_mm[i0..i0 + len].iter().map(|p| {
+                let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                [p[0] / r, p[1] / r, p[2] / r]
+            }));
+            let block = acc.rows(len);
+            for (e, &o) in set.effects.iter().zip(&set.offsets) {
+                e.radial_block(path, i0, &u, block, w, o);
             }
-            x[n] = y;
-            for a in 0..w {
-                let xa = x[a];
-                if xa == 0.0 {
-                    continue;
-                }
-                let row = &mut acc[a * w..a * w + a + 1];
-                for (r, &xb) in row.iter_mut().zip(&x[..=a]) {
-                    *r += xa * xb;
-                }
+            for j in 0..len {
+                block[j * w + n] = y_um[i0 + j];
             }
+            i0 += len;
         }
-        let gram = DMatrix::from_fn(w, w, |i, j| {
-            if j <= i {
-                acc[i * w + j]
-            } else {
-                acc[j * w + i]
-            }
-        });
+        let gram = acc.finish();
         let yy = gram[(n, n)];
         Design {
             effects,
@@ -341,7 +558,6 @@ impl Design {
             params,
             gram,
             yy,
-            m: y_um.len(),
         }
     }
 
@@ -367,19 +583,7 @@ impl Design {
 
     /// Names of the columns (among `idx`) loaded by the null vectors of the block `idx`.
     fn confounded_names(&self, idx: &[usize]) -> Vec<Vec<String>> {
-        let (_, nulls) = null_space(&sub(&self.gram, idx));
-        let mut out = vec![];
-        for v in nulls {
-            let mut names: Vec<String> = (0..idx.len())
-                .filter(|&k| v[k].abs() >= 0.1)
-                .map(|k| self.param_name(idx[k]))
-                .collect();
-            names.dedup();
-            if !names.is_empty() && !out.contains(&names) {
-                out.push(names);
-            }
-        }
-        out
+        confounded_names(&self.gram, idx, &|i| self.param_name(i))
     }
 
     /// Greedy: keep columns of `order` that raise the rank of what is kept.
@@ -394,12 +598,6 @@ impl Design {
             }
         }
         kept
-    }
-
-    /// m·ln(SSR/m) + penalty·k·ln m.
-    fn bic(&self, ssr: f64, k: usize, penalty: f64) -> f64 {
-        let m = self.m as f64;
-        m * (ssr.max(1e-300) / m).ln() + penalty * k as f64 * m.ln()
     }
 }
 
@@ -429,6 +627,162 @@ pub fn candidate_effects(path: &Path) -> Vec<Effect> {
     v
 }
 
+/// One step of [`forward_select`].
+#[derive(Debug, Clone)]
+pub struct SelectionStep {
+    /// Index into the candidate groups.
+    pub group: usize,
+    /// RMS of the residual after this step (units of y).
+    pub rms_after: f64,
+    /// RMS before / after.
+    pub rms_ratio: f64,
+    /// BIC change (negative = better).
+    pub delta_bic: f64,
+}
+
+/// The outcome of [`forward_select`].
+#[derive(Debug, Clone)]
+pub struct Selection {
+    /// SSR of the base model.
+    pub base_ssr: f64,
+    pub steps: Vec<SelectionStep>,
+    /// Columns of the final model: base, then the chosen groups' columns in order.
+    pub current: Vec<usize>,
+    /// Coefficients of `current` (linear least squares) and their covariance s²(XᵀX)⁻¹.
+    pub coef: Vec<f64>,
+    pub covariance: DMatrix<f64>,
+    pub ssr: f64,
+    /// Names of candidate columns found to lie in the span of the model, with what they are
+    /// confounded with.
+    pub confounded: Vec<Vec<String>>,
+}
+
+/// Forward selection by BIC on a Gram matrix whose last row/column is the data y: starting from
+/// the `base` columns, repeatedly add the candidate group that lowers
+/// BIC = m·ln(SSR/m) + penalty·k·ln m most, while it lowers it. A group whose columns are
+/// (numerically) in the span of the current model is dropped and reported as confounded (names
+/// from `col_name`). Used by `diagnose` and `diagnose-rotary`.
+pub fn forward_select(
+    gram: &DMatrix<f64>,
+    m: usize,
+    base: &[usize],
+    groups: &[Vec<usize>],
+    opts: &Options,
+    col_name: &dyn Fn(usize) -> String,
+) -> Result<Selection> {
+    let ycol = gram.nrows() - 1;
+    let yy = gram[(ycol, ycol)];
+    let mf = m as f64;
+    let bic_of =
+        |ssr: f64, k: usize| mf * (ssr.max(1e-300) / mf).ln() + opts.penalty * k as f64 * mf.ln();
+    let mut current: Vec<usize> = base.to_vec();
+    let base_ssr = if current.is_empty() {
+        yy
+    } else {
+        solve(gram, &current, yy, ycol)
+            .ok_or_else(|| Error::Numerics("the base model's columns are degenerate".into()))?
+            .1
+    };
+    let mut ssr = base_ssr;
+    let mut bic = bic_of(ssr, current.len());
+    let mut steps = vec![];
+    let mut confounded: Vec<Vec<String>> = vec![];
+    let mut remaining: Vec<usize> = (0..groups.len()).collect();
+    while steps.len() < opts.max_effects {
+        let mut best: Option<(usize, f64, f64)> = None; // (group, ssr, bic)
+        let mut skip = vec![];
+        for &e in &remaining {
+            let mut trial = current.clone();
+            trial.extend(&groups[e]);
+            match solve(gram, &trial, yy, ycol) {
+                None => {
+                    for g in confounded_names(gram, &trial, col_name) {
+                        if g.len() > 1 && !confounded.contains(&g) {
+                            confounded.push(g);
+                        }
+                    }
+                    skip.push(e);
+                }
+                Some((_, s, _)) => {
+                    let b = bic_of(s, trial.len());
+                    if best.is_none_or(|(_, _, bb)| b < bb) {
+                        best = Some((e, s, b));
+                    }
+                }
+            }
+        }
+        remaining.retain(|e| !skip.contains(e));
+        let Some((e, s, b)) = best else { break };
+        if b >= bic {
+            break;
+        }
+        let before = (ssr / mf).sqrt();
+        let after = (s / mf).sqrt();
+        current.extend(&groups[e]);
+        steps.push(SelectionStep {
+            group: e,
+            rms_after: after,
+            rms_ratio: before / after.max(1e-300),
+            delta_bic: b - bic,
+        });
+        ssr = s;
+        bic = b;
+        remaining.retain(|&x| x != e);
+    }
+    let (coef, covariance) = match solve(gram, &current, yy, ycol) {
+        Some((x, s, inv)) => {
+            let dof = m.saturating_sub(current.len()).max(1);
+            (x, inv * (s / dof as f64))
+        }
+        None => (vec![], DMatrix::zeros(0, 0)),
+    };
+    Ok(Selection {
+        base_ssr,
+        steps,
+        current,
+        coef,
+        covariance,
+        ssr,
+        confounded,
+    })
+}
+
+/// Names of the columns (among `idx`) loaded by the null vectors of the Gram block `idx`.
+fn confounded_names(
+    gram: &DMatrix<f64>,
+    idx: &[usize],
+    col_name: &dyn Fn(usize) -> String,
+) -> Vec<Vec<String>> {
+    // Dead columns (no effect on the data) are named alone; the rest from the null space of the
+    // live columns, so a degenerate null space cannot tie a dead column to an unrelated group.
+    let norms: Vec<f64> = idx.iter().map(|&i| gram[(i, i)].max(0.0).sqrt()).collect();
+    let dmax = norms.iter().cloned().fold(0.0, f64::max);
+    let mut out: Vec<Vec<String>> = vec![];
+    let mut live = vec![];
+    for (k, &i) in idx.iter().enumerate() {
+        if norms[k] <= 1e-10 * dmax {
+            let g = vec![col_name(i)];
+            if !out.contains(&g) {
+                out.push(g);
+            }
+        } else {
+            live.push(i);
+        }
+    }
+    let (_, nulls) = null_space(&sub(gram, &live));
+    for v in nulls {
+        let mut names: Vec<String> = (0..live.len())
+            .filter(|&k| v[k].abs() >= 0.1)
+            .map(|k| col_name(live[k]))
+            .collect();
+        names.dedup();
+        if !names.is_empty() && !out.contains(&names) {
+            out.push(names);
+        }
+    }
+    out
+}
+
 /// Diagnose a circular test: baseline, set-up, forward selection of machine effects, exact refit,
 /// residual harmonics, G and H. See the module docs.
 pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> {
@@ -448,132 +802,134 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     let baseline_rms_um = rms(&base);
     let baseline_pv_um = pv(&base);
 
-    // 2. Structure of set-up and scale candidates (nominal linearisation, on the baseline residual).
-    let mut candidates = candidate_effects(path);
+    // 2. Which set-up parameters the path determines (nominal linearisation: columns u_x, u_y,
+    // u_z for c and 1 for e), keeping e first, then c_x, c_y, c_z.
     let setup = [Effect::SetupOffset, Effect::LengthOffset];
-    let mut all = setup.to_vec();
-    all.extend(candidates.iter().copied());
-    let probe = Design::build(path, &base, all);
-    // Set-up columns 0..4 = c_x, c_y, c_z, e; keep e first, then c_x, c_y, c_z.
-    let setup_free = probe.independent(&[3, 0, 1, 2]);
-    let mut confounded: Vec<Vec<String>> = probe.confounded_names(&[0, 1, 2, 3]);
-    let scale_cols: Vec<usize> = candidates
+    let setup_probe = Design::build(path, &base, setup.to_vec());
+    let setup_free = setup_probe.independent(&[3, 0, 1, 2]);
+    let mut confounded: Vec<Vec<String>> = setup_probe.confounded_names(&[0, 1, 2, 3]);
+
+    // 3. Exact set-up fit D = |p + c| + e on the determined set-up parameters.
+    // Start from the linearised solution (one Gauss–Newton step done already).
+    let mut setup_start = [0.0; 4];
+    if let Some((x, _, _)) = solve(
+        &setup_probe.gram,
+        &setup_free,
+        setup_probe.yy,
+        setup_probe.ycol(),
+    ) {
+        for (&i, v) in setup_free.iter().zip(x) {
+            setup_start[i] = v;
+        }
+    }
+    let setup_theta = fit_setup(path, d_mm, &setup_free, &setup_start)?;
+    let c_mm = [
+        setup_theta[0] * 1e-3,
+        setup_theta[1] * 1e-3,
+        setup_theta[2] * 1e-3,
+    ];
+    let y: Vec<f64> = (0..m)
+        .map(|i| {
+            let p = path.p_mm[i];
+            let q = [p[0] + c_mm[0], p[1] + c_mm[1], p[2] + c_mm[2]];
+            let dist = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() + setup_theta[3] * 1e-3;
+            1e3 * (d_mm[i] - dist)
+        })
+        .collect();
+
+    // 4. One pass: Gram of [set-up, scale_k, scale_mismatch_ij, other candidates, y].
+    let others = candidate_effects(path);
+    let mut effects = setup.to_vec();
+    effects.extend(others.iter().filter(|e| matches!(e, Effect::Scale(_))));
+    for pair in Pair::ALL {
+        let (i, j) = pair.axes();
+        if path.moves(i) && path.moves(j) {
+            effects.push(Effect::ScaleMismatch(pair));
+        }
+    }
+    effects.extend(others.iter().filter(|e| !matches!(e, Effect::Scale(_))));
+    let design = Design::build(path, &y, effects);
+    // If the isotropic scale is confounded with the set-up (one radius), the identifiable
+    // candidates are the scale mismatches; otherwise the per-axis scales.
+    let scale_effects: Vec<usize> = (0..design.effects.len())
+        .filter(|&e| matches!(design.effects[e], Effect::Scale(_)))
+        .collect();
+    let scale_cols: Vec<usize> = scale_effects
         .iter()
-        .enumerate()
-        .filter(|(_, e)| matches!(e, Effect::Scale(_)))
-        .map(|(i, _)| probe.cols_of(i + 2)[0])
+        .map(|&e| design.cols_of(e)[0])
         .collect();
     let mut block: Vec<usize> = setup_free.clone();
     block.extend(&scale_cols);
-    if probe.independent(&block).len() < block.len() {
-        // Isotropic scale ≡ length offset on this path: fit the identifiable mismatches instead.
+    let isotropic_confounded = design.independent(&block).len() < block.len();
+    if isotropic_confounded {
         let mut with_all_setup = vec![0, 1, 2, 3];
         with_all_setup.extend(&scale_cols);
-        for g in probe.confounded_names(&with_all_setup) {
+        for g in design.confounded_names(&with_all_setup) {
             if g.iter().any(|n| n.starts_with("scale_")) && !confounded.contains(&g) {
                 confounded.push(g);
             }
         }
-        let moving: Vec<Axis> = Axis::ALL.into_iter().filter(|&a| path.moves(a)).collect();
-        candidates.retain(|e| !matches!(e, Effect::Scale(_)));
-        let mut mism = vec![];
-        for pair in Pair::ALL {
-            let (i, j) = pair.axes();
-            if moving.contains(&i) && moving.contains(&j) {
-                mism.push(Effect::ScaleMismatch(pair));
-            }
-        }
-        // Put them first, where the scale candidates were.
-        mism.extend(candidates);
-        candidates = mism;
     }
     confounded.retain(|g| !g.is_empty());
-
-    // 3. Exact set-up fit.
-    let setup_set = EffectSet::new(setup.to_vec());
-    let free_setup: Vec<usize> = setup_free.clone(); // parameter indices in setup_set (same layout)
-    let setup_fit = fit_exact(path, d_mm, &setup_set, &free_setup, &vec![0.0; 4])?;
-    let setup_theta = setup_fit.0.clone();
-    let mut buf = vec![Column::default(); setup_set.n_params];
-    let y: Vec<f64> = (0..m)
-        .map(|i| 1e3 * (d_mm[i] - setup_set.distance_mm(path, i, &setup_theta, &mut buf)))
+    let candidates: Vec<usize> = (2..design.effects.len())
+        .filter(|&e| match design.effects[e] {
+            Effect::Scale(_) => !isotropic_confounded,
+            Effect::ScaleMismatch(_) => isotropic_confounded,
+            _ => true,
+        })
         .collect();
 
-    // 4. Linear forward selection on the Gram of [set-up, candidates, y].
-    let mut effects = setup.to_vec();
-    effects.extend(candidates.iter().copied());
-    let design = Design::build(path, &y, effects);
-    let ycol = design.ycol();
-    let mut current: Vec<usize> = free_setup.clone();
-    let (_, mut ssr, _) = solve(&design.gram, &current, design.yy, ycol)
-        .ok_or_else(|| Error::Numerics("set-up columns are degenerate".into()))?;
-    let setup_rms = (ssr / m as f64).sqrt();
-    let mut bic = design.bic(ssr, current.len(), opts.penalty);
-    let mut chosen: Vec<(usize, f64, f64, f64)> = vec![]; // (effect idx, rms after, ratio, dbic)
-    let mut remaining: Vec<usize> = (2..design.effects.len()).collect();
-    while chosen.len() < opts.max_effects {
-        let mut best: Option<(usize, f64, f64)> = None; // (effect, ssr, bic)
-        let mut skip = vec![];
-        for &e in &remaining {
-            let mut trial = current.clone();
-            trial.extend(design.cols_of(e));
-            match solve(&design.gram, &trial, design.yy, ycol) {
-                None => {
-                    // Confounded with the current model (or a dead column): name it and drop it.
-                    for g in design.confounded_names(&trial) {
-                        if g.len() > 1 && !confounded.contains(&g) {
-                            confounded.push(g);
-                        }
-                    }
-                    skip.push(e);
-                }
-                Some((_, s, _)) => {
-                    let b = design.bic(s, trial.len(), opts.penalty);
-                    if best.is_none_or(|(_, _, bb)| b < bb) {
-                        best = Some((e, s, b));
-                    }
-                }
-            }
+    // 5. Linear forward selection on the Gram.
+    let free_setup = setup_free.clone();
+    let groups: Vec<Vec<usize>> = candidates.iter().map(|&e| design.cols_of(e)).collect();
+    let sel = forward_select(&design.gram, m, &free_setup, &groups, opts, &|i| {
+        design.param_name(i)
+    })?;
+    for g in sel.confounded {
+        if !confounded.contains(&g) {
+            confounded.push(g);
         }
-        remaining.retain(|e| !skip.contains(e));
-        let Some((e, s, b)) = best else { break };
-        if b >= bic {
-            break;
-        }
-        let before = (ssr / m as f64).sqrt();
-        let after = (s / m as f64).sqrt();
-        current.extend(design.cols_of(e));
-        chosen.push((e, after, before / after.max(1e-300), b - bic));
-        ssr = s;
-        bic = b;
-        remaining.retain(|&x| x != e);
     }
+    let setup_rms = (sel.base_ssr / m as f64).sqrt();
+    // (effect idx, rms after, ratio, dbic)
+    let chosen: Vec<(usize, f64, f64, f64)> = sel
+        .steps
+        .iter()
+        .map(|st| {
+            (
+                candidates[st.group],
+                st.rms_after,
+                st.rms_ratio,
+                st.delta_bic,
+            )
+        })
+        .collect();
+    let current = &sel.current;
 
-    // 5. Exact refit of set-up + chosen effects.
+    // 6. Exact refit of set-up + chosen effects.
     let mut final_effects = setup.to_vec();
     final_effects.extend(chosen.iter().map(|c| design.effects[c.0]));
     let final_set = EffectSet::new(final_effects.clone());
     let mut free = free_setup.clone();
     let mut start = setup_theta.clone();
-    // Start from the linear solution for the chosen parameters (set-up from its exact fit).
-    if let Some((x, _, _)) = solve(&design.gram, &current, design.yy, ycol) {
-        // current = free set-up columns then chosen effects' columns, in order.
-        for (k, &col) in current.iter().enumerate() {
-            if col < 4 {
-                start[col] += x[k];
-            }
+    // Start from the linear solution for the chosen parameters (set-up from its exact fit plus
+    // its linear correction). `current` = free set-up columns, then the chosen effects' columns.
+    let x = &sel.coef;
+    for (k, &col) in current.iter().enumerate() {
+        if col < 4 {
+            start[col] += x[k];
         }
-        let mut at = free_setup.len();
-        for c in &chosen {
-            let n = design.effects[c.0].n_params();
-            start.extend(&x[at..at + n]);
-            at += n;
-        }
+    }
+    let mut at = free_setup.len();
+    for c in &chosen {
+        let n = design.effects[c.0].n_params();
+        start.extend(&x[at..at + n]);
+        at += n;
     }
     for i in 4..final_set.n_params {
         free.push(i);
     }
-    let (theta, sig, cov, final_ssr) = fit_exact(path, d_mm, &final_set, &free, &start)?;
+    let (theta, sig, cov, final_ssr) = fit_exact(path, d_mm, &final_set, &free, &start, 1e-6)?;
     let final_rms_um = (final_ssr / m as f64).sqrt();
 
     // Report.
@@ -610,20 +966,20 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
 
     // Residual structure, G and H.
     let plane = main_plane(path);
-    let mut buf = vec![Column::default(); final_set.n_params];
     let mut angle = Vec::with_capacity(m);
     let mut meas = Vec::with_capacity(m);
     let mut model = Vec::with_capacity(m);
-    let mut setup_only = theta.clone();
-    for t in setup_only.iter_mut().skip(4) {
-        *t = 0.0;
-    }
     let mut resid = Vec::with_capacity(m);
     for i in 0..m {
         let p = path.p_mm[i];
         angle.push(p[plane.1].atan2(p[plane.0]));
-        let ideal = final_set.distance_mm(path, i, &setup_only, &mut buf);
-        let full = final_set.distance_mm(path, i, &theta, &mut buf);
+        let q = [
+            p[0] + 1e-3 * theta[0],
+            p[1] + 1e-3 * theta[1],
+            p[2] + 1e-3 * theta[2],
+        ];
+        let ideal = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() + 1e-3 * theta[3];
+        let full = final_set.distance_mm(path, i, &theta);
         meas.push(1e3 * (d_mm[i] - ideal));
         model.push(1e3 * (full - ideal));
         resid.push(1e3 * (d_mm[i] - full));
@@ -639,7 +995,10 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         final_rms_um,
         gain: baseline_rms_um / final_rms_um.max(1e-300),
         harmonics_um,
-        candidates: candidates.iter().map(|e| e.name()).collect(),
+        candidates: candidates
+            .iter()
+            .map(|&e| design.effects[e].name())
+            .collect(),
         angle_rad: angle,
         measured_dev_um: meas,
         model_dev_um: model,
@@ -647,6 +1006,59 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         circular_deviation_g_um: g,
         hysteresis_h_um: h,
     })
+}
+
+/// D = |p + c| + e with only the set-up parameters `free` (indices into c_x, c_y, c_z, e)
+/// varying, from `start`; returns [c_x, c_y, c_z, e] in µm.
+fn fit_setup(path: &Path, d_mm: &[f64], free: &[usize], start: &[f64; 4]) -> Result<Vec<f64>> {
+    struct Setup<'a> {
+        path: &'a Path,
+        d_mm: &'a [f64],
+        free: &'a [usize],
+    }
+    impl crate::fit::Problem for Setup<'_> {
+        fn n_params(&self) -> usize {
+            self.free.len()
+        }
+        fn n_residuals(&self) -> usize {
+            self.d_mm.len()
+        }
+        fn eval(&self, p: &[f64], visit: &mut dyn FnMut(usize, f64, &[f64])) {
+            let mut full = [0.0; 4];
+            for (a, &i) in self.free.iter().enumerate() {
+                full[i] = p[a];
+            }
+            let mut g = [0.0; 4];
+            for (i, (q0, d)) in self.path.p_mm.iter().zip(self.d_mm).enumerate() {
+                let q = [
+                    q0[0] + 1e-3 * full[0],
+                    q0[1] + 1e-3 * full[1],
+                    q0[2] + 1e-3 * full[2],
+                ];
+                let r = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
+                let all = [q[0] / r, q[1] / r, q[2] / r, 1.0];
+                for (a, &k) in self.free.iter().enumerate() {
+                    g[a] = all[k];
+                }
+                visit(i, 1e3 * (r - d) + full[3], &g[..self.free.len()]);
+            }
+        }
+    }
+    let opts = LsqOptions {
+        max_iterations: 50,
+        // The final refit frees the set-up again: this fit only has to be good enough to
+        // linearise the candidates around.
+        tolerance: 1e-6,
+        ..Default::default()
+    };
+    let prob = Setup { path, d_mm, free };
+    let p0: Vec<f64> = free.iter().map(|&i| start[i]).collect();
+    let fit = least_squares(&prob, &p0, &opts)?;
+    let mut full = vec![0.0; 4];
+    for (a, &i) in free.iter().enumerate() {
+        full[i] = fit.params[a];
+    }
+    Ok(full)
 }
 
 /// Exact-geometry fit of `set` with only parameters `free` varying (others held at `start`).
@@ -658,6 +1070,7 @@ fn fit_exact(
     set: &EffectSet,
     free: &[usize],
     start: &[f64],
+    tolerance: f64,
 ) -> Result<(Vec<f64>, Vec<Option<f64>>, DMatrix<f64>, f64)> {
     let model = ExactModel { path, d_mm, set };
     let restricted = Restricted {
@@ -668,7 +1081,7 @@ fn fit_exact(
     let p0: Vec<f64> = free.iter().map(|&i| start[i]).collect();
     let opts = LsqOptions {
         max_iterations: 50,
-        tolerance: 1e-10,
+        tolerance,
         ..Default::default()
     };
     let fit = least_squares(&restricted, &p0, &opts)?;
@@ -729,24 +1142,24 @@ pub fn main_plane(path: &Path) -> (usize, usize) {
 
 /// Amplitudes (µm) of harmonics 1..=n of `r` against `angle` (least squares with a constant).
 pub fn harmonics(angle: &[f64], r: &[f64], n: usize) -> Vec<f64> {
-    let w = 2 * n + 1;
-    let mut g = DMatrix::<f64>::zeros(w, w);
-    let mut b = DVector::<f64>::zeros(w);
-    let mut x = vec![0.0; w];
+    let w = 2 * n + 2;
+    let mut acc = GramAccumulator::new(w);
     for (&a, &y) in angle.iter().zip(r) {
+        let x = acc.row();
         x[0] = 1.0;
+        // cos kθ, sin kθ by rotation from one sin_cos (error ~k·ε, fine for k ≤ 100).
+        let (s1, c1) = a.sin_cos();
+        let (mut c, mut s) = (1.0f64, 0.0f64);
         for k in 1..=n {
-            let (s, c) = (k as f64 * a).sin_cos();
+            (c, s) = (c * c1 - s * s1, s * c1 + c * s1);
             x[2 * k - 1] = c;
             x[2 * k] = s;
         }
-        for i in 0..w {
-            b[i] += x[i] * y;
-            for j in 0..w {
-                g[(i, j)] += x[i] * x[j];
-            }
-        }
+        x[w - 1] = y;
     }
+    let full = acc.finish();
+    let g = full.view((0, 0), (w - 1, w - 1)).into_owned();
+    let b = full.view((0, w - 1), (w - 1, 1)).column(0).into_owned();
     let coef = match g.clone().cholesky() {
         Some(ch) => ch.solve(&b),
         None => return vec![0.0; n],
@@ -766,7 +1179,11 @@ pub fn circularity(angle: &[f64], dev: &[f64]) -> (f64, f64) {
     let mut lo = [f64::INFINITY; 2];
     let mut hi = [f64::NEG_INFINITY; 2];
     for i in 0..n {
-        let (a, b) = if i + 1 < n { (i, i + 1) } else { (i.saturating_sub(1), i) };
+        let (a, b) = if i + 1 < n {
+            (i, i + 1)
+        } else {
+            (i.saturating_sub(1), i)
+        };
         let mut da = angle[b] - angle[a];
         if da > std::f64::consts::PI {
             da -= std::f64::consts::TAU;
@@ -816,8 +1233,15 @@ pub fn summary(d: &Diagnosis) -> String {
         d.baseline_rms_um, d.baseline_pv_um
     );
     for (i, f) in d.effects.iter().enumerate() {
-        let step = if i < 2 { "set-up".to_string() } else { format!("step {}", i - 1) };
-        let sig = f.sigma.map(|s| format!(" ± {s:.4}")).unwrap_or_else(|| " (undetermined)".into());
+        let step = if i < 2 {
+            "set-up".to_string()
+        } else {
+            format!("step {}", i - 1)
+        };
+        let sig = f
+            .sigma
+            .map(|s| format!(" ± {s:.4}"))
+            .unwrap_or_else(|| " (undetermined)".into());
         let _ = writeln!(
             s,
             "{step}: {} = {:.4}{sig} {} — {}",
@@ -856,7 +1280,11 @@ pub fn summary(d: &Diagnosis) -> String {
         let _ = writeln!(s, "no machine effect is supported by the data");
     }
     for g in &d.confounded {
-        let _ = writeln!(s, "confounded (this test cannot tell apart): {}", g.join(", "));
+        let _ = writeln!(
+            s,
+            "confounded (this test cannot tell apart): {}",
+            g.join(", ")
+        );
     }
     let _ = writeln!(
         s,
@@ -888,7 +1316,13 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
         .map(|f| {
             let mut params = Map::new();
             let mut psig = Map::new();
-            for ((n, v), s) in f.effect.param_names().iter().zip(&f.params).zip(&f.param_sigma) {
+            for ((n, v), s) in f
+                .effect
+                .param_names()
+                .iter()
+                .zip(&f.params)
+                .zip(&f.param_sigma)
+            {
                 params.insert((*n).into(), num(*v));
                 psig.insert((*n).into(), s.map(num).unwrap_or(Value::Null));
             }
@@ -925,8 +1359,18 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
 #[derive(Debug, clap::Args)]
 pub struct DiagnoseArgs {
     /// CSV `t_s,x_mm,y_mm,z_mm,d_mm` (nominal path and measured D), e.g. from `jdbb simulate`.
-    #[arg(long)]
-    pub samples: PathBuf,
+    #[arg(long, required_unless_present = "record", conflicts_with = "record")]
+    pub samples: Option<PathBuf>,
+    /// A `jdbb record` file (`seq,t_us,enc1,enc2,d_mm`), diagnosed together with `--path`.
+    #[arg(long, requires = "path")]
+    pub record: Option<PathBuf>,
+    /// The nominal path of a `--record` file: CSV `t_s,x_mm,y_mm,z_mm` (the commanded ball
+    /// centre relative to the table ball), interpolated linearly at the record's times.
+    #[arg(long, requires = "record")]
+    pub path: Option<PathBuf>,
+    /// Time of the path's t_s = 0 on the record's clock, in s after the record's first sample.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub path_offset_s: f64,
     /// Ball-screw or scale pitch per axis in mm, e.g. `x=10,y=10,z=5`; enables cyclic_k and
     /// interference_k for those axes.
     #[arg(long)]
@@ -944,7 +1388,9 @@ pub fn parse_pitch(s: &str) -> Result<[Option<f64>; 3]> {
     let mut out = [None; 3];
     for part in s.split(',').filter(|p| !p.trim().is_empty()) {
         let (k, v) = part.split_once('=').ok_or_else(|| {
-            Error::Usage(format!("--pitch: `{part}` should look like x=10 (axis=pitch in mm)"))
+            Error::Usage(format!(
+                "--pitch: `{part}` should look like x=10 (axis=pitch in mm)"
+            ))
         })?;
         let axis = match k.trim() {
             "x" => 0,
@@ -973,11 +1419,24 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         Some(s) => parse_pitch(s)?,
         None => [None; 3],
     };
-    let (path, d) = read_samples(&args.samples, pitch)?;
+    let (path, d) = match (&args.samples, &args.record, &args.path) {
+        (Some(samples), _, _) => read_samples(samples, pitch)?,
+        (None, Some(record), Some(nominal)) => {
+            read_record_with_path(record, nominal, args.path_offset_s, pitch)?
+        }
+        _ => {
+            return Err(Error::Usage(
+                "give --samples FILE, or --record FILE with --path FILE".into(),
+            ))
+        }
+    };
     let diag = diagnose(&path, &d, &Options::default())?;
     let json = to_json(&diag);
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&json).expect("JSON of plain values"));
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json).expect("JSON of plain values")
+        );
     } else {
         print!("{}", summary(&diag));
     }
@@ -996,7 +1455,10 @@ mod tests {
 
     #[test]
     fn pitch_parses_and_rejects() {
-        assert_eq!(parse_pitch("x=10,z=5").unwrap(), [Some(10.0), None, Some(5.0)]);
+        assert_eq!(
+            parse_pitch("x=10,z=5").unwrap(),
+            [Some(10.0), None, Some(5.0)]
+        );
         assert!(parse_pitch("w=1").is_err());
         assert!(parse_pitch("x=-1").is_err());
         assert!(parse_pitch("x").is_err());
@@ -1006,24 +1468,46 @@ mod tests {
     fn csv_errors_name_line_and_column() {
         let f = FsPath::new("s.csv");
         let e = parse_samples(f, "t_s,x_mm,y_mm,z_mm\n0,1,2,3\n", [None; 3]).unwrap_err();
-        assert!(e.to_string().starts_with("s.csv:1: missing column `d_mm`"), "{e}");
-        let e = parse_samples(f, "t_s,x_mm,y_mm,z_mm,d_mm\n0,1,2,3,4\n1,1,NaN,3,4\n", [None; 3])
-            .unwrap_err();
+        assert!(
+            e.to_string().starts_with("s.csv:1: missing column `d_mm`"),
+            "{e}"
+        );
+        let e = parse_samples(
+            f,
+            "t_s,x_mm,y_mm,z_mm,d_mm\n0,1,2,3,4\n1,1,NaN,3,4\n",
+            [None; 3],
+        )
+        .unwrap_err();
         assert!(e.to_string().starts_with("s.csv:3:3:"), "{e}");
-        let e = parse_samples(f, "t_s,x_mm,y_mm,z_mm,d_mm\n0,1,2,3,4\n0,1,2,3,4\n", [None; 3])
-            .unwrap_err();
-        assert!(e.to_string().starts_with("s.csv:3:1: time goes backwards"), "{e}");
+        let e = parse_samples(
+            f,
+            "t_s,x_mm,y_mm,z_mm,d_mm\n0,1,2,3,4\n0,1,2,3,4\n",
+            [None; 3],
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string().starts_with("s.csv:3:1: time goes backwards"),
+            "{e}"
+        );
         let e = parse_samples(f, "t_s,x_mm,y_mm,z_mm,d_mm\n0,1,2,3,4\n", [None; 3]).unwrap_err();
         assert!(e.to_string().contains("only 1 samples"), "{e}");
         let mut text = String::from("d_mm,t_s,x_mm,y_mm,z_mm\n");
         for i in 0..40 {
-            text.push_str(&format!("50,{i},{},{},0\n", (i as f64).cos(), (i as f64).sin()));
+            text.push_str(&format!(
+                "50,{i},{},{},0\n",
+                (i as f64).cos(),
+                (i as f64).sin()
+            ));
         }
         let (p, d) = parse_samples(f, &text, [None; 3]).unwrap();
         assert_eq!(d.len(), 40);
         assert!(p.moves(Axis::X) && !p.moves(Axis::Z));
         let e = parse_samples(f, &text, [None, None, Some(5.0)]).unwrap_err();
-        assert!(e.to_string().starts_with("s.csv:1:5: a pitch was given for axis z"), "{e}");
+        assert!(
+            e.to_string()
+                .starts_with("s.csv:1:5: a pitch was given for axis z"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -19,6 +19,13 @@ pub enum Error {
         #[source]
         source: std::io::Error,
     },
+    /// Sending a command to an open port failed.
+    #[error("writing to {port} failed: {source}. Was the device unplugged or reset?")]
+    PortWrite {
+        port: String,
+        #[source]
+        source: std::io::Error,
+    },
     /// A file could not be created, written or read.
     #[error("{action} {path}: {source}")]
     File {

@@ -87,51 +87,133 @@ struct Normal {
 
 fn accumulate(problem: &dyn Problem, p: &[f64], with_jacobian: bool) -> Result<Normal> {
     let n = p.len();
-    let mut jtj = DMatrix::<f64>::zeros(n, n);
-    let mut jtr = DVector::<f64>::zeros(n);
+    // Rows [g, r] go through the blocked Gram accumulator: [JᵀJ Jᵀr; rᵀJ rᵀr].
+    let mut acc = GramAccumulator::new(n + 1);
     let mut ssr = 0.0;
     let mut finite = true;
-    {
-        let a = jtj.as_mut_slice(); // column-major; we fill the upper triangle (row ≤ col)
-        let b = jtr.as_mut_slice();
-        problem.eval(p, &mut |_i, r, g| {
-            if !r.is_finite() {
-                finite = false;
-                return;
+    problem.eval(p, &mut |_i, r, g| {
+        if !r.is_finite() {
+            finite = false;
+            return;
+        }
+        if with_jacobian {
+            let row = acc.row();
+            // Element by element in pairs: a slice copy of a few numbers would be a libc
+            // memcpy call per residual, a measurable share of a pass.
+            let mut k = 0;
+            while k + 1 < n {
+                row[k] = g[k];
+                row[k + 1] = g[k + 1];
+                k += 2;
             }
+            if k < n {
+                row[k] = g[k];
+            }
+            row[n] = r;
+        } else {
             ssr += r * r;
-            if with_jacobian {
-                for (k, &gk) in g.iter().enumerate().take(n) {
-                    if gk == 0.0 {
-                        continue;
-                    }
-                    b[k] += gk * r;
-                    let col = &mut a[k * n..k * n + k + 1];
-                    for (c, &gj) in col.iter_mut().zip(g.iter()) {
-                        *c += gj * gk;
-                    }
-                }
-            }
-        });
-    }
+        }
+    });
     if !finite {
         return Err(Error::Numerics(
             "the model produced a non-finite residual; check the input for NaN or absurd values"
                 .into(),
         ));
     }
-    if with_jacobian {
-        for k in 0..n {
-            for j in 0..k {
-                jtj[(k, j)] = jtj[(j, k)];
-            }
+    if !with_jacobian {
+        return Ok(Normal {
+            jtj: DMatrix::zeros(n, n),
+            jtr: DVector::zeros(n),
+            ssr,
+        });
+    }
+    let g = acc.finish();
+    Ok(Normal {
+        jtj: g.view((0, 0), (n, n)).into_owned(),
+        jtr: g.view((0, n), (n, 1)).column(0).into_owned(),
+        ssr: g[(n, n)],
+    })
+}
+
+/// Accumulates the Gram matrix XᵀX of rows pushed one at a time, in blocks of rows multiplied
+/// with nalgebra's matrix product (cache-blocked, vectorised): O(w²) memory for any number of
+/// rows. Shared by the fit and the diagnosis' candidate search.
+pub struct GramAccumulator {
+    w: usize,
+    block: DMatrix<f64>,
+    filled: usize,
+    gram: DMatrix<f64>,
+}
+
+impl GramAccumulator {
+    /// Rows per block (and the most [`GramAccumulator::rows`] hands out at once).
+    pub const ROWS: usize = 1024;
+
+    /// An accumulator for rows of width `w`.
+    pub fn new(w: usize) -> GramAccumulator {
+        GramAccumulator {
+            w,
+            block: DMatrix::zeros(w, Self::ROWS),
+            filled: 0,
+            gram: DMatrix::zeros(w, w),
         }
     }
-    Ok(Normal { jtj, jtr, ssr })
+
+    /// The next row to fill (all `w` entries must be written).
+    pub fn row(&mut self) -> &mut [f64] {
+        if self.filled == Self::ROWS {
+            self.flush();
+        }
+        let w = self.w;
+        let start = self.filled * w;
+        self.filled += 1;
+        &mut self.block.as_mut_slice()[start..start + w]
+    }
+
+    /// The next `n` rows (n ≤ [`GramAccumulator::ROWS`]) to fill, row j at `[j·w, (j+1)·w)`;
+    /// every entry must be written.
+    pub fn rows(&mut self, n: usize) -> &mut [f64] {
+        assert!(n <= Self::ROWS, "at most ROWS rows at once");
+        if self.filled + n > Self::ROWS {
+            self.flush();
+        }
+        let w = self.w;
+        let start = self.filled * w;
+        self.filled += n;
+        &mut self.block.as_mut_slice()[start..start + n * w]
+    }
+
+    fn flush(&mut self) {
+        if self.filled == 0 {
+            return;
+        }
+        // The block stores rows as columns (w × ROWS, column-major): G += B·Bᵀ, with Bᵀ the
+        // same buffer read with swapped strides (no copy).
+        let w = self.w;
+        let k = self.filled;
+        let b = self.block.as_slice().as_ptr();
+        let c = self.gram.as_mut_slice().as_mut_ptr();
+        // SAFETY: B is w×k with row stride 1 and column stride w inside `block` (k ≤ ROWS);
+        // Bᵀ is k×w over the same memory (row stride w, column stride 1), read only; C is the
+        // w×w `gram`, column-major (row stride 1, column stride w), and does not alias `block`.
+        unsafe {
+            matrixmultiply::dgemm(
+                w, k, w, 1.0, b, 1, w as isize, b, w as isize, 1, 1.0, c, 1, w as isize,
+            );
+        }
+        self.filled = 0;
+    }
+
+    /// XᵀX of all rows pushed.
+    pub fn finish(mut self) -> DMatrix<f64> {
+        self.flush();
+        self.gram
+    }
 }
 
 /// Scaled eigen-structure of JᵀJ: scale D, eigenvalues (descending) and vectors of D⁻¹JᵀJD⁻¹.
 struct Spectrum {
+    dead: Vec<bool>,
     scale: Vec<f64>,
     values: Vec<f64>,
     vectors: DMatrix<f64>,
@@ -140,20 +222,24 @@ struct Spectrum {
 
 fn spectrum(jtj: &DMatrix<f64>, rank_tolerance: f64) -> Spectrum {
     let n = jtj.nrows();
+    // A column whose norm is below DEAD_COLUMN × the largest is treated as exactly zero: the
+    // parameter does not act on the data (e.g. c_z on a flat circle, whose column is only
+    // round-off once c_x, c_y have moved), and scaling it up to unit norm would amplify noise.
+    const DEAD_COLUMN: f64 = 1e-10;
+    let norms: Vec<f64> = (0..n).map(|k| jtj[(k, k)].max(0.0).sqrt()).collect();
+    let dmax = norms.iter().cloned().fold(0.0, f64::max);
+    let dead: Vec<bool> = norms.iter().map(|&d| d <= DEAD_COLUMN * dmax).collect();
     let scale: Vec<f64> = (0..n)
-        .map(|k| {
-            let d = jtj[(k, k)].max(0.0).sqrt();
-            if d > 0.0 {
-                d
-            } else {
-                1.0
-            }
-        })
+        .map(|k| if dead[k] { 1.0 } else { norms[k] })
         .collect();
     let mut a = jtj.clone();
     for i in 0..n {
         for j in 0..n {
-            a[(i, j)] /= scale[i] * scale[j];
+            a[(i, j)] = if dead[i] || dead[j] {
+                0.0
+            } else {
+                a[(i, j)] / (scale[i] * scale[j])
+            };
         }
     }
     let eig = SymmetricEigen::new(a);
@@ -170,6 +256,7 @@ fn spectrum(jtj: &DMatrix<f64>, rank_tolerance: f64) -> Spectrum {
         .filter(|&&v| smax > 0.0 && v.sqrt() > rank_tolerance * smax)
         .count();
     Spectrum {
+        dead,
         scale,
         values,
         vectors,
@@ -215,7 +302,6 @@ pub fn least_squares(problem: &dyn Problem, p0: &[f64], opts: &LsqOptions) -> Re
             .sqrt();
         let small_step = z.norm() <= opts.tolerance * (scaled_p_norm + opts.tolerance);
         let next = accumulate(problem, &trial, true)?;
-        if std::env::var("LMTRACE").is_ok() { eprintln!("it {iterations} lambda {lambda:e} ssr {} -> {} rank {} z {:e}", cur.ssr, next.ssr, sp.rank, z.norm()); }
         if next.ssr <= cur.ssr {
             let reduction = cur.ssr - next.ssr;
             p = trial;
@@ -265,28 +351,48 @@ fn finish(
             cov[(i, j)] /= sp.scale[i] * sp.scale[j];
         }
     }
-    // Undetermined groups: parameters loaded by null directions, merged when directions share one.
-    let mut in_null = vec![false; n];
-    let mut groups: Vec<Vec<usize>> = Vec::new();
-    for c in sp.rank..n {
-        let v = sp.vectors.column(c);
-        let members: Vec<usize> = (0..n).filter(|&k| v[k].abs() >= opts.null_loading).collect();
-        if members.is_empty() {
-            continue;
+    // Undetermined groups. A dead column is a group of its own; the other groups come from the
+    // null space of the live columns alone (a degenerate null space mixes its vectors
+    // arbitrarily, which would otherwise tie a dead column to an unrelated group). Null
+    // directions sharing a parameter are merged.
+    let mut in_null = sp.dead.clone();
+    let mut groups: Vec<Vec<usize>> = (0..n).filter(|&k| sp.dead[k]).map(|k| vec![k]).collect();
+    let live: Vec<usize> = (0..n).filter(|&k| !sp.dead[k]).collect();
+    if sp.rank < live.len() {
+        let a = DMatrix::from_fn(live.len(), live.len(), |i, j| {
+            cur.jtj[(live[i], live[j])] / (sp.scale[live[i]] * sp.scale[live[j]])
+        });
+        let eig = SymmetricEigen::new(a);
+        let emax = eig.eigenvalues.iter().cloned().fold(0.0, f64::max);
+        let thr = opts.rank_tolerance * opts.rank_tolerance * emax;
+        let mut live_groups: Vec<Vec<usize>> = Vec::new();
+        for (c, &e) in eig.eigenvalues.iter().enumerate() {
+            if e > thr {
+                continue;
+            }
+            let v = eig.eigenvectors.column(c);
+            let members: Vec<usize> = (0..live.len())
+                .filter(|&k| v[k].abs() >= opts.null_loading)
+                .map(|k| live[k])
+                .collect();
+            if members.is_empty() {
+                continue;
+            }
+            for &k in &members {
+                in_null[k] = true;
+            }
+            let overlapping: Vec<usize> = (0..live_groups.len())
+                .filter(|&g| live_groups[g].iter().any(|k| members.contains(k)))
+                .collect();
+            let mut merged = members;
+            for &g in overlapping.iter().rev() {
+                merged.extend(live_groups.remove(g));
+            }
+            merged.sort_unstable();
+            merged.dedup();
+            live_groups.push(merged);
         }
-        for &k in &members {
-            in_null[k] = true;
-        }
-        let overlapping: Vec<usize> = (0..groups.len())
-            .filter(|&g| groups[g].iter().any(|k| members.contains(k)))
-            .collect();
-        let mut merged = members;
-        for &g in overlapping.iter().rev() {
-            merged.extend(groups.remove(g));
-        }
-        merged.sort_unstable();
-        merged.dedup();
-        groups.push(merged);
+        groups.extend(live_groups);
     }
     groups.sort();
     let sigma = (0..n)
@@ -315,6 +421,24 @@ fn finish(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn blocked_gram_equals_the_plain_sum() {
+        let mut acc = GramAccumulator::new(3);
+        let mut plain = DMatrix::<f64>::zeros(3, 3);
+        // More rows than one block, and a partial last block.
+        for i in 0..2 * GramAccumulator::ROWS + 77 {
+            let x = [1.0, i as f64 * 0.01, (i as f64).sin()];
+            acc.row().copy_from_slice(&x);
+            for a in 0..3 {
+                for b in 0..3 {
+                    plain[(a, b)] += x[a] * x[b];
+                }
+            }
+        }
+        let g = acc.finish();
+        assert!((&g - &plain).abs().max() <= 1e-12 * plain.abs().max());
+    }
 
     /// Straight line y = a + b·x sampled at given x with given y.
     struct Line {
@@ -418,6 +542,35 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// y = a + (b + c)·x with a fourth parameter that acts on nothing.
+    struct RedundantAndDead;
+    impl Problem for RedundantAndDead {
+        fn n_params(&self) -> usize {
+            4
+        }
+        fn n_residuals(&self) -> usize {
+            20
+        }
+        fn eval(&self, p: &[f64], visit: &mut dyn FnMut(usize, f64, &[f64])) {
+            for i in 0..20 {
+                let x = i as f64 / 4.0;
+                visit(
+                    i,
+                    p[0] + (p[1] + p[2]) * x - (1.0 + 2.0 * x),
+                    &[1.0, x, x, 0.0],
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_dead_parameter_is_its_own_group_beside_a_confounded_pair() {
+        let fit = least_squares(&RedundantAndDead, &[0.0; 4], &LsqOptions::default()).unwrap();
+        assert_eq!(fit.undetermined, vec![vec![1, 2], vec![3]]);
+        assert!(fit.sigma[0].is_some() && fit.sigma[3].is_none());
+        assert_eq!(fit.params[3], 0.0);
     }
 
     #[test]

@@ -11,6 +11,8 @@
 //! Conventions (the same as `jdbb_core::machine`): positions in mm relative to the table ball,
 //! velocities mm/s, δ positive lengthens the axis. Parameters are in their reporting units (µm,
 //! µm/m, µm/m², µm per mm/s, ms) so the fit's column scaling is well conditioned.
+// Index loops over the axes (k in 0..3) and samples mirror the equations; keep them.
+#![allow(clippy::needless_range_loop)]
 use std::fmt;
 
 /// A machine axis.
@@ -129,6 +131,8 @@ pub struct Path {
     pub pitch_mm: [Option<f64>; 3],
     /// Travel range (max − min) per axis, mm.
     pub range_mm: [f64; 3],
+    /// See [`Path::pitch_phase`].
+    pub(crate) phase: Vec<[(f64, f64); 3]>,
 }
 
 impl Path {
@@ -186,6 +190,18 @@ impl Path {
                 dir[i][k] = held;
             }
         }
+        let phase = p_mm
+            .iter()
+            .map(|p| {
+                let mut out = [(0.0, 0.0); 3];
+                for (k, o) in out.iter_mut().enumerate() {
+                    if let Some(pitch) = pitch_mm[k] {
+                        *o = (std::f64::consts::TAU * p[k] / pitch).sin_cos();
+                    }
+                }
+                out
+            })
+            .collect();
         Path {
             t_s,
             p_mm,
@@ -193,6 +209,7 @@ impl Path {
             dir,
             pitch_mm,
             range_mm: range,
+            phase,
         }
     }
 
@@ -202,6 +219,12 @@ impl Path {
 
     pub fn is_empty(&self) -> bool {
         self.p_mm.is_empty()
+    }
+
+    /// (sin, cos) of 2π·k/pitch_k per axis at sample i; (0, 0) for an axis without a pitch.
+    /// Computed once in [`Path::new`]: every periodic column needs it on every pass.
+    pub fn pitch_phase(&self, i: usize) -> [(f64, f64); 3] {
+        self.phase[i]
     }
 
     /// Whether axis k moves at all.
@@ -377,7 +400,8 @@ impl Effect {
     }
 
     /// Write the per-unit-parameter columns at sample `i` into `out` (length `n_params()`).
-    pub fn columns(&self, path: &Path, i: usize, out: &mut [Column]) {
+    /// `trig` is [`Path::pitch_phase`] at sample i.
+    pub fn columns(&self, path: &Path, i: usize, trig: &[(f64, f64); 3], out: &mut [Column]) {
         let p = path.p_mm[i];
         let v = path.v_mm_s[i];
         for c in out.iter_mut() {
@@ -410,16 +434,14 @@ impl Effect {
             }
             Effect::Cyclic(a) | Effect::Interference(a) => {
                 let k = a.index();
-                if let Some(pitch) = path.pitch_mm[k] {
-                    let (s, c) = (std::f64::consts::TAU * p[k] / pitch).sin_cos();
-                    let g = if matches!(self, Effect::Cyclic(_)) {
-                        1e-3
-                    } else {
-                        1e-3 * v[k]
-                    };
-                    out[0].dp_mm[k] = g * s;
-                    out[1].dp_mm[k] = g * c;
-                }
+                let (s, c) = trig[k];
+                let g = if matches!(self, Effect::Cyclic(_)) {
+                    1e-3
+                } else {
+                    1e-3 * v[k]
+                };
+                out[0].dp_mm[k] = g * s;
+                out[1].dp_mm[k] = g * c;
             }
             Effect::Squareness(pair) => {
                 let (a, b) = pair.axes();
@@ -430,6 +452,150 @@ impl Effect {
                 // ms → s: 1e-3; δ in mm directly (v in mm/s).
                 out[0].dp_mm[a.index()] = -0.5e-3 * v[a.index()];
                 out[0].dp_mm[b.index()] = 0.5e-3 * v[b.index()];
+            }
+        }
+    }
+
+    /// The linearised columns at sample `i`: 1e3·(u·dp + dd), i.e. the change of D in µm per unit
+    /// of each parameter for a unit vector `u` (seed 000 eq. 1). The same numbers as
+    /// [`Effect::columns`] projected on u. One sample of [`Effect::radial_block`].
+    pub fn radial_columns(&self, path: &Path, i: usize, u: [f64; 3], out: &mut [f64]) {
+        self.radial_block(path, i, &[u], out, self.n_params(), 0);
+    }
+
+    /// [`Effect::radial_columns`] for samples i0..i0 + u.len() at once: sample j's parameter k
+    /// goes to `out[j·stride + offset + k]`. Effect by effect over a block of samples, because
+    /// the candidate search and the exact fit evaluate every column on every sample.
+    pub fn radial_block(
+        &self,
+        path: &Path,
+        i0: usize,
+        u: &[[f64; 3]],
+        out: &mut [f64],
+        stride: usize,
+        offset: usize,
+    ) {
+        let n = u.len();
+        let p = &path.p_mm[i0..i0 + n];
+        let v = &path.v_mm_s[i0..i0 + n];
+        let rows = (0..n).map(|j| j * stride + offset);
+        match *self {
+            Effect::SetupOffset => {
+                for (j, o) in rows.enumerate() {
+                    out[o..o + 3].copy_from_slice(&u[j]);
+                }
+            }
+            Effect::LengthOffset => {
+                for o in rows {
+                    out[o] = 1.0;
+                }
+            }
+            Effect::Scale(a) => {
+                let k = a.index();
+                for (j, o) in rows.enumerate() {
+                    out[o] = 1e-3 * u[j][k] * p[j][k];
+                }
+            }
+            Effect::ScaleMismatch(pair) => {
+                let (a, b) = pair.axes();
+                let (a, b) = (a.index(), b.index());
+                for (j, o) in rows.enumerate() {
+                    out[o] = 0.5e-3 * (u[j][a] * p[j][a] - u[j][b] * p[j][b]);
+                }
+            }
+            Effect::Scale2(a) => {
+                let k = a.index();
+                for (j, o) in rows.enumerate() {
+                    out[o] = 1e-6 * u[j][k] * p[j][k] * p[j][k];
+                }
+            }
+            Effect::Backlash(a) => {
+                let k = a.index();
+                let dir = &path.dir[i0..i0 + n];
+                for (j, o) in rows.enumerate() {
+                    out[o] = 0.5 * u[j][k] * f64::from(dir[j][k]);
+                }
+            }
+            Effect::Cyclic(a) | Effect::Interference(a) => {
+                let k = a.index();
+                let cyclic = matches!(self, Effect::Cyclic(_));
+                for (j, o) in rows.enumerate() {
+                    let (s, c) = path.phase[i0 + j][k];
+                    let g = if cyclic { u[j][k] } else { u[j][k] * v[j][k] };
+                    out[o] = g * s;
+                    out[o + 1] = g * c;
+                }
+            }
+            Effect::Squareness(pair) => {
+                let (a, b) = pair.axes();
+                let (a, b) = (a.index(), b.index());
+                for (j, o) in rows.enumerate() {
+                    out[o] = 1e-3 * u[j][a] * p[j][b];
+                }
+            }
+            Effect::ServoMismatch(pair) => {
+                let (a, b) = pair.axes();
+                let (a, b) = (a.index(), b.index());
+                for (j, o) in rows.enumerate() {
+                    out[o] = 0.5 * (u[j][b] * v[j][b] - u[j][a] * v[j][a]);
+                }
+            }
+        }
+    }
+
+    /// Add this effect's δ (mm) for parameters `theta` to the position `q`, and its direct
+    /// change of D (mm) to `dd`: Σ θ_k·[`Effect::columns`]_k, written out because the exact fit
+    /// evaluates it on every pass.
+    pub fn add_delta(
+        &self,
+        path: &Path,
+        i: usize,
+        trig: &[(f64, f64); 3],
+        theta: &[f64],
+        q: &mut [f64; 3],
+        dd: &mut f64,
+    ) {
+        let p = path.p_mm[i];
+        let v = path.v_mm_s[i];
+        match *self {
+            Effect::SetupOffset => {
+                for k in 0..3 {
+                    q[k] += 1e-3 * theta[k];
+                }
+            }
+            Effect::LengthOffset => *dd += 1e-3 * theta[0],
+            Effect::Scale(a) => q[a.index()] += 1e-6 * theta[0] * p[a.index()],
+            Effect::ScaleMismatch(pair) => {
+                let (a, b) = pair.axes();
+                q[a.index()] += 0.5e-6 * theta[0] * p[a.index()];
+                q[b.index()] -= 0.5e-6 * theta[0] * p[b.index()];
+            }
+            Effect::Scale2(a) => {
+                let k = a.index();
+                q[k] += 1e-9 * theta[0] * p[k] * p[k];
+            }
+            Effect::Backlash(a) => {
+                let k = a.index();
+                q[k] += 0.5e-3 * theta[0] * f64::from(path.dir[i][k]);
+            }
+            Effect::Cyclic(a) | Effect::Interference(a) => {
+                let k = a.index();
+                let (s, c) = trig[k];
+                let g = if matches!(self, Effect::Cyclic(_)) {
+                    1e-3
+                } else {
+                    1e-3 * v[k]
+                };
+                q[k] += g * (theta[0] * s + theta[1] * c);
+            }
+            Effect::Squareness(pair) => {
+                let (a, b) = pair.axes();
+                q[a.index()] += 1e-6 * theta[0] * p[b.index()];
+            }
+            Effect::ServoMismatch(pair) => {
+                let (a, b) = pair.axes();
+                q[a.index()] -= 0.5e-3 * theta[0] * v[a.index()];
+                q[b.index()] += 0.5e-3 * theta[0] * v[b.index()];
             }
         }
     }
@@ -477,6 +643,8 @@ pub struct EffectSet {
     /// Index of each effect's first parameter.
     pub offsets: Vec<usize>,
     pub n_params: usize,
+    /// Whether any effect needs the pitch phase.
+    periodic: bool,
 }
 
 impl EffectSet {
@@ -487,32 +655,43 @@ impl EffectSet {
             offsets.push(n);
             n += e.n_params();
         }
+        let periodic = effects.iter().any(|e| e.periodic_axis().is_some());
         EffectSet {
             effects,
             offsets,
             n_params: n,
+            periodic,
         }
     }
 
     /// All per-unit-parameter columns at sample i, in parameter order.
     pub fn columns(&self, path: &Path, i: usize, out: &mut [Column]) {
+        let trig = if self.periodic {
+            path.pitch_phase(i)
+        } else {
+            [(0.0, 0.0); 3]
+        };
         for (e, &o) in self.effects.iter().zip(&self.offsets) {
-            e.columns(path, i, &mut out[o..o + e.n_params()]);
+            e.columns(path, i, &trig, &mut out[o..o + e.n_params()]);
         }
     }
 
     /// Exact model distance (mm) at sample i for parameters `theta`: |p + δ + c| + e.
-    pub fn distance_mm(&self, path: &Path, i: usize, theta: &[f64], buf: &mut [Column]) -> f64 {
-        self.columns(path, i, buf);
+    pub fn distance_mm(&self, path: &Path, i: usize, theta: &[f64]) -> f64 {
+        let (q, d) = self.displaced(path, i, theta);
+        (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() + d
+    }
+
+    /// The displaced spindle-ball position p + δ + c (mm) and the length offset e (mm) at sample
+    /// i for parameters `theta`.
+    pub fn displaced(&self, path: &Path, i: usize, theta: &[f64]) -> ([f64; 3], f64) {
+        let trig = path.pitch_phase(i);
         let mut q = path.p_mm[i];
         let mut d = 0.0;
-        for (c, &t) in buf.iter().zip(theta) {
-            for k in 0..3 {
-                q[k] += t * c.dp_mm[k];
-            }
-            d += t * c.dd_mm;
+        for (e, &o) in self.effects.iter().zip(&self.offsets) {
+            e.add_delta(path, i, &trig, &theta[o..o + e.n_params()], &mut q, &mut d);
         }
-        (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() + d
+        (q, d)
     }
 }
 
@@ -531,25 +710,32 @@ impl crate::fit::Problem for ExactModel<'_> {
         self.d_mm.len()
     }
     fn eval(&self, theta: &[f64], visit: &mut dyn FnMut(usize, f64, &[f64])) {
+        // The gradient of |q| with respect to a parameter is u·dp with u = q/|q|: the radial
+        // columns evaluated at the displaced position, computed a block of samples at a time.
+        const BLOCK: usize = 256;
         let n = self.set.n_params;
-        let mut cols = vec![Column::default(); n];
-        let mut grad = vec![0.0; n];
-        for i in 0..self.d_mm.len() {
-            self.set.columns(self.path, i, &mut cols);
-            let mut q = self.path.p_mm[i];
-            let mut d = 0.0;
-            for (c, &t) in cols.iter().zip(theta) {
-                for k in 0..3 {
-                    q[k] += t * c.dp_mm[k];
-                }
-                d += t * c.dd_mm;
+        let m = self.d_mm.len();
+        let mut grads = vec![0.0; BLOCK * n];
+        let mut u = Vec::with_capacity(BLOCK);
+        let mut res = Vec::with_capacity(BLOCK);
+        let mut i0 = 0;
+        while i0 < m {
+            let len = BLOCK.min(m - i0);
+            u.clear();
+            res.clear();
+            for i in i0..i0 + len {
+                let (q, d) = self.set.displaced(self.path, i, theta);
+                let r = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
+                u.push([q[0] / r, q[1] / r, q[2] / r]);
+                res.push(1e3 * (r + d - self.d_mm[i]));
             }
-            let r = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
-            let u = [q[0] / r, q[1] / r, q[2] / r];
-            for (g, c) in grad.iter_mut().zip(&cols) {
-                *g = 1e3 * (u[0] * c.dp_mm[0] + u[1] * c.dp_mm[1] + u[2] * c.dp_mm[2] + c.dd_mm);
+            for (e, &o) in self.set.effects.iter().zip(&self.set.offsets) {
+                e.radial_block(self.path, i0, &u, &mut grads, n, o);
             }
-            visit(i, 1e3 * (r + d - self.d_mm[i]), &grad);
+            for j in 0..len {
+                visit(i0 + j, res[j], &grads[j * n..(j + 1) * n]);
+            }
+            i0 += len;
         }
     }
 }
@@ -635,6 +821,67 @@ mod tests {
     }
 
     #[test]
+    fn radial_columns_are_the_projected_columns() {
+        let path = circle(40.0, 700);
+        for e in Effect::all()
+            .into_iter()
+            .chain(Pair::ALL.map(Effect::ScaleMismatch))
+        {
+            let n = e.n_params();
+            for i in [5usize, 333, 600] {
+                let p = path.p_mm[i];
+                let u = [p[0] / 40.0, p[1] / 40.0, 0.3];
+                let mut cols = vec![Column::default(); n];
+                e.columns(&path, i, &path.pitch_phase(i), &mut cols);
+                let mut fast = vec![f64::NAN; n];
+                e.radial_columns(&path, i, u, &mut fast);
+                for k in 0..n {
+                    let c = cols[k];
+                    let slow =
+                        1e3 * (u[0] * c.dp_mm[0] + u[1] * c.dp_mm[1] + u[2] * c.dp_mm[2] + c.dd_mm);
+                    assert!(
+                        (slow - fast[k]).abs() < 1e-12,
+                        "{e} {i} {k}: {slow} {}",
+                        fast[k]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn add_delta_is_the_sum_of_the_columns() {
+        let path = circle(40.0, 700);
+        for e in Effect::all()
+            .into_iter()
+            .chain(Pair::ALL.map(Effect::ScaleMismatch))
+        {
+            let n = e.n_params();
+            let theta: Vec<f64> = (0..n).map(|k| 3.0 - 2.5 * k as f64).collect();
+            for i in [5usize, 333, 600] {
+                let trig = path.pitch_phase(i);
+                let mut cols = vec![Column::default(); n];
+                e.columns(&path, i, &trig, &mut cols);
+                let mut q = path.p_mm[i];
+                let mut dd = 0.0;
+                e.add_delta(&path, i, &trig, &theta, &mut q, &mut dd);
+                let mut want = path.p_mm[i];
+                let mut want_dd = 0.0;
+                for (c, t) in cols.iter().zip(&theta) {
+                    for k in 0..3 {
+                        want[k] += t * c.dp_mm[k];
+                    }
+                    want_dd += t * c.dd_mm;
+                }
+                for k in 0..3 {
+                    assert!((q[k] - want[k]).abs() < 1e-12, "{e} {i} {k}");
+                }
+                assert!((dd - want_dd).abs() < 1e-15, "{e}");
+            }
+        }
+    }
+
+    #[test]
     fn direction_holds_through_a_standstill() {
         // x goes 0 → 1, stops, then 1 → 2: direction stays +1 during the stop.
         let t: Vec<f64> = (0..30).map(|i| i as f64).collect();
@@ -662,7 +909,7 @@ mod tests {
         let path = circle(50.0, 100);
         let e = Effect::ServoMismatch(Pair::Xy);
         let mut c = [Column::default()];
-        e.columns(&path, 40, &mut c);
+        e.columns(&path, 40, &path.pitch_phase(40), &mut c);
         let p = path.p_mm[40];
         let u = [p[0] / 50.0, p[1] / 50.0, 0.0];
         let fwd = u[0] * c[0].dp_mm[0] + u[1] * c[0].dp_mm[1];

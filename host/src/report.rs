@@ -28,7 +28,10 @@ fn plot_err(e: impl std::fmt::Display) -> Error {
 }
 
 /// Draw the polar plot on any plotters backend.
-fn draw<DB: DrawingBackend>(root: DrawingArea<DB, plotters::coord::Shift>, d: &Diagnosis) -> Result<()>
+fn draw<DB: DrawingBackend>(
+    root: DrawingArea<DB, plotters::coord::Shift>,
+    d: &Diagnosis,
+) -> Result<()>
 where
     DB::ErrorType: 'static,
 {
@@ -63,13 +66,19 @@ where
             (-1.15f64..1.15).into(),
         )
         .map_err(plot_err)?;
-    let circle = |r: f64| (0..=360).map(move |k| {
-        let a = (k as f64).to_radians();
-        (r * a.cos(), r * a.sin())
-    });
+    let circle = |r: f64| {
+        (0..=360).map(move |k| {
+            let a = (k as f64).to_radians();
+            (r * a.cos(), r * a.sin())
+        })
+    };
     for k in -rings..=rings {
         let r = rad(k as f64 * step);
-        let style = if k == 0 { BLACK.mix(0.5) } else { BLACK.mix(0.15) };
+        let style = if k == 0 {
+            BLACK.mix(0.5)
+        } else {
+            BLACK.mix(0.15)
+        };
         chart
             .draw_series(LineSeries::new(circle(r), style))
             .map_err(plot_err)?;
@@ -78,7 +87,10 @@ where
         let a = (s as f64 * 30.0).to_radians();
         chart
             .draw_series(LineSeries::new(
-                [(0.2 * a.cos(), 0.2 * a.sin()), (1.05 * a.cos(), 1.05 * a.sin())],
+                [
+                    (0.2 * a.cos(), 0.2 * a.sin()),
+                    (1.05 * a.cos(), 1.05 * a.sin()),
+                ],
                 BLACK.mix(0.15),
             ))
             .map_err(plot_err)?;

@@ -18,12 +18,14 @@
 //!   points, whether C turns fully, the A range (Table 2).
 //! - [`identify`]: the eight parameters from measured bar lengths, by least squares or minimax
 //!   (eq. 26), one test or several tests sharing all but the parameters the user says changed.
+//! - [`synth`]: ball positions that make the motion cover a required A range (Table 2).
 //! - [`io`]: parameter files (TOML or CSV) and sample files (`theta_a_deg,theta_c_deg,d_mm`).
 //! - [`cmd`]: `jdbb rrsps design|simulate|identify`.
 pub mod cmd;
 pub mod design;
 pub mod identify;
 pub mod io;
+pub mod synth;
 
 use std::f64::consts::FRAC_PI_2;
 
@@ -167,11 +169,9 @@ impl Prepared {
         let s2 = c.sin * self.c0.cos + c.cos * self.c0.sin;
         let c2 = c.cos * self.c0.cos - c.sin * self.c0.sin;
         let (sa, ca) = (self.alpha.sin, self.alpha.cos);
-        let u = p.a1_mm * c1 + p.s2_mm * sa * s1 + p.a2_mm * c1 * c2 - p.a2_mm * ca * s1 * s2
-            - p.a0_mm;
-        let v = p.a1_mm * s1 - p.s2_mm * sa * c1
-            + p.a2_mm * s1 * c2
-            + p.a2_mm * ca * c1 * s2;
+        let u =
+            p.a1_mm * c1 + p.s2_mm * sa * s1 + p.a2_mm * c1 * c2 - p.a2_mm * ca * s1 * s2 - p.a0_mm;
+        let v = p.a1_mm * s1 - p.s2_mm * sa * c1 + p.a2_mm * s1 * c2 + p.a2_mm * ca * c1 * s2;
         let w = -p.s0_mm + p.s2_mm * ca + p.a2_mm * sa * s2;
         ([u, v, w], [s1, c1, s2, c2])
     }

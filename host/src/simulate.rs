@@ -5,6 +5,8 @@
 //! The machine errors come from `jdbb_core::machine` (the shared seed 000 models); set-up
 //! offset, length offset and servo mismatch are added here. D is the exact distance
 //! |p + δ + c| + e, then noise and reading resolution are applied.
+// Index loops over the axes (k in 0..3) and samples mirror the equations; keep them.
+#![allow(clippy::needless_range_loop)]
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -56,7 +58,11 @@ pub fn parse_effect(s: &str) -> Result<EffectValue> {
     } else {
         return Err(Error::Usage(format!(
             "--effect {name}: give one value{} or all {} parameters ({})",
-            if effect.periodic_axis().is_some() { " [@phase_deg]" } else { "" },
+            if effect.periodic_axis().is_some() {
+                " [@phase_deg]"
+            } else {
+                ""
+            },
             effect.n_params(),
             effect.param_names().join(",")
         )));
@@ -257,9 +263,7 @@ pub fn parse_plane(s: &str) -> Result<(usize, usize, usize)> {
         "xy" => Ok((0, 1, 2)),
         "yz" => Ok((1, 2, 0)),
         "zx" => Ok((2, 0, 1)),
-        _ => Err(Error::Usage(format!(
-            "--plane `{s}`: use xy, yz or zx"
-        ))),
+        _ => Err(Error::Usage(format!("--plane `{s}`: use xy, yz or zx"))),
     }
 }
 
@@ -333,7 +337,10 @@ mod tests {
         assert!(e.params[0].abs() < 1e-12 && (e.params[1] - 2.0).abs() < 1e-12);
         let e = parse_effect("setup_offset=5,-3,1").unwrap();
         assert_eq!(e.params, vec![5.0, -3.0, 1.0]);
-        assert!(parse_effect("scale_w=1").unwrap_err().to_string().contains("unknown effect"));
+        assert!(parse_effect("scale_w=1")
+            .unwrap_err()
+            .to_string()
+            .contains("unknown effect"));
         assert!(parse_effect("setup_offset=5").is_err());
         assert!(parse_effect("scale_x").is_err());
     }

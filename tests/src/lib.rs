@@ -1,1 +1,138 @@
-//! Integration tests live in `tests/`; this crate has no code of its own.
+//! Helpers for the integration tests in `tests/`: finding the firmware images and running them in
+//! QEMU's `netduinoplus2` (STM32F405 model; the F411 image runs there, see the README).
+use std::io::{BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Root of the repository.
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("tests/ has a parent")
+        .to_path_buf()
+}
+
+/// Path of a QEMU-build firmware binary (`scripts/fw-build.sh` puts them in `target/qemu`).
+pub fn qemu_elf(name: &str) -> PathBuf {
+    repo_root()
+        .join("target/qemu/thumbv7em-none-eabihf/release")
+        .join(name)
+}
+
+/// Whether QEMU tests must run (`JDBB_REQUIRE_QEMU=1`, set by `scripts/test.sh` and CI). When not
+/// required and the firmware or QEMU is missing, a test prints why and returns early, so that a
+/// plain `cargo test` on a machine without the thumb toolchain still tests the host crates.
+pub fn qemu_available(elf: &Path) -> bool {
+    let required = std::env::var("JDBB_REQUIRE_QEMU").is_ok_and(|v| v == "1");
+    let have_qemu = Command::new("qemu-system-arm")
+        .arg("--version")
+        .stdout(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    let have_elf = elf.exists();
+    if have_qemu && have_elf {
+        return true;
+    }
+    let why = format!(
+        "QEMU test not run: qemu-system-arm {}, {} {} (build it with scripts/fw-build.sh)",
+        if have_qemu { "found" } else { "missing" },
+        elf.display(),
+        if have_elf { "found" } else { "missing" },
+    );
+    assert!(!required, "{why}; JDBB_REQUIRE_QEMU=1 demands it");
+    eprintln!("{why}");
+    false
+}
+
+/// A QEMU process, killed when dropped.
+pub struct Qemu {
+    child: Child,
+}
+
+impl Drop for Qemu {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn base_command(elf: &Path, icount: bool) -> Command {
+    let mut c = Command::new("qemu-system-arm");
+    c.args([
+        "-machine",
+        "netduinoplus2",
+        "-nographic",
+        "-monitor",
+        "none",
+    ])
+    .args(["-semihosting-config", "enable=on,target=native"]);
+    if icount {
+        // One instruction per ns of emulated time, idle time skipped: the emulated CPU can never
+        // overrun its sample clock however busy the host is, so a run is lossless and repeatable.
+        c.args(["-icount", "shift=0,sleep=off"]);
+    }
+    c.arg("-kernel").arg(elf);
+    c
+}
+
+impl Qemu {
+    /// Run `elf` to completion (semihosting exit) with USART2 written to `usart2_out`; returns the
+    /// exit status. Fails after `timeout`.
+    pub fn run_to_exit(
+        elf: &Path,
+        usart2_out: &Path,
+        timeout: Duration,
+    ) -> std::process::ExitStatus {
+        let mut c = base_command(elf, false);
+        c.args(["-serial", "null", "-serial"])
+            .arg(format!("file:{}", usart2_out.display()))
+            .stdout(Stdio::null())
+            .stderr(Stdio::inherit());
+        let mut child = c.spawn().expect("start qemu-system-arm");
+        let start = Instant::now();
+        loop {
+            if let Some(status) = child.try_wait().expect("wait for qemu") {
+                return status;
+            }
+            if start.elapsed() > timeout {
+                let _ = child.kill();
+                panic!("{} did not exit within {timeout:?}", elf.display());
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// Start `elf` with USART2 on a pseudo-terminal, under `-icount shift=0,sleep=off`; returns
+    /// the process and the pty path.
+    pub fn start_with_pty(elf: &Path) -> (Qemu, PathBuf) {
+        let mut c = base_command(elf, true);
+        c.args(["-serial", "null", "-serial", "pty"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit());
+        let mut child = c.spawn().expect("start qemu-system-arm");
+        let stdout = child.stdout.take().expect("piped stdout");
+        let mut reader = BufReader::new(stdout);
+        // QEMU prints "char device redirected to /dev/pts/N (label serial1)" on stdout; after it,
+        // stdout carries the firmware's binary defmt log (semihosting), so read raw lines.
+        let pty = loop {
+            let mut line = Vec::new();
+            let n = reader
+                .read_until(b'\n', &mut line)
+                .expect("read QEMU stdout");
+            assert!(n > 0, "QEMU exited before announcing its pty");
+            let line = String::from_utf8_lossy(&line);
+            if let Some(rest) = line.split("redirected to ").nth(1) {
+                if line.contains("serial1") {
+                    break PathBuf::from(rest.split_whitespace().next().unwrap());
+                }
+            }
+        };
+        // Keep draining stdout so QEMU never blocks on it.
+        std::thread::spawn(move || {
+            let mut sink = [0u8; 4096];
+            while matches!(reader.read(&mut sink), Ok(n) if n > 0) {}
+        });
+        (Qemu { child }, pty)
+    }
+}

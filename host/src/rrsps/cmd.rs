@@ -29,6 +29,30 @@ pub enum RrspsCommand {
     Simulate(SimulateArgs),
     /// Identify the eight parameters from one or more samples files (eq. 26).
     Identify(IdentifyArgs),
+    /// Place the balls (s0, a0, θA0, θC0) so the motion's dead points fall on a required A range.
+    Synthesize(SynthesizeArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct SynthesizeArgs {
+    /// Start values; s2, a2 (the table ball), a1 and α12 are taken from here and held.
+    #[command(flatten)]
+    pub source: ParamsSource,
+    /// Bar length d (mm), one of the bar-length series.
+    #[arg(long = "d", value_name = "MM")]
+    pub d_mm: f64,
+    /// Required A range (degrees), e.g. --require-a=-110,0.
+    #[arg(
+        long,
+        value_name = "MIN,MAX",
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        required = true
+    )]
+    pub require_a: Vec<f64>,
+    /// Machine-readable output.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Parameter file and, for CSV tables with several rows, the row.
@@ -50,7 +74,12 @@ pub struct DesignArgs {
     #[arg(long = "d", value_name = "MM")]
     pub d_mm: f64,
     /// Required A range (degrees) to check the motion against, e.g. --require-a=-110,0.
-    #[arg(long, value_name = "MIN,MAX", value_delimiter = ',', num_args = 2, allow_hyphen_values = true)]
+    #[arg(
+        long,
+        value_name = "MIN,MAX",
+        value_delimiter = ',',
+        allow_hyphen_values = true
+    )]
     pub require_a: Option<Vec<f64>>,
     /// Machine-readable output.
     #[arg(long)]
@@ -120,12 +149,26 @@ pub struct IdentifyArgs {
     pub json: bool,
 }
 
+/// Print a report on standard output; a closed pipe (`| head`) is not an error.
+pub fn emit(text: &str) -> Result<()> {
+    let mut out = std::io::stdout().lock();
+    match writeln!(out, "{text}").and_then(|_| out.flush()) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(Error::File {
+            action: "cannot write",
+            path: "<stdout>".into(),
+            source: e,
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// Run `jdbb rrsps ...`.
 pub fn run(args: &RrspsArgs) -> Result<()> {
     match &args.command {
         RrspsCommand::Design(a) => run_design(a),
         RrspsCommand::Simulate(a) => run_simulate(a),
         RrspsCommand::Identify(a) => run_identify(a),
+        RrspsCommand::Synthesize(a) => run_synthesize(a),
     }
 }
 
@@ -133,7 +176,9 @@ fn check_d(d_mm: f64) -> Result<()> {
     if d_mm.is_finite() && d_mm > 0.0 {
         Ok(())
     } else {
-        Err(Error::Usage(format!("--d {d_mm}: the bar length must be a positive number of mm")))
+        Err(Error::Usage(format!(
+            "--d {d_mm}: the bar length must be a positive number of mm"
+        )))
     }
 }
 
@@ -141,14 +186,21 @@ fn run_design(args: &DesignArgs) -> Result<()> {
     check_d(args.d_mm)?;
     let p = read_params(&args.source.params, args.source.case.as_deref())?;
     let des = design(&p, args.d_mm);
-    let required = args.require_a.as_ref().map(|v| [v[0].min(v[1]), v[0].max(v[1])]);
+    let required = match args.require_a.as_deref() {
+        None => None,
+        Some(&[a, b]) => Some([a.min(b), a.max(b)]),
+        Some(_) => {
+            return Err(Error::Usage(
+                "--require-a takes two angles in degrees, e.g. --require-a=-110,0".into(),
+            ))
+        }
+    };
     let out = if args.json {
         serde_json::to_string_pretty(&design_json(&des, required)).expect("JSON of numbers")
     } else {
         design_text(&des, required)
     };
-    println!("{out}");
-    Ok(())
+    emit(&out)
 }
 
 /// Tolerance (degrees) for "fits the required range".
@@ -240,10 +292,53 @@ fn design_text(des: &Design, required: Option<[f64; 2]>) -> String {
             req[0],
             req[1],
             if within { "within it" } else { "NOT within it" },
-            if covers { "covers it" } else { "does NOT cover it" }
+            if covers {
+                "covers it"
+            } else {
+                "does NOT cover it"
+            }
         );
     }
     s.trim_end().to_string()
+}
+
+fn run_synthesize(args: &SynthesizeArgs) -> Result<()> {
+    check_d(args.d_mm)?;
+    let [a, b] = args.require_a[..] else {
+        return Err(Error::Usage(
+            "--require-a takes two angles in degrees, e.g. --require-a=-110,0".into(),
+        ));
+    };
+    let start = read_params(&args.source.params, args.source.case.as_deref())?;
+    let syn = super::synth::synthesize(&start, args.d_mm, [a, b])?;
+    let v = syn.params.to_named_units();
+    let des = design(&syn.params, args.d_mm);
+    let out = if args.json {
+        let params: Map<String, Value> = PARAM_NAMES
+            .iter()
+            .zip(v)
+            .map(|(n, x)| (n.to_string(), json!(x)))
+            .collect();
+        serde_json::to_string_pretty(&json!({
+            "params": params,
+            "max_condition_mm": syn.max_condition_mm,
+            "design": design_json(&des, Some([a.min(b), a.max(b)])),
+        }))
+        .expect("JSON of numbers")
+    } else {
+        let mut s = format!(
+            "dead-point synthesis for d = {} mm, A {}..{}° (conditions met to {:.1e} mm):\n",
+            args.d_mm,
+            a.min(b),
+            a.max(b),
+            syn.max_condition_mm
+        );
+        for (n, x) in PARAM_NAMES.iter().zip(v) {
+            s += &format!("  {n:<14} {x:.4}\n");
+        }
+        s + &design_text(&des, Some([a.min(b), a.max(b)]))
+    };
+    emit(&out)
 }
 
 fn run_simulate(args: &SimulateArgs) -> Result<()> {
@@ -252,7 +347,9 @@ fn run_simulate(args: &SimulateArgs) -> Result<()> {
         return Err(Error::Usage("--points must be at least 2".into()));
     }
     if !(args.noise_um >= 0.0 && args.noise_um.is_finite()) {
-        return Err(Error::Usage("--noise-um must be a non-negative number".into()));
+        return Err(Error::Usage(
+            "--noise-um must be a non-negative number".into(),
+        ));
     }
     let des = read_params(&args.design, args.case.as_deref())?;
     let truth = match &args.truth {
@@ -286,13 +383,7 @@ fn run_simulate(args: &SimulateArgs) -> Result<()> {
             path: path.clone(),
             source,
         })?,
-        None => std::io::stdout()
-            .write_all(text.as_bytes())
-            .map_err(|source| Error::File {
-                action: "cannot write",
-                path: "<stdout>".into(),
-                source,
-            })?,
+        None => emit(text.trim_end())?,
     }
     Ok(())
 }
@@ -311,8 +402,8 @@ pub fn simulate(
     seed: u64,
 ) -> Result<(Vec<f64>, Vec<f64>, Vec<f64>, usize)> {
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-    let noise = Normal::new(0.0, noise_um * 1e-3)
-        .map_err(|e| Error::Usage(format!("noise: {e}")))?;
+    let noise =
+        Normal::new(0.0, noise_um * 1e-3).map_err(|e| Error::Usage(format!("noise: {e}")))?;
     let prep = Prepared::new(truth);
     let (mut ta, mut tc, mut d) = (Vec::new(), Vec::new(), Vec::new());
     let mut skipped = 0;
@@ -351,8 +442,7 @@ fn run_identify(args: &IdentifyArgs) -> Result<()> {
     } else {
         identification_text(&id)
     };
-    println!("{out}");
-    Ok(())
+    emit(&out)
 }
 
 /// The JSON form of an identification (see README): `params`, `sigma` (null when undetermined),
@@ -369,12 +459,30 @@ pub fn identification_json(id: &Identification) -> Value {
         "method": match id.method { Method::Minimax => "minimax", Method::Lsq => "lsq" },
         "params": params,
         "sigma": sigma,
+        // The standard errors always come from the least-squares fit of the same data.
+        "sigma_method": "lsq",
         "undetermined": id.undetermined,
         "max_abs_residual_um": id.max_abs_residual_um,
         "rms_residual_um": id.rms_residual_um,
         "singular_values": id.singular_values,
         "n_samples": id.tests.iter().map(|t| t.n_samples).sum::<usize>(),
+        "iterations": id.iterations,
+        "weakest": {
+            "relative_singular_value": id.weakest.relative_singular_value,
+            "direction": id.weakest.components.iter().map(|(n, v)| (n.clone(), json!(v))).collect::<Map<_, _>>(),
+            "max_change_um_per_unit": id.weakest.max_change_um,
+        },
     });
+    if id.method == Method::Minimax {
+        // The standard errors are those of the least-squares fit: show its values beside them.
+        v["lsq_params"] = id
+            .estimates
+            .iter()
+            .zip(&id.lsq_values)
+            .map(|(e, &x)| (e.name.clone(), json!(x)))
+            .collect::<Map<_, _>>()
+            .into();
+    }
     if !single {
         let tests: Vec<Value> = id
             .tests
@@ -433,6 +541,29 @@ fn identification_text(id: &Identification) -> String {
             g.join(", ")
         );
     }
+    let w = &id.weakest;
+    s += &format!(
+        "  weakest combination (singular value {:.1e} of the largest): {}\n    one unit along it changes d by at most {:.3} µm\n",
+        w.relative_singular_value,
+        w.components
+            .iter()
+            .filter(|(_, v)| v.abs() >= 0.01)
+            .map(|(n, v)| format!("{v:+.2} {n}"))
+            .collect::<Vec<_>>()
+            .join(", "),
+        w.max_change_um
+    );
+    if id.method == Method::Minimax {
+        s += &format!(
+            "  least-squares values: {}\n",
+            id.estimates
+                .iter()
+                .zip(&id.lsq_values)
+                .map(|(e, &x)| format!("{} {}", e.name, format_estimate(x, e.sigma)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
     s += &format!(
         "  singular values (column-scaled): {}\n",
         id.singular_values
@@ -450,6 +581,6 @@ fn identification_text(id: &Identification) -> String {
             tf.rms_residual_um
         );
     }
-    s += "  (standard errors from the least-squares fit; digits beyond them are not shown)";
+    s += "  (± are standard errors of the least-squares fit, digits beyond them not shown; a minimax\n   estimate scatters more than that along weak combinations)";
     s
 }

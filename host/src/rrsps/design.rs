@@ -62,7 +62,7 @@ pub fn theta_a_for(p: &Params, d_mm: f64, theta_c_rad: f64, branch: Branch) -> O
     let (_, theta2) = p.link_angles(0.0, theta_c_rad);
     let (a, b, c) = eq9(p, d_mm, theta2);
     let r = a.hypot(b);
-    if !(r > 0.0) || c.abs() > r {
+    if r.is_nan() || r <= 0.0 || c.abs() > r {
         return None;
     }
     let theta1 = a.atan2(b) + branch.sign() * (-c / r).clamp(-1.0, 1.0).acos();
@@ -129,10 +129,16 @@ const GRID: usize = 36_000;
 
 /// Design the constant-length motion (eq. 9-15) for parameters `p` and bar length `d_mm`.
 pub fn design(p: &Params, d_mm: f64) -> Design {
-    let step = TAU / GRID as f64;
+    design_with_grid(p, d_mm, GRID)
+}
+
+/// [`design`] scanning θC on `grid` points (dead points and limits are refined beyond the grid).
+pub fn design_with_grid(p: &Params, d_mm: f64, grid: usize) -> Design {
+    let grid = grid.max(360);
+    let step = TAU / grid as f64;
     let branches: Vec<BranchMotion> = Branch::BOTH
         .iter()
-        .map(|&b| branch_motion(p, d_mm, b, step))
+        .map(|&b| branch_motion(p, d_mm, b, step, grid))
         .collect();
     let a_range_deg = branches
         .iter()
@@ -142,15 +148,15 @@ pub fn design(p: &Params, d_mm: f64) -> Design {
         d_mm,
         branches,
         a_range_deg,
-        d_full_turn_mm: d_full_turn(p, step),
+        d_full_turn_mm: d_full_turn(p, step, grid),
     }
 }
 
-fn branch_motion(p: &Params, d: f64, branch: Branch, step: f64) -> BranchMotion {
+fn branch_motion(p: &Params, d: f64, branch: Branch, step: f64, grid: usize) -> BranchMotion {
     let at = |k: usize| theta_a_for(p, d, k as f64 * step, branch);
-    let vals: Vec<Option<f64>> = (0..GRID).map(at).collect();
+    let vals: Vec<Option<f64>> = (0..grid).map(at).collect();
     // Unwrap θA along the grid so a range across ±180° stays contiguous.
-    let mut unwrapped: Vec<Option<f64>> = Vec::with_capacity(GRID);
+    let mut unwrapped: Vec<Option<f64>> = Vec::with_capacity(grid);
     let mut prev: Option<f64> = None;
     for v in &vals {
         let u = v.map(|x| match prev {
@@ -181,17 +187,17 @@ fn branch_motion(p: &Params, d: f64, branch: Branch, step: f64) -> BranchMotion 
     };
     let mut c_blocked_deg = Vec::new();
     let n_blocked = vals.iter().filter(|v| v.is_none()).count();
-    if n_blocked == GRID {
+    if n_blocked == grid {
         c_blocked_deg.push([0.0, 360.0]);
     } else if n_blocked > 0 {
         // Start scanning at a valid point so runs do not wrap around the array end.
         let start = vals.iter().position(|v| v.is_some()).unwrap_or(0);
         let mut k = 0;
-        while k < GRID {
-            let i = (start + k) % GRID;
+        while k < grid {
+            let i = (start + k) % grid;
             if vals[i].is_none() {
                 let first = k;
-                while k < GRID && vals[(start + k) % GRID].is_none() {
+                while k < grid && vals[(start + k) % grid].is_none() {
                     k += 1;
                 }
                 let lo_c = ((start + first) as f64 - 1.0) * step;
@@ -209,11 +215,11 @@ fn branch_motion(p: &Params, d: f64, branch: Branch, step: f64) -> BranchMotion 
 
     // Dead points: interior local extremes of θA(θC), refined by golden section.
     let mut dead_points = Vec::new();
-    for k in 0..GRID {
+    for k in 0..grid {
         let (Some(a), Some(b), Some(c)) = (
-            unwrapped[(k + GRID - 1) % GRID],
+            unwrapped[(k + grid - 1) % grid],
             unwrapped[k],
-            unwrapped[(k + 1) % GRID],
+            unwrapped[(k + 1) % grid],
         ) else {
             continue;
         };
@@ -224,13 +230,14 @@ fn branch_motion(p: &Params, d: f64, branch: Branch, step: f64) -> BranchMotion 
         if !(is_max || is_min) {
             continue;
         }
-        let sign = if is_max { 1.0 } else { -1.0 };
+        // Refine on eq. (15), which changes sign at the extreme (it is ∝ dθ1/dθ2, eq. 13).
         let f = |tc: f64| {
-            theta_a_for(p, d, tc, branch)
-                .map(|x| sign * wrap_pi(x - b))
-                .unwrap_or(f64::NEG_INFINITY)
+            theta_a_for(p, d, tc, branch).map_or(0.0, |ta| {
+                let (t1, t2) = p.link_angles(ta, tc);
+                eq15(p, t1, t2)
+            })
         };
-        let tc = golden_max(f, (k as f64 - 1.0) * step, (k as f64 + 1.0) * step);
+        let tc = bisect(f, (k as f64 - 1.0) * step, (k as f64 + 1.0) * step);
         let Some(ta) = theta_a_for(p, d, tc, branch) else {
             continue;
         };
@@ -252,14 +259,14 @@ fn branch_motion(p: &Params, d: f64, branch: Branch, step: f64) -> BranchMotion 
 }
 
 /// Bar lengths for which every θC has a position: √max(K − R) ≤ d ≤ √min(K + R).
-fn d_full_turn(p: &Params, step: f64) -> Option<[f64; 2]> {
+fn d_full_turn(p: &Params, step: f64, grid: usize) -> Option<[f64; 2]> {
     let kr = |tc: f64, s: f64| {
         let (_, t2) = p.link_angles(0.0, tc);
         let (a, b, _) = eq9(p, 0.0, t2);
         k_of(p, t2) + s * a.hypot(b)
     };
     let argmax = |f: &dyn Fn(f64) -> f64| {
-        let k = (0..GRID)
+        let k = (0..grid)
             .max_by(|&i, &j| f(i as f64 * step).total_cmp(&f(j as f64 * step)))
             .unwrap_or(0);
         let t = golden_max(f, (k as f64 - 1.0) * step, (k as f64 + 1.0) * step);

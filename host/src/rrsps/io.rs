@@ -20,7 +20,10 @@ fn read(path: &Path) -> Result<String> {
 /// `case` column.
 pub fn read_params(path: &Path, case: Option<&str>) -> Result<Params> {
     let text = read(path)?;
-    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml")) {
+    if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+    {
         parse_params_toml(path, &text)
     } else {
         parse_params_csv(path, &text, case)
@@ -97,7 +100,12 @@ fn parse_params_csv(path: &Path, text: &str, case: Option<&str>) -> Result<Param
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty() && !l.starts_with('#'));
     let Some((hline, header)) = lines.next() else {
-        return Err(Error::input(path, 1, 0, "empty file: expected a header line with the eight parameter names"));
+        return Err(Error::input(
+            path,
+            1,
+            0,
+            "empty file: expected a header line with the eight parameter names",
+        ));
     };
     let cols: Vec<&str> = header.split(',').map(str::trim).collect();
     let mut idx = [0usize; 8];
@@ -342,7 +350,8 @@ mod tests {
 
     #[test]
     fn table_csv_picks_a_case() {
-        let text = "case,s0_mm,a0_mm,theta_a0_deg,s2_mm,a2_mm,theta_c0_deg,a1_mm,alpha12_deg,note\n\
+        let text =
+            "case,s0_mm,a0_mm,theta_a0_deg,s2_mm,a2_mm,theta_c0_deg,a1_mm,alpha12_deg,note\n\
                     M1,96.865,351.891,-54.995,79.871,30.063,-161.531,-0.023,270.093,x\n\
                     M2,97.124,351.900,-54.996,79.904,30.080,-161.541,-0.021,270.102,y\n";
         let p = parse_params_csv(Path::new("t.csv"), text, Some("M2")).unwrap();
@@ -366,13 +375,21 @@ mod tests {
 
     #[test]
     fn samples_errors_point_at_the_field() {
-        let e = parse_samples(Path::new("s.csv"), "theta_a_deg,theta_c_deg,d_mm\n1,2,3\n1,zz,3\n", 0)
-            .unwrap_err();
+        let e = parse_samples(
+            Path::new("s.csv"),
+            "theta_a_deg,theta_c_deg,d_mm\n1,2,3\n1,zz,3\n",
+            0,
+        )
+        .unwrap_err();
         assert_eq!(
             e.to_string(),
             "s.csv:3:3: theta_c_deg: `zz` is not a number"
         );
         let e = parse_samples(Path::new("s.csv"), "a,b,c\n1,2,3\n", 0).unwrap_err();
-        assert!(e.to_string().starts_with("s.csv:1: no column `theta_a_deg`"), "{e}");
+        assert!(
+            e.to_string()
+                .starts_with("s.csv:1: no column `theta_a_deg`"),
+            "{e}"
+        );
     }
 }

@@ -1,0 +1,223 @@
+//! QEMU `netduinoplus2` (an STM32F405 machine running this F411 binary; same peripheral addresses
+//! and interrupt numbers for everything used here).
+//!
+//! What QEMU 7.2 models and what it does not decides this seam:
+//!
+//! - RCC, GPIO and USB OTG are not modelled: HSI only (the HAL would wait for HSE/PLL ready bits
+//!   forever) and USART2 instead of USB.
+//! - TIM2–5 have no encoder mode (16-bit counters clocked at 1 GHz whatever RCC says), so the
+//!   encoders are simulated: a circular test from [`jdbb_core::sim`] gives the extended counts at
+//!   each sample time, presented as 32-bit raw counter values and fed through the same
+//!   `Encoder<32>` path as TIM2/TIM5 on the real board.
+//! - TIM3's update interrupt is not periodic there. Measured with SysTick under `-icount`: the
+//!   first period is right (1 ms = 168 012 SysTick ticks), but re-armed by an update event each
+//!   following period doubles, and left alone the interrupt fires back to back. So the sample clock
+//!   is paced in software: [`SampleTimer`] here only holds the period (whole µs), and the
+//!   application's `pace` task, woken every 1 ms by the SysTick monotonic, pends the TIM3
+//!   interrupt once for every period elapsed on TIM2's count ([`pace_clock_raw_us`]) — the very
+//!   same sample task then runs. QEMU computes TIM2's count from its virtual clock, so no period is
+//!   lost when QEMU delivers SysTick interrupts late or merged (it does on a loaded host: a 10 kHz
+//!   monotonic alone ran at ~60 % of real time). After a stall of the emulator longer than a burst
+//!   the pacer resumes from the present instead of flooding the queue.
+//! - Cost: the simulation runs in software f64 on the emulated M4F, ~33 000 instructions per
+//!   sample (`scripts/fw-cycles.sh`), so on QEMU's real-time clock rates above ~2 kHz overload the
+//!   emulated CPU and samples are dropped (counted); under `-icount shift=0,sleep=off` nothing is
+//!   dropped at any rate (see `scripts/qemu-run.sh`).
+//! - SysTick runs at the machine's 168 MHz CPU clock (measured, see above).
+
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use jdbb_core::protocol::Board;
+use jdbb_core::sim::CircularTest;
+use stm32f4xx_hal::{pac, prelude::*};
+
+use crate::usart2::Usart2;
+
+/// Reported in `DeviceInfo`.
+pub const BOARD: Board = Board::QemuNetduinoPlus2;
+/// Samples carry `Status::SIMULATED`.
+pub const SIMULATED: bool = true;
+/// Clock of the sample period: TIM2 counts µs ([`pace_clock_raw_us`]).
+pub const PACE_HZ: u32 = 1_000_000;
+/// SysTick's clock on netduinoplus2 (the machine's fixed 168 MHz system clock).
+pub const SYSTICK_HZ: u32 = 168_000_000;
+/// The QEMU build starts sampling at boot, so a host sees data without sending `Start`.
+pub const AUTO_START: bool = true;
+
+/// Everything the application needs from the board.
+pub struct Parts {
+    /// Raw-count source.
+    pub encoders: Encoders,
+    /// Byte link to the host.
+    pub link: Link,
+    /// Sample clock (stopped).
+    pub timer: SampleTimer,
+    /// SysTick input clock for the monotonic (Hz).
+    pub systick_hz: u32,
+    /// Raw counter values at power-up.
+    pub initial_raw: [u32; 2],
+    /// Raw values at which the encoders' index pulses were seen during init, if any: the simulated
+    /// encoders have their index at raw 0, where the simulated counter was reset.
+    pub index_raw: Option<[u32; 2]>,
+}
+
+/// Bring up the board: HSI clocks, USART2, TIM3 as the sample clock at `rate_hz`.
+pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
+    let rcc = dp.RCC.constrain();
+    let clocks = rcc.cfgr.freeze(); // HSI 16 MHz, no PLL
+    let gpioa = dp.GPIOA.split();
+    // TIM3 itself stays unused (see the module docs); its interrupt vector runs the sample task.
+    let _ = dp.TIM3;
+    start_pace_clock(dp.TIM2);
+    let _tx = gpioa.pa2.into_alternate::<7>();
+    let _rx = gpioa.pa3.into_alternate::<7>();
+    Parts {
+        encoders: Encoders {
+            test: CircularTest::DEFAULT,
+            last: [0, 0],
+        },
+        link: Link {
+            uart: Usart2::new(dp.USART2, clocks.pclk1().raw()),
+        },
+        timer: SampleTimer::new(rate_hz),
+        systick_hz: SYSTICK_HZ,
+        initial_raw: [0, 0],
+        index_raw: Some([0, 0]),
+    }
+}
+
+/// Start QEMU's TIM2 as a free-running 32-bit µs counter (QEMU derives the count from its virtual
+/// clock, see the module docs). It is used for nothing else.
+fn start_pace_clock(tim: pac::TIM2) {
+    // QEMU clocks the timer at 1 GHz: prescaler 1000 → 1 µs per count. ARR stays 0 (no
+    // interrupts); the count runs regardless.
+    tim.psc().write(|w| unsafe { w.bits(999) });
+    tim.egr().write(|w| unsafe { w.bits(1) });
+    tim.cr1().write(|w| unsafe { w.bits(1) });
+}
+
+/// The pacer's time base: TIM2's raw count (µs, wraps every 71 minutes; extend it with
+/// `CountExtender<32>`).
+#[inline]
+pub fn pace_clock_raw_us() -> u32 {
+    // SAFETY: read-only access to a counter configured once in `init` and used nowhere else.
+    unsafe { (*pac::TIM2::ptr()).cnt().read().bits() }
+}
+
+/// Simulated encoders: [`CircularTest::DEFAULT`] (R = 90 mm, 1000 mm/min, ccw then cw).
+pub struct Encoders {
+    test: CircularTest,
+    last: [u32; 2],
+}
+
+impl Encoders {
+    /// The simulated counters' raw values for the sample taken at `t_us` (the extended counts
+    /// truncated to 32 bits, as a 32-bit timer would hold them). Holds the last value if the
+    /// test's radius were out of the instrument's reach.
+    #[inline]
+    pub fn read(&mut self, t_us: u64) -> [u32; 2] {
+        if let Some((c1, c2)) = self.test.counts_at(t_us) {
+            self.last = [c1 as u32, c2 as u32];
+        }
+        self.last
+    }
+}
+
+/// USART2 as the host link.
+pub struct Link {
+    uart: Usart2,
+}
+
+impl Link {
+    /// Service the link (nothing to do for a UART); true if bytes may have arrived.
+    #[inline]
+    pub fn poll(&mut self) -> bool {
+        true
+    }
+
+    /// Received bytes into `buf`; how many.
+    #[inline]
+    pub fn read(&mut self, buf: &mut [u8]) -> usize {
+        self.uart.read(buf)
+    }
+
+    /// Queue bytes for sending without waiting; how many were taken (0 = would block).
+    #[inline]
+    pub fn write(&mut self, bytes: &[u8]) -> usize {
+        self.uart.write(bytes)
+    }
+}
+
+/// Period of the running sample clock in µs, 0 when stopped; read by the pacer.
+static PACE_PERIOD: AtomicU32 = AtomicU32::new(0);
+
+/// The period the application's pacer must wait before pending the sample interrupt again (µs);
+/// 0 while sampling is stopped.
+pub fn pace_period_us() -> u32 {
+    PACE_PERIOD.load(Ordering::Relaxed)
+}
+
+/// The sample clock of the QEMU build: the same interface as the real board's TIM3 driver, paced
+/// by the application from SysTick (see the module docs).
+pub struct SampleTimer {
+    period_ticks: u32,
+    running: bool,
+}
+
+impl SampleTimer {
+    /// A stopped clock at `rate_hz`.
+    pub fn new(rate_hz: u32) -> Self {
+        let mut t = SampleTimer {
+            period_ticks: 1,
+            running: false,
+        };
+        t.set_rate(rate_hz);
+        t
+    }
+
+    /// The nearest whole-µs period to `rate_hz`; returns it in ticks of [`Self::clock_hz`] (µs).
+    pub fn set_rate(&mut self, rate_hz: u32) -> u32 {
+        let hz = rate_hz.max(1);
+        self.period_ticks = ((PACE_HZ + hz / 2) / hz).max(1);
+        if self.running {
+            PACE_PERIOD.store(self.period_ticks, Ordering::Relaxed);
+        }
+        self.period_ticks
+    }
+
+    /// Clock of the period (Hz).
+    pub fn clock_hz(&self) -> u32 {
+        PACE_HZ
+    }
+
+    /// Current period in ticks.
+    pub fn period_ticks(&self) -> u32 {
+        self.period_ticks
+    }
+
+    /// Effective sample rate (Hz, rounded).
+    pub fn rate_hz(&self) -> u32 {
+        (PACE_HZ + self.period_ticks / 2) / self.period_ticks
+    }
+
+    /// Start pacing.
+    pub fn start(&mut self) {
+        self.running = true;
+        PACE_PERIOD.store(self.period_ticks, Ordering::Relaxed);
+    }
+
+    /// Stop pacing.
+    pub fn stop(&mut self) {
+        self.running = false;
+        PACE_PERIOD.store(0, Ordering::Relaxed);
+    }
+
+    /// Whether samples are being paced.
+    pub fn is_running(&self) -> bool {
+        self.running
+    }
+
+    /// Nothing to acknowledge: the interrupt was pended by software.
+    #[inline]
+    pub fn clear_update(&mut self) {}
+}

@@ -1,0 +1,399 @@
+//! `jdbb record` / `jdbb live` / `jdbb devices` from the outside: bad ports and outputs give a
+//! clear error and a nonzero exit, and a fake device on a pty (the same kind of port QEMU gives)
+//! streams into a CSV that survives Ctrl-C, SIGKILL and an unplug.
+#![cfg(unix)]
+
+use std::fs::File;
+use std::io::{Read, Write};
+use std::os::fd::{AsRawFd, FromRawFd};
+use std::path::Path;
+use std::process::{Child, Command as Proc, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use jdbb_core::protocol::{
+    self, Command, Decoder, DeviceMsg, Sample, SampleBatch, Status, BATCH_LEN, MAX_FRAME_LEN,
+};
+
+const JDBB: &str = env!("CARGO_BIN_EXE_jdbb");
+
+fn jdbb(args: &[&str]) -> Output {
+    Proc::new(JDBB).args(args).output().expect("run jdbb")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A pseudo-terminal pair: the test plays the device on the master side, jdbb opens the slave
+/// path like QEMU's /dev/pts/N.
+struct Pty {
+    master: File,
+    slave_path: String,
+}
+
+impl Pty {
+    fn new() -> Pty {
+        // SAFETY: plain libc calls on a descriptor we own; every result is checked.
+        unsafe {
+            // O_CLOEXEC: no jdbb spawned by a test running in parallel may inherit the master,
+            // or closing it here would not hang up the slave.
+            let fd = libc::posix_openpt(libc::O_RDWR | libc::O_NOCTTY | libc::O_CLOEXEC);
+            assert!(fd >= 0, "posix_openpt");
+            assert_eq!(libc::grantpt(fd), 0, "grantpt");
+            assert_eq!(libc::unlockpt(fd), 0, "unlockpt");
+            let mut name = [0 as libc::c_char; 128];
+            assert_eq!(libc::ptsname_r(fd, name.as_mut_ptr(), name.len()), 0);
+            let slave_path = std::ffi::CStr::from_ptr(name.as_ptr())
+                .to_string_lossy()
+                .into_owned();
+            // Raw mode from the start, so no byte written before jdbb opens the slave is cooked.
+            let mut t: libc::termios = std::mem::zeroed();
+            assert_eq!(libc::tcgetattr(fd, &mut t), 0);
+            libc::cfmakeraw(&mut t);
+            assert_eq!(libc::tcsetattr(fd, libc::TCSANOW, &t), 0);
+            Pty {
+                master: File::from_raw_fd(fd),
+                slave_path,
+            }
+        }
+    }
+
+    /// Read what jdbb sent until `want` arrives, or panic after `timeout`.
+    fn expect_command(&mut self, want: Command, timeout: Duration) {
+        let t0 = Instant::now();
+        let mut dec = Decoder::<MAX_FRAME_LEN>::new();
+        let mut seen = Vec::new();
+        while t0.elapsed() < timeout {
+            let mut pfd = libc::pollfd {
+                fd: self.master.as_raw_fd(),
+                events: libc::POLLIN,
+                revents: 0,
+            };
+            // SAFETY: one valid pollfd.
+            if unsafe { libc::poll(&mut pfd, 1, 50) } <= 0 {
+                continue;
+            }
+            let mut buf = [0u8; 256];
+            let n = self.master.read(&mut buf).expect("read pty master");
+            dec.feed::<Command>(&buf[..n], |c| seen.push(c));
+            if seen.contains(&Ok(want)) {
+                return;
+            }
+        }
+        panic!("jdbb did not send {want:?} within {timeout:?}; got {seen:?}");
+    }
+
+    fn send(&mut self, bytes: &[u8]) {
+        self.master.write_all(bytes).expect("write pty master");
+        self.master.flush().unwrap();
+    }
+}
+
+fn sample(seq: u64) -> Sample {
+    Sample {
+        t_us: 100 * seq,
+        enc1: 1000 - seq as i64,
+        enc2: -(seq as i64) * 3,
+        d_mm: 99.9 + 1e-6 * seq as f64 + 1.234_567e-8,
+        status: Status(Status::SIMULATED),
+    }
+}
+
+fn batch_frame(seq: u32) -> Vec<u8> {
+    let mut samples = heapless::Vec::new();
+    for i in 0..BATCH_LEN as u64 {
+        samples.push(sample(u64::from(seq) + i)).unwrap();
+    }
+    let msg = DeviceMsg::Batch(SampleBatch {
+        seq,
+        dropped: 0,
+        samples,
+    });
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    protocol::encode(&msg, &mut buf).unwrap().to_vec()
+}
+
+fn spawn(args: &[&str]) -> Child {
+    Proc::new(JDBB)
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn jdbb")
+}
+
+/// Data lines of the CSV (header checked), once it holds `n` of them; panics after 10 s.
+fn wait_for_lines(path: &Path, n: usize) -> Vec<String> {
+    let t0 = Instant::now();
+    loop {
+        let text = std::fs::read_to_string(path).unwrap_or_default();
+        let lines: Vec<String> = text.lines().skip(1).map(str::to_string).collect();
+        if lines.len() >= n {
+            assert!(text.starts_with("seq,t_us,enc1,enc2,d_mm\n"), "{text:.80}");
+            return lines;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "CSV has {} of {n} lines",
+            lines.len()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// The CSV must be whole lines, each the sample with that sequence number, and nothing else.
+fn check_csv(path: &Path, want_seqs: &[u64]) {
+    let text = std::fs::read_to_string(path).unwrap();
+    assert!(
+        text.ends_with('\n'),
+        "torn last line: {:?}",
+        text.lines().last()
+    );
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("seq,t_us,enc1,enc2,d_mm"));
+    let rows: Vec<&str> = lines.collect();
+    assert_eq!(rows.len(), want_seqs.len());
+    for (row, &seq) in rows.iter().zip(want_seqs) {
+        let f: Vec<&str> = row.split(',').collect();
+        assert_eq!(f.len(), 5, "{row}");
+        let s = sample(seq);
+        assert_eq!(f[0].parse::<u64>().unwrap(), seq, "{row}");
+        assert_eq!(f[1].parse::<u64>().unwrap(), s.t_us, "{row}");
+        assert_eq!(f[2].parse::<i64>().unwrap(), s.enc1, "{row}");
+        assert_eq!(f[3].parse::<i64>().unwrap(), s.enc2, "{row}");
+        // 7 decimals: within half of 0.1 nm of the value sent.
+        let d: f64 = f[4].parse().unwrap();
+        assert!((d - s.d_mm).abs() <= 0.5e-7 + 1e-12, "{row} vs {}", s.d_mm);
+        assert_eq!(f[4].split('.').nth(1).map(str::len), Some(7), "{row}");
+    }
+}
+
+#[test]
+fn no_such_port_is_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.csv");
+    let port = "/dev/ttyJDBB-does-not-exist";
+    for args in [
+        vec!["record", "--port", port, "--out", out.to_str().unwrap()],
+        vec!["live", "--port", port, "--seconds", "1"],
+    ] {
+        let o = jdbb(&args);
+        assert!(!o.status.success());
+        let e = stderr(&o);
+        assert!(e.contains(port) && e.contains("no such port"), "{e}");
+        assert!(e.contains("jdbb devices"), "{e}");
+        assert!(!e.contains("panicked"), "{e}");
+    }
+    assert!(!out.exists(), "no empty recording left behind");
+}
+
+#[test]
+fn port_that_is_not_a_device_is_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.csv");
+    let dir_s = dir.path().to_str().unwrap().to_string();
+    for (port, want) in [
+        ("/etc/passwd", "regular file"),
+        (dir_s.as_str(), "directory"),
+        ("/dev/null", "not a serial device"),
+    ] {
+        for args in [
+            vec!["record", "--port", port, "--out", out.to_str().unwrap()],
+            vec!["live", "--port", port],
+        ] {
+            let o = jdbb(&args);
+            assert!(!o.status.success(), "{args:?}");
+            let e = stderr(&o);
+            assert!(e.contains(port) && e.contains(want), "{args:?}: {e}");
+            assert!(!e.contains("panicked"), "{e}");
+        }
+    }
+}
+
+#[test]
+fn unwritable_output_is_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let pty = Pty::new();
+    let missing = dir.path().join("no/such/dir/x.csv");
+    for out in [missing.as_path(), dir.path()] {
+        let o = jdbb(&[
+            "record",
+            "--port",
+            &pty.slave_path,
+            "--out",
+            out.to_str().unwrap(),
+            "--seconds",
+            "1",
+        ]);
+        assert!(!o.status.success());
+        let e = stderr(&o);
+        assert!(
+            e.contains("cannot create") && e.contains(out.to_str().unwrap()),
+            "{e}"
+        );
+    }
+}
+
+#[test]
+fn bad_option_values_are_refused() {
+    let o = jdbb(&["live", "--port", "/dev/null", "--seconds=-1"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("--seconds"), "{}", stderr(&o));
+    let o = jdbb(&["live", "--port", "/dev/null", "--rate", "0"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("--rate"), "{}", stderr(&o));
+}
+
+#[test]
+fn record_survives_sigkill_with_every_flushed_sample() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rec.csv");
+    let mut pty = Pty::new();
+    let mut child = spawn(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    pty.expect_command(Command::Start, Duration::from_secs(10));
+    // 20 batches in pieces of odd sizes, as a USB link would deliver them.
+    let bytes: Vec<u8> = (0..20).flat_map(|k| batch_frame(16 * k)).collect();
+    for chunk in bytes.chunks(333) {
+        pty.send(chunk);
+    }
+    // Every sample reaches the file while the recorder is still running (flushed as it goes)...
+    wait_for_lines(&out, 320);
+    // ...and half a frame more is on the wire when the process is killed.
+    let next = batch_frame(320);
+    pty.send(&next[..next.len() / 2]);
+    std::thread::sleep(Duration::from_millis(200));
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    check_csv(&out, &(0..320).collect::<Vec<_>>());
+}
+
+#[test]
+fn record_ctrl_c_flushes_and_summarises() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rec.csv");
+    let mut pty = Pty::new();
+    let child = spawn(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    pty.expect_command(Command::Start, Duration::from_secs(10));
+    // Batches 0, 16, a corrupted copy of 32, then 48 and 64: 16 samples lost, 1 corrupt frame.
+    let mut bytes = batch_frame(0);
+    bytes.extend(batch_frame(16));
+    let mut bad = batch_frame(32);
+    bad[10] = if bad[10] == 0x42 { 0x43 } else { 0x42 };
+    bytes.extend(bad);
+    bytes.extend(batch_frame(48));
+    bytes.extend(batch_frame(64));
+    pty.send(&bytes);
+    wait_for_lines(&out, 64);
+    // SAFETY: signalling our own child.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
+    // The recorder tells the device to stop before it exits.
+    pty.expect_command(Command::Stop, Duration::from_secs(10));
+    let o = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{stdout}{}", stderr(&o));
+    assert!(stdout.contains("interrupted"), "{stdout}");
+    assert!(stdout.contains("samples 64, lost 16"), "{stdout}");
+    assert!(stdout.contains("corrupt frames 1"), "{stdout}");
+    let want: Vec<u64> = (0..32).chain(48..80).collect();
+    check_csv(&out, &want);
+}
+
+#[test]
+fn record_reports_unplug_and_keeps_the_data() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rec.csv");
+    let mut pty = Pty::new();
+    let child = spawn(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+        "--seconds",
+        "30",
+    ]);
+    pty.expect_command(Command::Start, Duration::from_secs(10));
+    let bytes: Vec<u8> = (0..3).flat_map(|k| batch_frame(16 * k)).collect();
+    pty.send(&bytes);
+    wait_for_lines(&out, 48);
+    drop(pty); // the device goes away: the master side closes
+    let t0 = Instant::now();
+    let o = child.wait_with_output().unwrap();
+    assert!(t0.elapsed() < Duration::from_secs(10));
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("unplugged"), "{e}");
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        stdout.contains("device lost") && stdout.contains("samples 48"),
+        "{stdout}"
+    );
+    check_csv(&out, &(0..48).collect::<Vec<_>>());
+}
+
+#[test]
+fn live_prints_lines_and_stops_by_itself() {
+    let mut pty = Pty::new();
+    let child = spawn(&["live", "--port", &pty.slave_path, "--seconds", "1.5"]);
+    pty.expect_command(Command::Start, Duration::from_secs(10));
+    let bytes: Vec<u8> = (0..4).flat_map(|k| batch_frame(16 * k)).collect();
+    pty.send(&bytes);
+    let o = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{stdout}{}", stderr(&o));
+    // Not a terminal: plain lines, no redraw codes; the last D shown to 4 decimals.
+    assert!(!stdout.contains('\r'), "{stdout:?}");
+    let d_last = format!("D {:.4} mm", sample(63).d_mm);
+    assert!(stdout.contains(&d_last), "{stdout}");
+    assert!(stdout.contains("samples 64 | lost 0"), "{stdout}");
+    assert!(stdout.contains("time limit reached"), "{stdout}");
+}
+
+#[test]
+fn devices_lists_ports_and_explains_ptys() {
+    let o = jdbb(&["devices"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("/dev/pts/N"), "{stdout}");
+}
+
+#[test]
+fn record_stops_by_itself_after_seconds() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rec.csv");
+    let mut pty = Pty::new();
+    let child = spawn(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+        "--seconds",
+        "1",
+    ]);
+    pty.expect_command(Command::Start, Duration::from_secs(10));
+    let bytes: Vec<u8> = (0..2).flat_map(|k| batch_frame(16 * k)).collect();
+    pty.send(&bytes);
+    let o = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{stdout}{}", stderr(&o));
+    assert!(
+        stdout.contains("time limit reached") && stdout.contains("samples 32, lost 0"),
+        "{stdout}"
+    );
+    pty.expect_command(Command::Stop, Duration::from_secs(5));
+    check_csv(&out, &(0..32).collect::<Vec<_>>());
+}

@@ -1,0 +1,321 @@
+//! `jdbb simulate` → `jdbb diagnose` through the binary: the documented JSON, the report files,
+//! the seed 002 real data, and bad input (clear error with file:line:column, exit code 2).
+use std::path::Path;
+use std::process::Command;
+
+fn jdbb(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_jdbb"))
+        .args(args)
+        .output()
+        .expect("run jdbb")
+}
+
+fn simulate(dir: &Path, name: &str, extra: &[&str]) -> String {
+    let out = dir.join(name);
+    let out_s = out.to_str().unwrap().to_string();
+    let mut args = vec![
+        "simulate",
+        "--radius",
+        "60",
+        "--rate",
+        "200",
+        "--sigma-um",
+        "0.3",
+        "--resolution-um",
+        "0.1",
+        "--seed",
+        "4",
+        "-o",
+        &out_s,
+        "--effect",
+        "setup_offset=25,-15,0",
+    ];
+    args.extend_from_slice(extra);
+    let o = jdbb(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    out_s
+}
+
+#[test]
+fn simulate_then_diagnose_json_names_the_hidden_effects() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = simulate(
+        dir.path(),
+        "s.csv",
+        &[
+            "--pitch",
+            "x=10,y=10",
+            "--effect",
+            "cyclic_x=2.5@30",
+            "--effect",
+            "servo_mismatch_xy=0.4",
+        ],
+    );
+    let report = dir.path().join("rep");
+    let o = jdbb(&[
+        "diagnose",
+        "--samples",
+        &file,
+        "--pitch",
+        "x=10,y=10",
+        "--json",
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(v["samples"].as_u64().unwrap() > 1000);
+    assert!(v["baseline"]["rms_um"].as_f64().unwrap() > 5.0);
+    let effects = v["effects"].as_array().unwrap();
+    let names: Vec<&str> = effects
+        .iter()
+        .map(|e| e["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(&names[..2], &["setup_offset", "length_offset"]);
+    let mut machine: Vec<&str> = names[2..].to_vec();
+    machine.sort();
+    assert_eq!(machine, vec!["cyclic_x", "servo_mismatch_xy"]);
+    let cyc = effects.iter().find(|e| e["name"] == "cyclic_x").unwrap();
+    assert_eq!(cyc["unit"], "um");
+    let (val, sig) = (
+        cyc["value"].as_f64().unwrap(),
+        cyc["sigma"].as_f64().unwrap(),
+    );
+    assert!(
+        (val - 2.5).abs() < (0.05 * 2.5f64).max(3.0 * sig),
+        "{val} ± {sig}"
+    );
+    assert!(cyc["params"]["sin_um"].is_number() && cyc["rms_after_um"].is_number());
+    let final_rms = v["final"]["rms_um"].as_f64().unwrap();
+    assert!(final_rms < 0.4, "{final_rms}");
+    assert!(
+        (v["gain"].as_f64().unwrap() - v["baseline"]["rms_um"].as_f64().unwrap() / final_rms).abs()
+            < 1e-9
+    );
+    assert!(v["confounded"].as_array().unwrap().iter().any(|g| g
+        .as_array()
+        .unwrap()
+        .contains(&serde_json::json!("scale_x"))));
+    for f in ["polar.svg", "polar.png", "diagnosis.json"] {
+        let meta = std::fs::metadata(report.join(f)).unwrap();
+        assert!(meta.len() > 1000, "{f} too small");
+    }
+    let svg = std::fs::read_to_string(report.join("polar.svg")).unwrap();
+    assert!(svg.contains("G = ") && svg.contains("measured") && svg.contains("extended model"));
+}
+
+#[test]
+fn human_summary_names_cause_and_confounding() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = simulate(dir.path(), "s.csv", &["--effect", "scale_x=30"]);
+    let o = jdbb(&["diagnose", "--samples", &file]);
+    assert!(o.status.success());
+    let s = String::from_utf8_lossy(&o.stdout);
+    assert!(s.contains("scale_mismatch_xy = "), "{s}");
+    assert!(
+        s.contains("confounded (this test cannot tell apart): length_offset, scale_x, scale_y"),
+        "{s}"
+    );
+    assert!(s.contains("ideal machine (D = |p|): RMS"), "{s}");
+}
+
+#[test]
+fn a_record_file_with_its_nominal_path_gives_the_same_diagnosis() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = simulate(dir.path(), "s.csv", &["--effect", "backlash_x=5"]);
+    let text = std::fs::read_to_string(&file).unwrap();
+    // The recording starts 2 s before the motion (bar at rest, D = first value); the path file
+    // holds the commanded positions on its own clock.
+    let mut rec = String::from("seq,t_us,enc1,enc2,d_mm\n");
+    let mut nominal = String::from("t_s,x_mm,y_mm,z_mm\n");
+    let rows: Vec<Vec<&str>> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    for i in 0..400 {
+        rec.push_str(&format!("{i},{},0,0,{}\n", i * 5000, rows[0][4]));
+    }
+    for (i, r) in rows.iter().enumerate() {
+        let t: f64 = r[0].parse().unwrap();
+        let t_us = (t * 1e6).round() as i64 + 2_000_000;
+        rec.push_str(&format!("{},{t_us},0,0,{}\n", i + 400, r[4]));
+        nominal.push_str(&format!("{},{},{},{}\n", r[0], r[1], r[2], r[3]));
+    }
+    let (rf, pf) = (dir.path().join("rec.csv"), dir.path().join("path.csv"));
+    std::fs::write(&rf, rec).unwrap();
+    std::fs::write(&pf, nominal).unwrap();
+    let a = jdbb(&["diagnose", "--samples", &file, "--json"]);
+    let b = jdbb(&[
+        "diagnose",
+        "--record",
+        rf.to_str().unwrap(),
+        "--path",
+        pf.to_str().unwrap(),
+        "--path-offset-s",
+        "2",
+        "--json",
+    ]);
+    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    let (a, b): (serde_json::Value, serde_json::Value) = (
+        serde_json::from_slice(&a.stdout).unwrap(),
+        serde_json::from_slice(&b.stdout).unwrap(),
+    );
+    assert_eq!(a["samples"], b["samples"]);
+    let names = |v: &serde_json::Value| -> Vec<String> {
+        v["effects"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|e| e["name"].as_str().unwrap().to_string())
+            .collect()
+    };
+    assert_eq!(names(&a), names(&b));
+    assert!(names(&b).contains(&"backlash_x".to_string()));
+    let fa = a["final"]["rms_um"].as_f64().unwrap();
+    let fb = b["final"]["rms_um"].as_f64().unwrap();
+    assert!((fa - fb).abs() < 1e-3 * fa, "{fa} {fb}");
+    // Without the offset the times do not line up and the diagnosis sees a worse fit.
+    let c = jdbb(&[
+        "diagnose",
+        "--record",
+        rf.to_str().unwrap(),
+        "--path",
+        pf.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(c.status.success());
+    let c: serde_json::Value = serde_json::from_slice(&c.stdout).unwrap();
+    assert!(c["final"]["rms_um"].as_f64().unwrap() > 3.0 * fb);
+}
+
+fn expect_input_error(text: &str, args: &[&str], want: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("bad.csv");
+    std::fs::write(&f, text).unwrap();
+    let mut all = vec!["diagnose", "--samples", f.to_str().unwrap()];
+    all.extend_from_slice(args);
+    let o = jdbb(&all);
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    let want = format!("{}:{want}", f.display());
+    assert!(err.contains(&want), "wanted `{want}` in `{err}`");
+    assert!(!err.contains("panicked"));
+}
+
+fn circle_rows(n: usize) -> String {
+    (0..n)
+        .map(|i| {
+            let a = i as f64 * 0.1;
+            format!(
+                "{},{},{},0,50\n",
+                i as f64 * 0.01,
+                50.0 * a.cos(),
+                50.0 * a.sin()
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn bad_input_names_file_line_and_column() {
+    let header = "t_s,x_mm,y_mm,z_mm,d_mm\n";
+    expect_input_error(
+        "t_s,x_mm,y_mm,z,d_mm\n0,1,2,3,4\n",
+        &[],
+        "1: missing column `z_mm`",
+    );
+    let mut nan = format!("{header}{}", circle_rows(40));
+    nan.push_str("0.5,1,NaN,0,50\n");
+    expect_input_error(&nan, &[], "42:3: y_mm is NaN");
+    let back = format!("{header}{}0.1,1,1,0,50\n", circle_rows(40));
+    expect_input_error(&back, &[], "42:1: time goes backwards");
+    expect_input_error(
+        &format!("{header}{}", circle_rows(5)),
+        &[],
+        "6: only 5 samples",
+    );
+    expect_input_error(
+        &format!("{header}{}", circle_rows(40)),
+        &["--pitch", "z=5"],
+        "1:4: a pitch was given for axis z",
+    );
+    expect_input_error(
+        &format!("{header}-1,50,0,0,abc\n{}", circle_rows(40)),
+        &[],
+        "2:5: `abc` is not a number",
+    );
+}
+
+#[test]
+fn unknown_effect_and_missing_file_fail_cleanly() {
+    let o = jdbb(&["simulate", "--effect", "wobble_x=3"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("unknown effect `wobble_x`"));
+    let o = jdbb(&["diagnose", "--samples", "/nonexistent/x.csv"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("/nonexistent/x.csv"));
+}
+
+#[test]
+fn seed_002_turntable_runs_are_explained_by_eccentricity() {
+    // Seed 002 (002_bd0d7a4ef10ebe3d.txt) Table 1, as in ../shared/data/dbb_c_turntable_table1.csv:
+    // seven DBB runs while the C turntable turns, bar-length change in mm.
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("dbb_c_turntable_table1.csv");
+    std::fs::write(&file, SEED_002_TABLE_1).unwrap();
+    let data = file.to_str().unwrap();
+    let o = jdbb(&["diagnose-rotary", "--samples", data, "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let runs = v.as_array().unwrap();
+    assert_eq!(runs.len(), 7);
+    for r in runs {
+        let name = r["run"].as_str().unwrap();
+        let effects = r["effects"].as_array().unwrap();
+        if name.contains("axial") {
+            // Axial: a constant ~14 µm (the paper's Table 3 axial displacement averages 14.08 µm).
+            assert_eq!(effects[0]["name"], "length_offset");
+            assert!((effects[0]["value"].as_f64().unwrap() - 14.1).abs() < 0.5);
+        } else {
+            // Radial and tangential: the once-per-rev eccentricity of ~146 µm dominates.
+            let e = effects
+                .iter()
+                .find(|e| e["name"] == "once_per_rev")
+                .unwrap();
+            assert!((e["value"].as_f64().unwrap() - 146.0).abs() < 2.0, "{name}");
+        }
+        assert!(r["gain"].as_f64().unwrap() > 50.0, "{name}");
+        assert!(r["final"]["rms_um"].as_f64().unwrap() < 1.0, "{name}");
+    }
+}
+
+/// Seed 002, Table 1 (measured changes of DBB bar length, Renishaw QC20-W, 0.1 µm resolution),
+/// copied from the paper like ../shared/data/dbb_c_turntable_table1.csv.
+const SEED_002_TABLE_1: &str = "\
+angle_deg,dl1_radial_mm,dl1_tangential_mm,dl1_axial_mm,dl2_radial_mm,dl2_tangential_mm,dl3_radial_mm,dl3_tangential_mm\n\
+0,-0.0002,0.0082,0.0143,-0.0148,0.0040,0.0017,0.0061\n\
+20,0.0522,0.0032,0.0140,0.0379,0.0018,0.0530,0.0023\n\
+40,0.1005,0.0174,0.0140,0.0856,0.0179,0.1025,0.0163\n\
+60,0.1433,0.0485,0.0140,0.1271,0.0512,0.1427,0.0487\n\
+80,0.1698,0.0915,0.0142,0.1519,0.0953,0.1704,0.0922\n\
+100,0.1799,0.1411,0.0142,0.1599,0.1457,0.1804,0.1421\n\
+120,0.1741,0.1913,0.0143,0.1526,0.1957,0.1725,0.1921\n\
+140,0.1510,0.2378,0.0143,0.1275,0.2408,0.1492,0.2373\n\
+160,0.1134,0.2715,0.0144,0.0879,0.2732,0.1112,0.2708\n\
+180,0.0663,0.2910,0.0142,0.0403,0.2903,0.0647,0.2896\n\
+200,0.0180,0.2934,0.0142,-0.0086,0.2910,0.0154,0.2907\n\
+220,-0.0283,0.2783,0.0141,-0.0541,0.2732,-0.0310,0.2747\n\
+240,-0.0686,0.2482,0.0142,-0.0933,0.2417,-0.0702,0.2439\n\
+260,-0.0967,0.2069,0.0141,-0.1196,0.1992,-0.0982,0.2020\n\
+280,-0.1105,0.1604,0.0139,-0.1309,0.1515,-0.1110,0.1533\n\
+300,-0.1071,0.1105,0.0137,-0.1256,0.1026,-0.1073,0.1060\n\
+320,-0.0864,0.0654,0.0139,-0.1029,0.0578,-0.0844,0.0618\n\
+340,-0.0484,0.0295,0.0139,-0.0633,0.0236,-0.0468,0.0267\n\
+360,-0.0002,0.0080,0.0136,-0.0145,0.0037,0.0020,0.0061\n\
+";

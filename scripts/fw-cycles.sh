@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# Per-sample cost of the on-chip sample path (counts -> D -> batch -> frame bytes) in instructions,
+# measured on the Cortex-M4F under QEMU with -icount shift=0 (deterministic: 1 instruction = 1 ns
+# of virtual time; SysTick is calibrated against a loop of known length). Builds the program if
+# needed. Prints the `cycles` program's report; exits nonzero if it fails.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+TARGET=thumbv7em-none-eabihf
+cargo build -q -p jdbb-firmware --release --target "$TARGET" --target-dir target/qemu \
+  --no-default-features --features qemu --bin cycles
+timeout 120 qemu-system-arm -machine netduinoplus2 -nographic -monitor none -icount shift=0 \
+  -serial null -serial null -semihosting-config enable=on,target=native \
+  -kernel "target/qemu/$TARGET/release/cycles"
