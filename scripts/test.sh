@@ -7,18 +7,8 @@ cd "$(dirname "$0")/.."
 
 step() { printf '\n==> %s\n' "$*"; }
 
-as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
-
-step "toolchain: thumbv7em-none-eabihf target, rustfmt, clippy"
-rustup target list --installed | grep -qx thumbv7em-none-eabihf || rustup target add thumbv7em-none-eabihf
-rustup component list --installed | grep -q '^rustfmt' || rustup component add rustfmt
-rustup component list --installed | grep -q '^clippy' || rustup component add clippy
-
-step "qemu-system-arm"
-if ! command -v qemu-system-arm >/dev/null; then
-  as_root apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq qemu-system-arm >/dev/null
-fi
+step "toolchain and QEMU: thumbv7em-none-eabihf, rustfmt, clippy, qemu-system-arm"
+scripts/setup.sh
 qemu-system-arm --version | head -1
 
 step "cargo fmt --check"

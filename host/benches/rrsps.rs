@@ -49,7 +49,7 @@ fn main() {
     times.sort_by(f64::total_cmp);
     let id = last.unwrap();
     println!(
-        "rrsps lsq: {n} samples, median {:.1} ms (min {:.1}, max {:.1}) over {} runs, {} Gauss-Newton passes, rms {:.3} um",
+        "rrsps lsq: {n} samples, median {:.1} ms (min {:.1}, max {:.1}) over {} runs, {} LM iterations, rms {:.3} um",
         times[times.len() / 2],
         times[0],
         times[times.len() - 1],

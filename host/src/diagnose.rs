@@ -65,8 +65,13 @@
 //! gain                     baseline.rms_um / final.rms_um
 //! harmonics_um[]           amplitude of residual harmonics 1..8 against the angle in the plane
 //!                          of the two axes with the largest travel, µm
-//! circular_deviation_g_um  ISO 230-4 style G (least-squares centre), µm
-//! hysteresis_h_um          ISO 230-4 style H, µm
+//! lsq_setup                {x_um, y_um, z_um, e_um}: least-squares centre and length offset of
+//!                          all samples (D ≈ |p + c| + e), the set-up removed before G, H and
+//!                          the polar plot
+//! circular_deviation_g_um  ISO 230-4 style G of D − (|p + c| + e) with lsq_setup: largest
+//!                          peak-to-valley of one circle in one direction, µm
+//! hysteresis_h_um          ISO 230-4 style H: largest ccw − cw difference of one circle in a
+//!                          1° bin, µm
 //! candidates[]             the candidate effects that were tried
 //! ```
 // Index loops over the axes (k in 0..3) and samples mirror the equations; keep them.
@@ -142,16 +147,153 @@ pub struct Diagnosis {
     pub harmonics_um: Vec<f64>,
     /// Candidates that were tried (names).
     pub candidates: Vec<String>,
-    /// Per sample: angle (rad) in the main plane, measured deviation from the set-up-corrected
-    /// ideal machine (µm), and the extended model's deviation (µm).
+    /// Per sample: angle (rad) in the main plane; measured deviation with the least-squares
+    /// set-up removed, D − (|p + c| + e) with c, e from [`Diagnosis::lsq_setup_um`] (µm); and the
+    /// extended model's deviation after the same removal, i.e. its machine effects (µm).
     pub angle_rad: Vec<f64>,
     pub measured_dev_um: Vec<f64>,
     pub model_dev_um: Vec<f64>,
+    /// The set-up removed from the plotted deviations: the least-squares centre and length of all
+    /// samples, D ≈ |p + c| + e, as [c_x, c_y, c_z, e] in µm (a component the path cannot
+    /// determine is held at 0).
+    pub lsq_setup_um: [f64; 4],
     /// Main plane (axis indices) of the angle.
     pub plane: (usize, usize),
-    /// ISO 230-4 style circular deviation G (µm, per direction, max) and hysteresis H (µm).
+    /// The distinct circles (nominal radius and height) of the path.
+    pub circles: Vec<Circle>,
+    /// The samples cut into runs of one circle in one direction without gaps (see [`split_runs`]).
+    pub runs: Vec<Run>,
+    /// ISO 230-4 style circular deviation G and hysteresis H (µm) of the plotted measured
+    /// deviation, see [`circularity`].
     pub circular_deviation_g_um: f64,
     pub hysteresis_h_um: f64,
+}
+
+/// One circle of the path: nominal radius in the main plane and height along its normal (mm).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Circle {
+    pub radius_mm: f64,
+    pub height_mm: f64,
+}
+
+/// Consecutive samples of one circle in one direction, with no jump in angle, time, radius or
+/// height between neighbours: a polyline through them never draws a chord across a polar plot.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Run {
+    pub range: std::ops::Range<usize>,
+    /// Index into [`Diagnosis::circles`].
+    pub circle: usize,
+    /// Counter-clockwise (angle increasing) in the main plane.
+    pub ccw: bool,
+}
+
+/// Largest angle step (rad) between neighbouring samples of one [`Run`].
+pub const MAX_RUN_STEP_RAD: f64 = 5.0 * std::f64::consts::PI / 180.0;
+
+/// Cut the samples into [`Run`]s. A new run starts where neighbours differ in angle (in the plane
+/// `plane`) by more than `max_step_rad`, in time by more than 5 median sampling intervals, in
+/// radius or height by more than 0.01 mm + 1e-4 of the radius, or where the direction of rotation
+/// changes (a standstill keeps the direction). Circles are the distinct (radius, height) pairs of
+/// the runs' first samples, within 0.5 mm.
+pub fn split_runs(
+    t_s: &[f64],
+    p_mm: &[[f64; 3]],
+    plane: (usize, usize),
+    max_step_rad: f64,
+) -> (Vec<Circle>, Vec<Run>) {
+    split_runs_at(t_s, p_mm, &angles(p_mm, plane), plane, max_step_rad)
+}
+
+/// The angle (rad) of every position in the plane `plane`: atan2(p[plane.1], p[plane.0]).
+fn angles(p_mm: &[[f64; 3]], plane: (usize, usize)) -> Vec<f64> {
+    p_mm.iter().map(|p| p[plane.1].atan2(p[plane.0])).collect()
+}
+
+/// [`split_runs`] with the angles of [`angles`] already computed (the diagnosis needs them for
+/// the plot too); each sample's radius is computed once.
+fn split_runs_at(
+    t_s: &[f64],
+    p_mm: &[[f64; 3]],
+    angle_rad: &[f64],
+    plane: (usize, usize),
+    max_step_rad: f64,
+) -> (Vec<Circle>, Vec<Run>) {
+    let n = p_mm.len().min(t_s.len()).min(angle_rad.len());
+    let normal = 3 - plane.0 - plane.1;
+    // (angle, radius, height) of sample i.
+    let polar = |i: usize| {
+        let p = &p_mm[i];
+        (angle_rad[i], p[plane.0].hypot(p[plane.1]), p[normal])
+    };
+    let mut dts: Vec<f64> = t_s[..n].windows(2).map(|w| w[1] - w[0]).collect();
+    dts.sort_by(f64::total_cmp);
+    let max_dt = dts.get(dts.len() / 2).map_or(f64::INFINITY, |m| 5.0 * m);
+    let mut circles: Vec<Circle> = vec![];
+    let mut runs: Vec<Run> = vec![];
+    let mut start = 0;
+    // Direction of the current run: None until it has moved.
+    let mut dir: Option<bool> = None;
+    let mut close = |start: usize, end: usize, dir: Option<bool>, runs: &mut Vec<Run>| {
+        if end <= start {
+            return;
+        }
+        let (_, r, h) = polar(start);
+        let circle = match circles
+            .iter()
+            .position(|c| (c.radius_mm - r).abs() < 0.5 && (c.height_mm - h).abs() < 0.5)
+        {
+            Some(k) => k,
+            None => {
+                circles.push(Circle {
+                    radius_mm: r,
+                    height_mm: h,
+                });
+                circles.len() - 1
+            }
+        };
+        runs.push(Run {
+            range: start..end,
+            circle,
+            ccw: dir.unwrap_or(true),
+        });
+    };
+    let mut prev = if n > 0 { polar(0) } else { (0.0, 0.0, 0.0) };
+    for i in 1..n {
+        let (a0, r0, h0) = prev;
+        let (a1, r1, h1) = polar(i);
+        prev = (a1, r1, h1);
+        let da = wrap_pi(a1 - a0);
+        let tol = 0.01 + 1e-4 * r0.max(r1);
+        let step_dir = if da.abs() > 1e-12 {
+            Some(da > 0.0)
+        } else {
+            None
+        };
+        let jump = da.abs() > max_step_rad
+            || t_s[i] - t_s[i - 1] > max_dt
+            || (r1 - r0).abs() > tol
+            || (h1 - h0).abs() > tol;
+        let turn = matches!((dir, step_dir), (Some(a), Some(b)) if a != b);
+        if jump || turn {
+            close(start, i, dir, &mut runs);
+            start = i;
+            dir = None;
+        } else if dir.is_none() {
+            dir = step_dir;
+        }
+    }
+    close(start, n, dir, &mut runs);
+    (circles, runs)
+}
+
+/// `a` wrapped into [−π, π].
+fn wrap_pi(a: f64) -> f64 {
+    let w = a.rem_euclid(std::f64::consts::TAU);
+    if w > std::f64::consts::PI {
+        w - std::f64::consts::TAU
+    } else {
+        w
+    }
 }
 
 /// Read `t_s,x_mm,y_mm,z_mm,d_mm` (columns by name, any order, extra columns ignored).
@@ -964,28 +1106,41 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         });
     }
 
-    // Residual structure, G and H.
+    // Residual structure, G and H. The plotted deviations have the least-squares set-up of step 3
+    // removed (the ballbar convention: centring and bar length are set-up, not machine); the
+    // model's prediction gets the same treatment, so both curves show the same quantity.
     let plane = main_plane(path);
-    let mut angle = Vec::with_capacity(m);
+    let full_mm = final_set.distances_mm(path, &theta);
+    let model_setup = fit_setup(
+        path,
+        &full_mm,
+        &setup_free,
+        &[
+            setup_theta[0],
+            setup_theta[1],
+            setup_theta[2],
+            setup_theta[3],
+        ],
+    )?;
+    let lsq_setup_um = [
+        setup_theta[0],
+        setup_theta[1],
+        setup_theta[2],
+        setup_theta[3],
+    ];
+    let angle = angles(&path.p_mm, plane);
     let mut meas = Vec::with_capacity(m);
     let mut model = Vec::with_capacity(m);
     let mut resid = Vec::with_capacity(m);
     for i in 0..m {
         let p = path.p_mm[i];
-        angle.push(p[plane.1].atan2(p[plane.0]));
-        let q = [
-            p[0] + 1e-3 * theta[0],
-            p[1] + 1e-3 * theta[1],
-            p[2] + 1e-3 * theta[2],
-        ];
-        let ideal = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() + 1e-3 * theta[3];
-        let full = final_set.distance_mm(path, i, &theta);
-        meas.push(1e3 * (d_mm[i] - ideal));
-        model.push(1e3 * (full - ideal));
-        resid.push(1e3 * (d_mm[i] - full));
+        meas.push(1e3 * (d_mm[i] - setup_distance_mm(p, &lsq_setup_um)));
+        model.push(1e3 * (full_mm[i] - setup_distance_mm(p, &model_setup)));
+        resid.push(1e3 * (d_mm[i] - full_mm[i]));
     }
     let harmonics_um = harmonics(&angle, &resid, opts.harmonics);
-    let (g, h) = circularity(&angle, &meas);
+    let (circles, runs) = split_runs_at(&path.t_s, &path.p_mm, &angle, plane, MAX_RUN_STEP_RAD);
+    let (g, h) = circularity(&angle, &meas, &runs);
     Ok(Diagnosis {
         samples: m,
         baseline_rms_um,
@@ -1002,10 +1157,23 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         angle_rad: angle,
         measured_dev_um: meas,
         model_dev_um: model,
+        lsq_setup_um,
         plane,
+        circles,
+        runs,
         circular_deviation_g_um: g,
         hysteresis_h_um: h,
     })
+}
+
+/// The set-up's distance |p + c| + e (mm) for `setup_um` = [c_x, c_y, c_z, e] in µm.
+fn setup_distance_mm(p: [f64; 3], setup_um: &[f64]) -> f64 {
+    let q = [
+        p[0] + 1e-3 * setup_um[0],
+        p[1] + 1e-3 * setup_um[1],
+        p[2] + 1e-3 * setup_um[2],
+    ];
+    (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() + 1e-3 * setup_um[3]
 }
 
 /// D = |p + c| + e with only the set-up parameters `free` (indices into c_x, c_y, c_z, e)
@@ -1169,44 +1337,40 @@ pub fn harmonics(angle: &[f64], r: &[f64], n: usize) -> Vec<f64> {
         .collect()
 }
 
-/// ISO 230-4 style circular deviation G and hysteresis H from the deviations (µm) from the
-/// set-up-corrected ideal circle (least-squares centre, not the minimum zone). Runs are split by
-/// the sign of the angular velocity; G is the larger peak-to-valley of the two directions, H the
-/// largest difference of the two directions' mean deviation in 1° angle bins.
-pub fn circularity(angle: &[f64], dev: &[f64]) -> (f64, f64) {
-    let n = angle.len();
-    let mut bins = [vec![(0.0f64, 0usize); 360], vec![(0.0f64, 0usize); 360]];
-    let mut lo = [f64::INFINITY; 2];
-    let mut hi = [f64::NEG_INFINITY; 2];
-    for i in 0..n {
-        let (a, b) = if i + 1 < n {
-            (i, i + 1)
-        } else {
-            (i.saturating_sub(1), i)
-        };
-        let mut da = angle[b] - angle[a];
-        if da > std::f64::consts::PI {
-            da -= std::f64::consts::TAU;
-        } else if da < -std::f64::consts::PI {
-            da += std::f64::consts::TAU;
-        }
-        let d = usize::from(da < 0.0);
-        lo[d] = lo[d].min(dev[i]);
-        hi[d] = hi[d].max(dev[i]);
-        let deg = angle[i].to_degrees().rem_euclid(360.0);
-        let k = (deg as usize).min(359);
-        bins[d][k].0 += dev[i];
-        bins[d][k].1 += 1;
-    }
-    let g = (0..2)
-        .filter(|&d| hi[d] >= lo[d])
-        .map(|d| hi[d] - lo[d])
-        .fold(0.0, f64::max);
+/// ISO 230-4 style circular deviation G and hysteresis H (µm) of `dev`, the deviation (µm) from
+/// the circle of the least-squares set-up (one centre and length for all samples, not the minimum
+/// zone) — the measured curve of the polar plot. Each circle of `runs` is evaluated on its own:
+/// G is the largest peak-to-valley of one circle in one direction, H the largest difference
+/// between a circle's ccw and cw mean deviation in the same 1° angle bin.
+pub fn circularity(angle: &[f64], dev: &[f64], runs: &[Run]) -> (f64, f64) {
+    let n_circles = runs.iter().map(|r| r.circle + 1).max().unwrap_or(0);
+    let mut g = 0.0f64;
     let mut h = 0.0f64;
-    for k in 0..360 {
-        let (a, b) = (bins[0][k], bins[1][k]);
-        if a.1 > 0 && b.1 > 0 {
-            h = h.max((a.0 / a.1 as f64 - b.0 / b.1 as f64).abs());
+    for c in 0..n_circles {
+        let mut bins = [vec![(0.0f64, 0usize); 360], vec![(0.0f64, 0usize); 360]];
+        let mut lo = [f64::INFINITY; 2];
+        let mut hi = [f64::NEG_INFINITY; 2];
+        for run in runs.iter().filter(|r| r.circle == c) {
+            let d = usize::from(!run.ccw);
+            for i in run.range.clone() {
+                lo[d] = lo[d].min(dev[i]);
+                hi[d] = hi[d].max(dev[i]);
+                let deg = angle[i].to_degrees().rem_euclid(360.0);
+                let k = (deg as usize).min(359);
+                bins[d][k].0 += dev[i];
+                bins[d][k].1 += 1;
+            }
+        }
+        for d in 0..2 {
+            if hi[d] >= lo[d] {
+                g = g.max(hi[d] - lo[d]);
+            }
+        }
+        for k in 0..360 {
+            let (a, b) = (bins[0][k], bins[1][k]);
+            if a.1 > 0 && b.1 > 0 {
+                h = h.max((a.0 / a.1 as f64 - b.0 / b.1 as f64).abs());
+            }
         }
     }
     (g, h)
@@ -1293,7 +1457,7 @@ pub fn summary(d: &Diagnosis) -> String {
     );
     let _ = writeln!(
         s,
-        "circular deviation G {:.3} µm, hysteresis H {:.3} µm (ISO 230-4 style, least-squares centre)",
+        "circular deviation G {:.3} µm, hysteresis H {:.3} µm (ISO 230-4 style, least-squares centre and length removed)",
         d.circular_deviation_g_um, d.hysteresis_h_um
     );
     let h: Vec<String> = d
@@ -1349,6 +1513,12 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
         "final": {"rms_um": num(d.final_rms_um)},
         "gain": num(d.gain),
         "harmonics_um": d.harmonics_um,
+        "lsq_setup": {
+            "x_um": num(d.lsq_setup_um[0]),
+            "y_um": num(d.lsq_setup_um[1]),
+            "z_um": num(d.lsq_setup_um[2]),
+            "e_um": num(d.lsq_setup_um[3]),
+        },
         "circular_deviation_g_um": num(d.circular_deviation_g_um),
         "hysteresis_h_um": num(d.hysteresis_h_um),
         "candidates": d.candidates,
@@ -1508,6 +1678,143 @@ mod tests {
                 .starts_with("s.csv:1:5: a pitch was given for axis z"),
             "{e}"
         );
+    }
+
+    /// A circle of radius `r_mm` at height `h_mm` in xy from angle `a0_deg`, `n` steps of
+    /// `step_deg` (negative = cw), sampled every 0.01 s from `t0_s`.
+    fn arc(
+        r_mm: f64,
+        h_mm: f64,
+        a0_deg: f64,
+        step_deg: f64,
+        n: usize,
+        t0_s: f64,
+    ) -> (Vec<f64>, Vec<[f64; 3]>) {
+        (0..n)
+            .map(|k| {
+                let a = (a0_deg + step_deg * k as f64).to_radians();
+                (
+                    t0_s + 0.01 * k as f64,
+                    [r_mm * a.cos(), r_mm * a.sin(), h_mm],
+                )
+            })
+            .unzip()
+    }
+
+    #[test]
+    fn split_runs_leaves_no_chord_across_the_polar_plot() {
+        // ccw circle, cw circle starting at 180° (a 180° jump), a standstill, then after a 1 s
+        // pause a second radius at another height, and a 90° jump inside one ccw pass.
+        let mut t = vec![];
+        let mut p = vec![];
+        let mut add = |(tt, pp): (Vec<f64>, Vec<[f64; 3]>)| {
+            t.extend(tt);
+            p.extend(pp);
+        };
+        add(arc(50.0, 0.0, 0.0, 1.0, 360, 0.0));
+        add(arc(50.0, 0.0, 180.0, -1.0, 360, 3.6));
+        add(arc(50.0, 0.0, 181.0, 0.0, 20, 7.2));
+        add(arc(80.0, 10.0, 0.0, 0.5, 200, 8.4));
+        add(arc(80.0, 10.0, 190.0, 0.5, 520, 10.4));
+        let (circles, runs) = split_runs(&t, &p, (0, 1), MAX_RUN_STEP_RAD);
+        assert_eq!(circles.len(), 2, "{circles:?}");
+        assert!((circles[1].radius_mm - 80.0).abs() < 1e-9 && circles[1].height_mm == 10.0);
+        // Runs tile the samples in order.
+        assert_eq!(runs[0].range.start, 0);
+        assert_eq!(runs.last().unwrap().range.end, t.len());
+        for w in runs.windows(2) {
+            assert_eq!(w[0].range.end, w[1].range.start);
+        }
+        // ccw, cw (+ standstill), ccw radius 80, ccw radius 80 after the 90° jump.
+        let kinds: Vec<(usize, bool)> = runs.iter().map(|r| (r.circle, r.ccw)).collect();
+        assert_eq!(kinds, vec![(0, true), (0, false), (1, true), (1, true)]);
+        for run in &runs {
+            let c = circles[run.circle];
+            for i in run.range.clone() {
+                let r = p[i][0].hypot(p[i][1]);
+                assert!((r - c.radius_mm).abs() < 1e-6 && p[i][2] == c.height_mm);
+            }
+            for i in run.range.clone().skip(1) {
+                let da = wrap_pi(p[i][1].atan2(p[i][0]) - p[i - 1][1].atan2(p[i - 1][0]));
+                assert!(
+                    da.abs() <= MAX_RUN_STEP_RAD,
+                    "segment {i} spans {:.1}°",
+                    da.to_degrees()
+                );
+                assert!(
+                    da == 0.0 || (da > 0.0) == run.ccw,
+                    "direction change in a run"
+                );
+            }
+        }
+    }
+
+    /// Simulated circular test, r = 50 mm, 100 Hz, 0.3 µm noise, 0.1 µm resolution.
+    fn simulated(effects: &[crate::simulate::EffectValue]) -> (Path, Vec<f64>) {
+        use crate::simulate::{distances_mm, measure, nominal_path, PathSpec};
+        let spec = PathSpec {
+            radii_mm: vec![50.0],
+            heights_mm: vec![0.0],
+            plane: (0, 1, 2),
+            feed_mm_min: 1000.0,
+            rate_hz: 100.0,
+        };
+        let (t, p) = nominal_path(&spec);
+        let path = Path::new(t, p, [None; 3]);
+        let mut d = distances_mm(&path, effects).unwrap();
+        measure(&mut d, 0.3, 0.1, 11);
+        (path, d)
+    }
+
+    fn ev(effect: Effect, params: Vec<f64>) -> crate::simulate::EffectValue {
+        crate::simulate::EffectValue { effect, params }
+    }
+
+    #[test]
+    fn plotted_deviation_has_the_setup_removed() {
+        // Only set-up (centring 40, −25 µm; bar 15 µm long) and noise: the plotted measured
+        // deviation is noise around zero, not the 47 µm eccentricity.
+        let setup = [
+            ev(Effect::SetupOffset, vec![40.0, -25.0, 0.0]),
+            ev(Effect::LengthOffset, vec![15.0]),
+        ];
+        let (path, d) = simulated(&setup);
+        let diag = diagnose(&path, &d, &Options::default()).unwrap();
+        let meas = &diag.measured_dev_um;
+        let mean = meas.iter().sum::<f64>() / meas.len() as f64;
+        assert!(mean.abs() < 0.02, "mean radial deviation {mean} µm");
+        let h1 = harmonics(&diag.angle_rad, meas, 1)[0];
+        assert!(h1 < 0.05, "first harmonic (eccentricity) {h1} µm");
+        assert!(rms(meas) < 0.4, "RMS {} µm", rms(meas));
+        for (k, truth) in [40.0, -25.0, 0.0, 15.0].into_iter().enumerate() {
+            assert!(
+                (diag.lsq_setup_um[k] - truth).abs() < 0.1,
+                "{:?}",
+                diag.lsq_setup_um
+            );
+        }
+        // No machine effect: the model's curve is the zero circle; G is the noise band only.
+        assert!(diag.model_dev_um.iter().all(|v| v.abs() < 0.01));
+        assert!(
+            diag.circular_deviation_g_um < 3.0,
+            "G {}",
+            diag.circular_deviation_g_um
+        );
+        assert_eq!(diag.runs.len(), 2);
+
+        // With a machine effect the model's curve follows the measured one to the noise.
+        let mut with_backlash = setup.to_vec();
+        with_backlash.push(ev(Effect::Backlash(Axis::X), vec![6.0]));
+        let (path, d) = simulated(&with_backlash);
+        let diag = diagnose(&path, &d, &Options::default()).unwrap();
+        let diff: Vec<f64> = diag
+            .measured_dev_um
+            .iter()
+            .zip(&diag.model_dev_um)
+            .map(|(a, b)| a - b)
+            .collect();
+        assert!(rms(&diff) < 0.4, "measured − model RMS {}", rms(&diff));
+        assert!(diag.circular_deviation_g_um > 5.0);
     }
 
     #[test]

@@ -600,6 +600,102 @@ impl Effect {
         }
     }
 
+    /// [`Effect::add_delta`] for samples i0..i0 + q.len() at once: adds this effect's δ (mm) to
+    /// `q[j]` and its direct change of D (mm) to `dd[j]` for sample i0 + j. The same arithmetic
+    /// as [`Effect::add_delta`] (bit for bit), effect by effect over a block of samples, because
+    /// the exact fit evaluates every effect on every sample on every pass and a per-sample
+    /// dispatch over the effects costs more than the arithmetic.
+    pub fn add_delta_block(
+        &self,
+        path: &Path,
+        i0: usize,
+        theta: &[f64],
+        q: &mut [[f64; 3]],
+        dd: &mut [f64],
+    ) {
+        let n = q.len();
+        let p = &path.p_mm[i0..i0 + n];
+        let v = &path.v_mm_s[i0..i0 + n];
+        let dd = &mut dd[..n];
+        match *self {
+            Effect::SetupOffset => {
+                let c = [1e-3 * theta[0], 1e-3 * theta[1], 1e-3 * theta[2]];
+                for qj in q.iter_mut() {
+                    for k in 0..3 {
+                        qj[k] += c[k];
+                    }
+                }
+            }
+            Effect::LengthOffset => {
+                let e = 1e-3 * theta[0];
+                for x in dd.iter_mut() {
+                    *x += e;
+                }
+            }
+            Effect::Scale(a) => {
+                let (k, s) = (a.index(), 1e-6 * theta[0]);
+                for (qj, pj) in q.iter_mut().zip(p) {
+                    qj[k] += s * pj[k];
+                }
+            }
+            Effect::ScaleMismatch(pair) => {
+                let (a, b) = pair.axes();
+                let (a, b) = (a.index(), b.index());
+                let s = 0.5e-6 * theta[0];
+                for (qj, pj) in q.iter_mut().zip(p) {
+                    qj[a] += s * pj[a];
+                    qj[b] -= s * pj[b];
+                }
+            }
+            Effect::Scale2(a) => {
+                let (k, s) = (a.index(), 1e-9 * theta[0]);
+                for (qj, pj) in q.iter_mut().zip(p) {
+                    qj[k] += s * pj[k] * pj[k];
+                }
+            }
+            Effect::Backlash(a) => {
+                let (k, s) = (a.index(), 0.5e-3 * theta[0]);
+                let dir = &path.dir[i0..i0 + n];
+                for (qj, dj) in q.iter_mut().zip(dir) {
+                    qj[k] += s * f64::from(dj[k]);
+                }
+            }
+            Effect::Cyclic(a) => {
+                let k = a.index();
+                let phase = &path.phase[i0..i0 + n];
+                for (qj, ph) in q.iter_mut().zip(phase) {
+                    let (s, c) = ph[k];
+                    qj[k] += 1e-3 * (theta[0] * s + theta[1] * c);
+                }
+            }
+            Effect::Interference(a) => {
+                let k = a.index();
+                let phase = &path.phase[i0..i0 + n];
+                for ((qj, ph), vj) in q.iter_mut().zip(phase).zip(v) {
+                    let (s, c) = ph[k];
+                    qj[k] += 1e-3 * vj[k] * (theta[0] * s + theta[1] * c);
+                }
+            }
+            Effect::Squareness(pair) => {
+                let (a, b) = pair.axes();
+                let (a, b) = (a.index(), b.index());
+                let s = 1e-6 * theta[0];
+                for (qj, pj) in q.iter_mut().zip(p) {
+                    qj[a] += s * pj[b];
+                }
+            }
+            Effect::ServoMismatch(pair) => {
+                let (a, b) = pair.axes();
+                let (a, b) = (a.index(), b.index());
+                let s = 0.5e-3 * theta[0];
+                for (qj, vj) in q.iter_mut().zip(v) {
+                    qj[a] -= s * vj[a];
+                    qj[b] += s * vj[b];
+                }
+            }
+        }
+    }
+
     /// The effect's reported value and its standard error from its parameters and their
     /// covariance block (value = |c| for setup_offset, the amplitude for periodic effects; the
     /// delta method propagates the covariance).
@@ -693,6 +789,47 @@ impl EffectSet {
         }
         (q, d)
     }
+
+    /// [`EffectSet::displaced`] for samples i0..i0 + q.len() at once (bit for bit the same):
+    /// writes p + δ + c (mm) to `q[j]` and e (mm) to `dd[j]` for sample i0 + j.
+    pub fn displaced_block(
+        &self,
+        path: &Path,
+        i0: usize,
+        theta: &[f64],
+        q: &mut [[f64; 3]],
+        dd: &mut [f64],
+    ) {
+        let n = q.len();
+        q.copy_from_slice(&path.p_mm[i0..i0 + n]);
+        dd[..n].fill(0.0);
+        for (e, &o) in self.effects.iter().zip(&self.offsets) {
+            e.add_delta_block(path, i0, &theta[o..o + e.n_params()], q, dd);
+        }
+    }
+
+    /// [`EffectSet::distance_mm`] of every sample of the path (bit for bit the same), a block
+    /// of samples at a time.
+    pub fn distances_mm(&self, path: &Path, theta: &[f64]) -> Vec<f64> {
+        const BLOCK: usize = 256;
+        let m = path.len();
+        let mut out = Vec::with_capacity(m);
+        let mut q = [[0.0; 3]; BLOCK];
+        let mut dd = [0.0; BLOCK];
+        let mut i0 = 0;
+        while i0 < m {
+            let len = BLOCK.min(m - i0);
+            self.displaced_block(path, i0, theta, &mut q[..len], &mut dd[..len]);
+            out.extend(
+                q[..len]
+                    .iter()
+                    .zip(&dd[..len])
+                    .map(|(q, d)| (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() + d),
+            );
+            i0 += len;
+        }
+        out
+    }
 }
 
 /// The exact geometry D = |p + δ(θ) + c| + e as a least-squares problem; residuals in µm.
@@ -716,6 +853,8 @@ impl crate::fit::Problem for ExactModel<'_> {
         let n = self.set.n_params;
         let m = self.d_mm.len();
         let mut grads = vec![0.0; BLOCK * n];
+        let mut q = [[0.0; 3]; BLOCK];
+        let mut dd = [0.0; BLOCK];
         let mut u = Vec::with_capacity(BLOCK);
         let mut res = Vec::with_capacity(BLOCK);
         let mut i0 = 0;
@@ -723,11 +862,12 @@ impl crate::fit::Problem for ExactModel<'_> {
             let len = BLOCK.min(m - i0);
             u.clear();
             res.clear();
-            for i in i0..i0 + len {
-                let (q, d) = self.set.displaced(self.path, i, theta);
+            self.set
+                .displaced_block(self.path, i0, theta, &mut q[..len], &mut dd[..len]);
+            for (j, (q, d)) in q[..len].iter().zip(&dd[..len]).enumerate() {
                 let r = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
                 u.push([q[0] / r, q[1] / r, q[2] / r]);
-                res.push(1e3 * (r + d - self.d_mm[i]));
+                res.push(1e3 * (r + d - self.d_mm[i0 + j]));
             }
             for (e, &o) in self.set.effects.iter().zip(&self.set.offsets) {
                 e.radial_block(self.path, i0, &u, &mut grads, n, o);
@@ -878,6 +1018,33 @@ mod tests {
                 }
                 assert!((dd - want_dd).abs() < 1e-15, "{e}");
             }
+        }
+    }
+
+    #[test]
+    fn block_displacement_is_the_per_sample_one_bit_for_bit() {
+        // The exact fit uses the block form; it must be the per-sample model exactly, so that
+        // speed never changes a result.
+        let path = circle(40.0, 700);
+        let mut effects = Effect::all();
+        effects.extend(Pair::ALL.map(Effect::ScaleMismatch));
+        let set = EffectSet::new(effects);
+        let theta: Vec<f64> = (0..set.n_params)
+            .map(|k| 0.7 * k as f64 - 3.1 + (k as f64).sin())
+            .collect();
+        let (i0, len) = (97, 300);
+        let mut q = vec![[f64::NAN; 3]; len];
+        let mut dd = vec![f64::NAN; len];
+        set.displaced_block(&path, i0, &theta, &mut q, &mut dd);
+        let all = set.distances_mm(&path, &theta);
+        assert_eq!(all.len(), path.len());
+        for j in 0..len {
+            let (want, want_d) = set.displaced(&path, i0 + j, &theta);
+            assert_eq!(q[j], want, "sample {}", i0 + j);
+            assert_eq!(dd[j].to_bits(), want_d.to_bits());
+        }
+        for (i, d) in all.iter().enumerate() {
+            assert_eq!(d.to_bits(), set.distance_mm(&path, i, &theta).to_bits());
         }
     }
 

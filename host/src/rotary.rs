@@ -362,18 +362,33 @@ pub fn without_setup(table: &Table) -> Table {
     t
 }
 
-/// Least squares for a 3-column design (normal equations; well conditioned for harmonics).
+/// Least squares for a 3-column linear design (mean, cos, sin), by the shared engine: a couple
+/// of Levenberg-Marquardt steps solve it to rounding, and a design the angles cannot resolve
+/// (too few distinct angles) gets the minimum-norm answer instead of a failed solve.
 fn solve_small(rows: &[[f64; 3]], y: &[f64]) -> [f64; 3] {
-    use nalgebra::{Matrix3, Vector3};
-    let mut a = Matrix3::zeros();
-    let mut b = Vector3::zeros();
-    for (r, &yi) in rows.iter().zip(y) {
-        let v = Vector3::new(r[0], r[1], r[2]);
-        a += v * v.transpose();
-        b += v * yi;
+    struct Linear<'a> {
+        rows: &'a [[f64; 3]],
+        y: &'a [f64],
     }
-    let x = a.lu().solve(&b).unwrap_or_else(Vector3::zeros);
-    [x[0], x[1], x[2]]
+    impl Problem for Linear<'_> {
+        fn n_params(&self) -> usize {
+            3
+        }
+        fn n_residuals(&self) -> usize {
+            self.rows.len()
+        }
+        fn eval(&self, p: &[f64], visit: &mut dyn FnMut(usize, f64, &[f64])) {
+            for (i, (r, &yi)) in self.rows.iter().zip(self.y).enumerate() {
+                visit(i, r[0] * p[0] + r[1] * p[1] + r[2] * p[2] - yi, r);
+            }
+        }
+    }
+    // parse_table admits only finite values, so the engine cannot fail on non-finite residuals;
+    // an empty run (no rows) has no harmonics: NaN says so rather than a made-up zero.
+    match least_squares(&Linear { rows, y }, &[0.0; 3], &LsqOptions::default()) {
+        Ok(fit) => [fit.params[0], fit.params[1], fit.params[2]],
+        Err(_) => [f64::NAN; 3],
+    }
 }
 
 /// A constant centre offset (δx, δy) fitted to the first harmonics of all radial and tangential

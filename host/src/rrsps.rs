@@ -19,12 +19,14 @@
 //! - [`identify`]: the eight parameters from measured bar lengths, by least squares or minimax
 //!   (eq. 26), one test or several tests sharing all but the parameters the user says changed.
 //! - [`synth`]: ball positions that make the motion cover a required A range (Table 2).
+//! - [`saddle`]: the saddle (min-max) synthesis with the constraints g1–g13 (eq. 18-23).
 //! - [`io`]: parameter files (TOML or CSV) and sample files (`theta_a_deg,theta_c_deg,d_mm`).
 //! - [`cmd`]: `jdbb rrsps design|simulate|identify`.
 pub mod cmd;
 pub mod design;
 pub mod identify;
 pub mod io;
+pub mod saddle;
 pub mod synth;
 
 use std::f64::consts::FRAC_PI_2;

@@ -200,9 +200,13 @@ impl Tracker {
 
     fn on_batch(&mut self, b: &SampleBatch, on_batch: &mut impl FnMut(&[SeqSample])) {
         let first_seq = match self.next_seq {
-            // Joined a running stream: what came before is not counted as lost.
+            // Joined a running stream: what came before is not counted as lost. A session seen
+            // from its first sample is the restart we may have asked for; otherwise these are the
+            // last samples of the session before our `Start`, and its restart is still to come.
             None => {
-                self.restart_expected = false;
+                if b.seq == 0 {
+                    self.restart_expected = false;
+                }
                 self.dropped_now = b.dropped;
                 u64::from(b.seq)
             }
@@ -340,8 +344,15 @@ impl<P> Stream<P> {
 
 impl Stream<Box<dyn serialport::SerialPort>> {
     /// [`open_port`] and wrap it: the usual way to stream from a device or QEMU's pty.
+    ///
+    /// Bytes already waiting in the port (left from an earlier session: the pty or USB buffer
+    /// keeps what no one read) are discarded, so that a new recording starts with this session.
     pub fn open(port: &str) -> Result<Self> {
-        Ok(Stream::new(open_port(port)?, port))
+        let p = open_port(port)?;
+        // Best effort: a port that cannot clear its buffer still streams correctly; stale frames
+        // would then show as a joined stream and at worst one partial frame.
+        let _ = p.clear(serialport::ClearBuffer::Input);
+        Ok(Stream::new(p, port))
     }
 }
 
@@ -848,6 +859,24 @@ mod tests {
             2000,
             "the latest info is kept"
         );
+    }
+
+    #[test]
+    fn start_after_joining_a_running_stream_is_not_a_reset() {
+        // Open, send Start, but the first batches still come from the session that was running.
+        let mut s = Stream::new(io::Cursor::new(Vec::<u8>::new()), "mem");
+        s.tracker.restart_expected = true;
+        let mut bytes = Vec::new();
+        bytes.extend(frame(&batch(5000, 0, 4, 5_000_000)));
+        bytes.extend(frame(&batch(5004, 0, 4, 5_004_000)));
+        bytes.extend(frame(&batch(0, 0, 4, 0)));
+        bytes.extend(frame(&batch(4, 0, 4, 4000)));
+        s.feed(&bytes, |_| {});
+        let st = s.stats();
+        assert_eq!((st.resets, st.lost, st.samples), (0, 0, 16));
+        // ...and a genuine reset later is still seen.
+        s.feed(&frame(&batch(0, 0, 4, 0)), |_| {});
+        assert_eq!(s.stats().resets, 1);
     }
 
     #[test]

@@ -319,3 +319,100 @@ angle_deg,dl1_radial_mm,dl1_tangential_mm,dl1_axial_mm,dl2_radial_mm,dl2_tangent
 340,-0.0484,0.0295,0.0139,-0.0633,0.0236,-0.0468,0.0267\n\
 360,-0.0002,0.0080,0.0136,-0.0145,0.0037,0.0020,0.0061\n\
 ";
+
+/// The polylines of an SVG as (stroke colour, points).
+fn svg_polylines(svg: &str) -> Vec<(String, Vec<(f64, f64)>)> {
+    let attr = |el: &str, name: &str| -> String {
+        let key = format!("{name}=\"");
+        el.find(&key)
+            .map(|i| {
+                let rest = &el[i + key.len()..];
+                rest[..rest.find('"').unwrap()].to_string()
+            })
+            .unwrap_or_default()
+    };
+    svg.split("<polyline")
+        .skip(1)
+        .map(|el| {
+            let el = &el[..el.find('>').unwrap()];
+            let pts = attr(el, "points")
+                .split_whitespace()
+                .map(|p| {
+                    let (x, y) = p.split_once(',').unwrap();
+                    (x.parse().unwrap(), y.parse().unwrap())
+                })
+                .collect();
+            (attr(el, "stroke"), pts)
+        })
+        .collect()
+}
+
+#[test]
+fn polar_plot_has_no_chord_and_states_the_removed_setup() {
+    // A ccw circle, then the cw circle starts at 180°: drawn as one polyline this would be a
+    // chord through the centre. Set-up: centring (20, −10) µm, bar 5 µm long; a 2 µm ellipse.
+    let dir = tempfile::tempdir().unwrap();
+    let mut csv = String::from("t_s,x_mm,y_mm,z_mm,d_mm\n");
+    let r = 60.0f64;
+    for k in 0..1440 {
+        let deg = if k < 720 {
+            0.5 * k as f64
+        } else {
+            180.0 - 0.5 * (k - 720) as f64
+        };
+        let a = deg.to_radians();
+        let (x, y) = (r * a.cos(), r * a.sin());
+        let d = (x + 0.020).hypot(y - 0.010) + 0.005 + 0.002 * (2.0 * a).cos();
+        csv.push_str(&format!("{},{x:.7},{y:.7},0,{d:.7}\n", 0.01 * k as f64));
+    }
+    let file = dir.path().join("jump.csv");
+    std::fs::write(&file, csv).unwrap();
+    let report = dir.path().join("rep");
+    let o = jdbb(&[
+        "diagnose",
+        "--samples",
+        file.to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let svg = std::fs::read_to_string(report.join("polar.svg")).unwrap();
+    assert!(
+        svg.contains("set-up removed"),
+        "title must say the set-up is removed"
+    );
+    assert!(
+        svg.contains("least-squares centre and length")
+            && svg.contains("x = 20.00 µm, y = -10.00 µm")
+            && svg.contains("length offset e = 5.00 µm"),
+        "caption must give the removed set-up"
+    );
+    let lines = svg_polylines(&svg);
+    // The ideal machine's zero circle gives the plot centre.
+    let ring = lines
+        .iter()
+        .find(|(c, p)| c == "#00A000" && p.len() > 100)
+        .expect("ideal-machine circle");
+    let n = ring.1.len() as f64;
+    let cx = ring.1.iter().map(|p| p.0).sum::<f64>() / n;
+    let cy = ring.1.iter().map(|p| p.1).sum::<f64>() / n;
+    let mut traces = 0;
+    for (colour, pts) in lines.iter().filter(|(_, p)| p.len() > 400) {
+        traces += 1;
+        for w in pts.windows(2) {
+            let a0 = (w[0].1 - cy).atan2(w[0].0 - cx);
+            let a1 = (w[1].1 - cy).atan2(w[1].0 - cx);
+            let da = (a1 - a0 + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+                - std::f64::consts::PI;
+            assert!(
+                da.abs() < 6f64.to_radians(),
+                "{colour} polyline jumps {:.0}° from {:?} to {:?}",
+                da.to_degrees(),
+                w[0],
+                w[1]
+            );
+        }
+    }
+    // Measured and model, ccw and cw.
+    assert!(traces >= 4, "{traces} traces");
+}

@@ -11,7 +11,7 @@
 //! simple covariance; the two estimates differ by far less than those errors at Gaussian noise).
 use super::io::Samples;
 use super::{Params, Prepared, SinCos, IS_ANGLE, PARAM_NAMES};
-use crate::fit::{least_squares, LsqOptions, Problem};
+use crate::fit::{least_squares, LsqFit, LsqOptions, Problem};
 use crate::minimax::{minimax, MinimaxOptions};
 use crate::{Error, Result};
 
@@ -123,32 +123,6 @@ impl JointProblem {
     }
 }
 
-/// JᵀJ (full, row-major n×n), Jᵀr and the sum of squares in one pass.
-fn normal_equations(problem: &dyn Problem, x: &[f64]) -> (Vec<f64>, Vec<f64>, f64) {
-    let n = x.len();
-    let mut jtj = vec![0.0; n * n];
-    let mut jtr = vec![0.0; n];
-    let mut ssr = 0.0;
-    problem.eval(x, &mut |_, r, g| {
-        ssr += r * r;
-        for (i, &gi) in g.iter().enumerate() {
-            if gi != 0.0 {
-                jtr[i] += gi * r;
-                let row = &mut jtj[i * n..i * n + i + 1];
-                for (a, &gj) in row.iter_mut().zip(g) {
-                    *a += gi * gj;
-                }
-            }
-        }
-    });
-    for i in 0..n {
-        for j in i + 1..n {
-            jtj[i * n + j] = jtj[j * n + i];
-        }
-    }
-    (jtj, jtr, ssr)
-}
-
 impl Problem for JointProblem {
     fn n_params(&self) -> usize {
         self.shared.len() + self.free.len() * self.tests.len()
@@ -180,117 +154,36 @@ impl Problem for JointProblem {
     }
 }
 
-/// Singular values of the column-scaled Jacobian below this fraction of the largest count as
-/// undetermined. One constant-length test has one such direction at ~1e-6 (see [`gauss_newton`]):
-/// moving it by a millimetre changes the bar lengths by ~0.005 µm, so the data cannot fix it, and
-/// the linearised σ along it (mm) would be both meaningless and unreliable (the valley is curved
-/// over that range).
+/// τ for this problem ([`LsqOptions::rank_tolerance`]): singular values of the column-scaled
+/// Jacobian at or below this fraction of the largest count as undetermined, instead of the
+/// engine's numerical floor 1e-7. For a1 ≈ 0 (intersecting axes) the balls can move radially
+/// from the axes' intersection, both at once, keeping the angle E-O-F and hence the whole test
+/// path: a one-parameter family in (s0, a0, s2, a2) with a singular value ~1e-6 of the largest.
+/// Moving along it by a millimetre changes the bar lengths by ~0.005 µm, so at the paper's
+/// noise (~0.5 µm) its standard error is of the order of millimetres: the data cannot fix it, and
+/// the valley is curved over that range, so a linearised σ along it would be meaningless and
+/// Levenberg-Marquardt steps along it only creep (100 iterations without converging on a
+/// 900-point test). With τ = 1e-5 the engine steps in the determined subspace, converges in a
+/// few passes and names the combination. The next singular value of a designed single test is
+/// ~1e-2 of the largest; a joint fit of cases like M1-M3 has its weakest at ~6e-5, determined.
 pub const RANK_TOLERANCE: f64 = 1e-5;
 
-/// Gauss-Newton with backtracking along the step, on column-scaled normal equations solved by
-/// eigen-decomposition (pseudo-inverse below 1e-13 of the largest eigenvalue).
-///
-/// Why not only [`crate::fit::least_squares`]: for a1 ≈ 0 (intersecting axes) the balls can move
-/// radially from the axes' intersection, both at once, keeping the angle E-O-F and hence the
-/// whole test path: a one-parameter family along which d barely changes (singular value ~1e-6
-/// of the largest) and which is curved in (s0, a0, s2, a2). Levenberg-Marquardt damping is far
-/// larger than that direction's eigenvalue, so LM creeps along the curved valley (100 iterations
-/// without converging on a 900-point test), and so does a backtracked Gauss-Newton step that
-/// includes it. Steps are therefore taken only in the determined subspace ([`RANK_TOLERANCE`]),
-/// where Gauss-Newton converges in a few passes; the shared engine then starts at this optimum,
-/// with the same rank rule, and supplies the statistics.
-fn gauss_newton(problem: &JointProblem, x0: &[f64]) -> Result<GaussNewton> {
-    use nalgebra::{DMatrix, DVector, SymmetricEigen};
-    let n = x0.len();
-    let mut x = x0.to_vec();
-    let mut ssr = problem.ssr(&x);
-    let mut passes = 0;
-    while passes < 50 {
-        passes += 1;
-        let (jtj, jtr, _) = normal_equations(problem, &x);
-        let d: Vec<f64> = (0..n)
-            .map(|k| jtj[k * n + k].sqrt().max(f64::MIN_POSITIVE))
-            .collect();
-        let a = DMatrix::from_fn(n, n, |i, j| jtj[i * n + j] / (d[i] * d[j]));
-        let eig = SymmetricEigen::new(a);
-        let emax = eig.eigenvalues.iter().fold(0.0f64, |m, &e| m.max(e));
-        let g = DVector::from_fn(n, |k, _| jtr[k] / d[k]);
-        let mut z = DVector::<f64>::zeros(n);
-        for c in 0..n {
-            let e = eig.eigenvalues[c];
-            if e > RANK_TOLERANCE * RANK_TOLERANCE * emax {
-                let v = eig.eigenvectors.column(c);
-                z -= v * (v.dot(&g) / e);
-            }
-        }
-        let step: Vec<f64> = (0..n).map(|k| z[k] / d[k]).collect();
-        let mut alpha = 1.0;
-        let mut accepted = false;
-        for _ in 0..40 {
-            let trial: Vec<f64> = x.iter().zip(&step).map(|(a, b)| a + alpha * b).collect();
-            let t = problem.ssr(&trial);
-            if t.is_finite() && t < ssr {
-                let gain = ssr - t;
-                x = trial;
-                ssr = t;
-                accepted = true;
-                if gain <= 1e-12 * ssr {
-                    return Ok(GaussNewton {
-                        x,
-                        passes,
-                        converged: true,
-                    });
-                }
-                break;
-            }
-            alpha *= 0.5;
-        }
-        if !accepted {
-            // No step along the Gauss-Newton direction lowers the sum: a minimum to rounding.
-            return if ssr.is_finite() {
-                Ok(GaussNewton {
-                    x,
-                    passes,
-                    converged: true,
-                })
-            } else {
-                Err(Error::Numerics(
-                    "the model produced a non-finite residual; check the input for NaN or absurd values"
-                        .into(),
-                ))
-            };
-        }
+/// [`LsqOptions::null_loading`] for this problem: a parameter is undetermined when the weak
+/// combination leaves open at least ten times its determined standard error (at the threshold
+/// [`RANK_TOLERANCE`]; the engine then adds that open part to the σ of the others). On a
+/// designed single test the four ball distances s0, a0, s2, a2 exceed this ratio by far (≈ 90
+/// to 3500), while the angles θA0, θC0, α12 and a1 load on the combination only at ratios of
+/// 0.3 to 5: they keep a standard error, inflated by the open part, instead of being declared
+/// unknown for a share of the weak combination below their own noise level.
+pub const NULL_LOADING: f64 = 10.0;
+
+/// The engine's options for this problem.
+fn options() -> LsqOptions {
+    LsqOptions {
+        rank_tolerance: RANK_TOLERANCE,
+        null_loading: NULL_LOADING,
+        ..LsqOptions::default()
     }
-    Ok(GaussNewton {
-        x,
-        passes,
-        converged: false,
-    })
-}
-
-struct GaussNewton {
-    x: Vec<f64>,
-    passes: usize,
-    converged: bool,
-}
-
-/// The determined directions of `problem` at `x` (eigenvectors of the column-scaled normal
-/// matrix with eigenvalue above [`RANK_TOLERANCE`]² of the largest), as physical steps.
-fn determined_basis(problem: &dyn Problem, x: &[f64]) -> Vec<Vec<f64>> {
-    use nalgebra::{DMatrix, SymmetricEigen};
-    let n = x.len();
-    let (jtj, _, _) = normal_equations(problem, x);
-    let d: Vec<f64> = (0..n)
-        .map(|k| jtj[k * n + k].sqrt().max(f64::MIN_POSITIVE))
-        .collect();
-    let eig = SymmetricEigen::new(DMatrix::from_fn(n, n, |i, j| {
-        jtj[i * n + j] / (d[i] * d[j])
-    }));
-    let emax = eig.eigenvalues.iter().fold(0.0f64, |m, &e| m.max(e));
-    (0..n)
-        .filter(|&c| eig.eigenvalues[c] > RANK_TOLERANCE * RANK_TOLERANCE * emax)
-        .map(|c| (0..n).map(|k| eig.eigenvectors[(k, c)] / d[k]).collect())
-        .collect()
 }
 
 /// `inner` restricted to x = x0 + Σ_c y_c b_c: the minimax fit moves only in the determined
@@ -367,8 +260,8 @@ pub struct Identification {
     /// Change of each free parameter from test 1 to test t (t ≥ 2), with its standard error
     /// from the joint covariance: (name, test, change, sigma).
     pub changes: Vec<(String, usize, f64, Option<f64>)>,
-    /// Iterations: Gauss-Newton passes plus the engine's LM iterations (least squares), or the
-    /// minimax engine's outer iterations.
+    /// Iterations: the engine's Levenberg-Marquardt iterations (least squares), or the minimax
+    /// engine's outer iterations.
     pub iterations: usize,
     /// The least-squares values (units of the names), same order as `estimates`; for a minimax
     /// fit they show how far the minimax answer moved along weakly determined combinations.
@@ -389,37 +282,21 @@ pub struct WeakDirection {
     pub max_change_um: f64,
 }
 
-/// The weakest direction of `problem` at `x` (see [`WeakDirection`]), from the eigenvectors of
-/// the column-scaled normal matrix, the same scaling as [`crate::fit`] uses for its rank test.
-fn weakest_direction(problem: &JointProblem, x: &[f64], names: &[String]) -> WeakDirection {
-    use nalgebra::{DMatrix, SymmetricEigen};
+/// The weakest direction of `problem` (see [`WeakDirection`]): the last direction of the
+/// least-squares fit `lsq` (smallest singular value of the column-scaled Jacobian, the engine's
+/// rank test), with the largest change of a bar length along it evaluated at `x`.
+fn weakest_direction(
+    problem: &JointProblem,
+    lsq: &LsqFit,
+    x: &[f64],
+    names: &[String],
+) -> WeakDirection {
     let n = x.len();
-    let (jtj, _, _) = normal_equations(problem, x);
-    let jtj = DMatrix::from_row_slice(n, n, &jtj);
-    let d: Vec<f64> = (0..n)
-        .map(|k| {
-            let v = jtj[(k, k)].sqrt();
-            if v > 0.0 {
-                v
-            } else {
-                1.0
-            }
-        })
-        .collect();
-    let a = DMatrix::from_fn(n, n, |i, j| jtj[(i, j)] / (d[i] * d[j]));
-    let eig = SymmetricEigen::new(a);
-    let (mut imin, mut imax) = (0, 0);
-    for i in 0..n {
-        if eig.eigenvalues[i] < eig.eigenvalues[imin] {
-            imin = i;
-        }
-        if eig.eigenvalues[i] > eig.eigenvalues[imax] {
-            imax = i;
-        }
-    }
+    let sv = &lsq.singular_values;
+    let imin = n - 1;
     let layout = problem.layout();
     // Step in internal units, then in the units of the names.
-    let step: Vec<f64> = (0..n).map(|k| eig.eigenvectors[(k, imin)] / d[k]).collect();
+    let step: Vec<f64> = (0..n).map(|k| lsq.directions[(k, imin)]).collect();
     let shown: Vec<f64> = (0..n).map(|j| unit(layout[j].0, step[j])).collect();
     let big = shown
         .iter()
@@ -441,7 +318,7 @@ fn weakest_direction(problem: &JointProblem, x: &[f64], names: &[String]) -> Wea
         max_change = max_change.max(dr.abs());
     });
     WeakDirection {
-        relative_singular_value: (eig.eigenvalues[imin].max(0.0) / eig.eigenvalues[imax]).sqrt(),
+        relative_singular_value: if sv[0] > 0.0 { sv[imin] / sv[0] } else { 0.0 },
         components: names
             .iter()
             .zip(&shown)
@@ -489,34 +366,24 @@ pub fn identify(
     }
     let problem = JointProblem::new(samples, free);
     let x0 = problem.start(start);
-    // Start undamped (Gauss-Newton): the weakest combination has a scaled eigenvalue near 1e-12,
-    // which the default damping (1e-6) would shrink a million-fold, so LM would creep along it.
-    let gn = gauss_newton(&problem, &x0)?;
-    if !gn.converged {
+    let lsq = least_squares(&problem, &x0, &options())?;
+    if !lsq.converged {
         return Err(Error::Numerics(format!(
-            "least squares did not converge in {} Gauss-Newton passes; check that the design \
-             parameters are near the machine's and the samples belong to this test",
-            gn.passes
+            "least squares did not converge in {} iterations; check that the design parameters \
+             are near the machine's and the samples belong to this test",
+            lsq.iterations
         )));
     }
-    // The engine supplies the statistics at the optimum (no further steps) with its default
-    // rank rule, so the covariance includes the weakly determined direction: a parameter that
-    // co-varies with it gets the standard error it really has.
-    let lsq = least_squares(
-        &problem,
-        &gn.x,
-        &LsqOptions {
-            max_iterations: 0,
-            ..LsqOptions::default()
-        },
-    )?;
     let (x, iterations) = match method {
-        Method::Lsq => (gn.x.clone(), gn.passes),
+        Method::Lsq => (lsq.params.clone(), lsq.iterations),
         Method::Minimax => {
+            // Minimax moves only in the determined subspace of the least-squares fit.
             let restricted = Restricted {
                 inner: &problem,
-                basis: determined_basis(&problem, &gn.x),
-                x0: gn.x.clone(),
+                basis: (0..lsq.rank)
+                    .map(|c| lsq.directions.column(c).iter().copied().collect())
+                    .collect(),
+                x0: lsq.params.clone(),
             };
             let y0 = vec![0.0; restricted.basis.len()];
             let mm = minimax(&restricted, &y0, &MinimaxOptions::default())?;
@@ -532,21 +399,8 @@ pub fn identify(
         }
     };
     let names: Vec<String> = (0..layout.len()).map(name_of).collect();
-    let weakest = weakest_direction(&problem, &x, &names);
-    let mut undetermined_idx: Vec<Vec<usize>> = lsq.undetermined.clone();
-    if weakest.relative_singular_value < RANK_TOLERANCE {
-        // Parameters that move by at least 5 % of the largest mover along the weak direction.
-        let group: Vec<usize> = (0..names.len())
-            .filter(|&j| weakest.components[j].1.abs() >= 0.05)
-            .collect();
-        if !undetermined_idx
-            .iter()
-            .any(|g| group.iter().all(|j| g.contains(j)))
-        {
-            undetermined_idx.push(group);
-        }
-    }
-    let in_group = |j: usize| undetermined_idx.iter().any(|g| g.contains(&j));
+    let weakest = weakest_direction(&problem, &lsq, &x, &names);
+    let undetermined_idx = &lsq.undetermined;
     let undetermined: Vec<Vec<String>> = undetermined_idx
         .iter()
         .map(|g| g.iter().map(|&j| name_of(j)).collect())
@@ -559,11 +413,7 @@ pub fn identify(
             param: k,
             test: t,
             value: unit(k, x[j]),
-            sigma: if in_group(j) {
-                None
-            } else {
-                lsq.sigma[j].map(|s| unit(k, s))
-            },
+            sigma: lsq.sigma[j].map(|s| unit(k, s)),
         })
         .collect();
     // Per-test statistics.

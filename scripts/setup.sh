@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# Install what the firmware build and the QEMU runs need, when missing: the thumbv7em-none-eabihf
+# target, rustfmt/clippy, and Debian's qemu-system-arm. Safe to run again. Sourced by test.sh and
+# demo.sh.
+set -euo pipefail
+
+as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
+
+rustup target list --installed | grep -qx thumbv7em-none-eabihf || rustup target add thumbv7em-none-eabihf
+rustup component list --installed | grep -q '^rustfmt' || rustup component add rustfmt
+rustup component list --installed | grep -q '^clippy' || rustup component add clippy
+if ! command -v qemu-system-arm >/dev/null; then
+  as_root apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq qemu-system-arm >/dev/null
+fi
