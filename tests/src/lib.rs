@@ -136,3 +136,18 @@ impl Qemu {
         (Qemu { child }, pty)
     }
 }
+
+/// How far an on-chip D is from the host's independent f64 reference for the same counts, and
+/// the budget it must meet there (`geometry::accuracy_budget_mm`): `(error_mm, budget_mm)`.
+pub fn chip_error_mm(
+    cal: &jdbb_core::Calibration,
+    sample: &jdbb_core::protocol::Sample,
+) -> (f64, f64) {
+    use jdbb_core::geometry;
+    let reference = geometry::distance_mm(cal, sample.enc1, sample.enc2);
+    let (a, b) = geometry::frame_angles_rad(cal, sample.enc1, sample.enc2);
+    (
+        (sample.d_mm - reference).abs(),
+        geometry::accuracy_budget_mm(cal, a, b),
+    )
+}

@@ -5,9 +5,8 @@
 use std::time::Duration;
 
 use jdbb::stream::Stream;
-use jdbb_core::geometry;
 use jdbb_core::protocol::{Command, Status};
-use jdbb_tests::{qemu_available, qemu_elf, Qemu};
+use jdbb_tests::{chip_error_mm, qemu_available, qemu_elf, Qemu};
 
 const N: usize = 10_000;
 
@@ -52,16 +51,12 @@ fn qemu_firmware_streams_10000_samples_without_loss_and_chip_d_matches_host() {
     for s in &got {
         let smp = &s.sample;
         assert!(smp.status.has(Status::SIMULATED));
-        let reference = geometry::distance_mm(&cal, smp.enc1, smp.enc2);
-        let (a, b) = geometry::frame_angles_rad(&cal, smp.enc1, smp.enc2);
-        let budget = geometry::accuracy_budget_mm(&cal, a, b);
-        let err = (smp.d_mm - reference).abs();
+        let (err, budget) = chip_error_mm(&cal, smp);
         assert!(
             err <= budget,
-            "seq {}: chip {} mm vs host {} mm ({:.2} nm > {:.2} nm)",
+            "seq {}: chip {} mm, error {:.2} nm > budget {:.2} nm",
             s.seq,
             smp.d_mm,
-            reference,
             err * 1e6,
             budget * 1e6
         );
