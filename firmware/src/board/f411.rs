@@ -13,6 +13,7 @@
 //! hardware, so referencing is exact however late the interrupt runs. Clocks: HSE 25 MHz → PLL →
 //! SYSCLK 96 MHz (48 MHz for USB), APB1 48 MHz, timer clock 96 MHz.
 
+use super::Parts;
 use jdbb_core::protocol::Board;
 use stm32f4xx_hal::otg_fs::{UsbBus, UsbBusType, USB};
 use stm32f4xx_hal::qei::{Qei, QeiExt};
@@ -36,22 +37,6 @@ const CCMR2_CC3S_TI3_IC3F_N8: u32 = 0b01 | (0b0011 << 4);
 const CCER_CC3E: u32 = 1 << 8;
 const DIER_CC3IE: u32 = 1 << 3;
 const SR_CC3IF: u32 = 1 << 3;
-
-/// Everything the application needs from the board.
-pub struct Parts {
-    /// Raw-count source.
-    pub encoders: Encoders,
-    /// Byte link to the host.
-    pub link: Link,
-    /// Sample clock (stopped).
-    pub timer: SampleTimer,
-    /// SysTick input clock for the monotonic (Hz).
-    pub systick_hz: u32,
-    /// Raw counter values at power-up.
-    pub initial_raw: [u32; 2],
-    /// Index pulses are reported later by [`take_index`].
-    pub index_raw: Option<[u32; 2]>,
-}
 
 /// Bring up the board: clocks, both encoder timers with index capture, USB, TIM3 at `rate_hz`.
 pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {

@@ -2,7 +2,7 @@
 //! Both modules export the same names:
 //!
 //! - [`BOARD`], [`SIMULATED`]: what `DeviceInfo` and the status bits report;
-//! - [`Parts`] / [`init`]: clocks, the raw-count source, the link, the sample timer;
+//! - `init`: clocks, the raw-count source, the link, the sample timer, returned as [`Parts`];
 //! - `Encoders::read(t_us) -> [u32; 2]`: the two counters' raw values at the sample taken at `t_us`;
 //! - `Link::{poll, read, write}`: the byte link to the host (non-blocking).
 
@@ -15,3 +15,21 @@ pub use f411::*;
 mod qemu;
 #[cfg(feature = "qemu")]
 pub use qemu::*;
+
+/// Everything the application needs from the board, as `init` returns it.
+pub struct Parts {
+    /// Raw-count source.
+    pub encoders: Encoders,
+    /// Byte link to the host.
+    pub link: Link,
+    /// Sample clock (stopped).
+    pub timer: SampleTimer,
+    /// SysTick input clock for the monotonic (Hz).
+    pub systick_hz: u32,
+    /// Raw counter values at power-up.
+    pub initial_raw: [u32; 2],
+    /// Raw values at which the encoders' index pulses were seen during `init`, if any (the real
+    /// board reports later pulses through its index tasks; the simulated encoders have their index
+    /// at raw 0, where the simulated counter was reset).
+    pub index_raw: Option<[u32; 2]>,
+}

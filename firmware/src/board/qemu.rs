@@ -27,6 +27,7 @@
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
+use super::Parts;
 use jdbb_core::protocol::Board;
 use jdbb_core::sim::CircularTest;
 use stm32f4xx_hal::{pac, prelude::*};
@@ -43,23 +44,6 @@ pub const PACE_HZ: u32 = 1_000_000;
 pub const SYSTICK_HZ: u32 = 168_000_000;
 /// The QEMU build starts sampling at boot, so a host sees data without sending `Start`.
 pub const AUTO_START: bool = true;
-
-/// Everything the application needs from the board.
-pub struct Parts {
-    /// Raw-count source.
-    pub encoders: Encoders,
-    /// Byte link to the host.
-    pub link: Link,
-    /// Sample clock (stopped).
-    pub timer: SampleTimer,
-    /// SysTick input clock for the monotonic (Hz).
-    pub systick_hz: u32,
-    /// Raw counter values at power-up.
-    pub initial_raw: [u32; 2],
-    /// Raw values at which the encoders' index pulses were seen during init, if any: the simulated
-    /// encoders have their index at raw 0, where the simulated counter was reset.
-    pub index_raw: Option<[u32; 2]>,
-}
 
 /// Bring up the board: HSI clocks, USART2, TIM3 as the sample clock at `rate_hz`.
 pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
