@@ -83,6 +83,7 @@ use std::path::{Path as FsPath, PathBuf};
 
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
+use crate::error::parse_number;
 use crate::fit::{least_squares, GramAccumulator, LsqOptions};
 use crate::model::{Axis, Effect, EffectSet, ExactModel, Pair, Path};
 use crate::{Error, Result};
@@ -366,23 +367,7 @@ pub fn parse_samples(
                     ),
                 )
             })?;
-            let x: f64 = f.parse().map_err(|_| {
-                Error::input(
-                    file,
-                    line_no,
-                    col,
-                    format!("`{f}` is not a number ({})", NAMES[k]),
-                )
-            })?;
-            if !x.is_finite() {
-                return Err(Error::input(
-                    file,
-                    line_no,
-                    col,
-                    format!("{} is {f}; every value must be finite", NAMES[k]),
-                ));
-            }
-            v[k] = x;
+            v[k] = parse_number(file, line_no, col, NAMES[k], f)?;
         }
         if let Some(&prev) = t.last() {
             if v[0] <= prev {
@@ -480,19 +465,7 @@ fn read_table(file: &FsPath, names: &[&str]) -> Result<Vec<(usize, Vec<f64>)>> {
                     format!("missing value for `{}`", names[k]),
                 )
             })?;
-            let x: f64 = f
-                .parse()
-                .ok()
-                .filter(|x: &f64| x.is_finite())
-                .ok_or_else(|| {
-                    Error::input(
-                        file,
-                        ln + 1,
-                        c + 1,
-                        format!("`{f}` is not a finite number ({})", names[k]),
-                    )
-                })?;
-            v.push(x);
+            v.push(parse_number(file, ln + 1, c + 1, names[k], f)?);
         }
         if let Some((_, prev)) = rows.last() {
             let prev: &Vec<f64> = prev;

@@ -74,5 +74,33 @@ impl Error {
     }
 }
 
+/// Parse one numeric field of an input file: a finite f64, or an input error at
+/// `path:line:column` that names the column and shows what was there. Every CSV reader of the
+/// host uses it, so bad numbers read the same whatever the command.
+pub fn parse_number(
+    path: &std::path::Path,
+    line: usize,
+    column: usize,
+    name: &str,
+    raw: &str,
+) -> Result<f64> {
+    let raw = raw.trim();
+    match raw.parse::<f64>() {
+        Ok(x) if x.is_finite() => Ok(x),
+        Ok(_) => Err(Error::input(
+            path,
+            line,
+            column,
+            format!("{name} is {raw}; every value must be finite"),
+        )),
+        Err(_) => Err(Error::input(
+            path,
+            line,
+            column,
+            format!("{name}: `{raw}` is not a number"),
+        )),
+    }
+}
+
 /// Result with the host's [`Error`].
 pub type Result<T> = std::result::Result<T, Error>;

@@ -223,19 +223,7 @@ pub fn parse_table(path: &Path, text: &str) -> Result<Table> {
         }
         let mut col = 1;
         for (j, f) in fields.iter().enumerate() {
-            let v: f64 = f
-                .trim()
-                .parse()
-                .ok()
-                .filter(|x: &f64| x.is_finite())
-                .ok_or_else(|| {
-                    Error::input(
-                        path,
-                        lno + 1,
-                        col,
-                        format!("{}: `{}` is not a number", cols[j], f.trim()),
-                    )
-                })?;
+            let v = crate::error::parse_number(path, lno + 1, col, cols[j], f)?;
             if j == 0 {
                 angles.push(v);
             } else {

@@ -248,7 +248,7 @@ fn bad_input_names_file_line_and_column() {
     expect_input_error(
         &format!("{header}-1,50,0,0,abc\n{}", circle_rows(40)),
         &[],
-        "2:5: `abc` is not a number",
+        "2:5: d_mm: `abc` is not a number",
     );
 }
 

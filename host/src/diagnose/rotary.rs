@@ -185,18 +185,7 @@ pub fn parse_runs(file: &FsPath, text: &str) -> Result<Runs> {
             let f = fields.get(k).ok_or_else(|| {
                 Error::input(file, ln + 1, k + 1, format!("missing value for `{name}`"))
             })?;
-            let x: f64 = f
-                .parse()
-                .ok()
-                .filter(|x: &f64| x.is_finite())
-                .ok_or_else(|| {
-                    Error::input(
-                        file,
-                        ln + 1,
-                        k + 1,
-                        format!("`{f}` is not a finite number ({name})"),
-                    )
-                })?;
+            let x = crate::error::parse_number(file, ln + 1, k + 1, name, f)?;
             if k == 0 {
                 if angle.last().is_some_and(|&a| x < a) {
                     return Err(Error::input(

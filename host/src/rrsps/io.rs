@@ -1,6 +1,7 @@
 //! Files of the RRSPS commands: parameter sets (TOML `name = value` or CSV with the eight names as
 //! columns, like `rrsps_parameters_table2_3.csv`) and samples (CSV `theta_a_deg,theta_c_deg,d_mm`).
 //! Every malformed input is reported as `file:line:column: what to do`.
+use crate::error::parse_number;
 use std::path::{Path, PathBuf};
 
 use super::{Params, PARAM_NAMES};
@@ -176,18 +177,13 @@ fn parse_params_csv(path: &Path, text: &str, case: Option<&str>) -> Result<Param
     let mut v = [0.0; 8];
     for k in 0..8 {
         let raw = fields.get(idx[k]).map(|f| f.trim()).unwrap_or("");
-        v[k] = raw
-            .parse::<f64>()
-            .ok()
-            .filter(|x| x.is_finite())
-            .ok_or_else(|| {
-                Error::input(
-                    path,
-                    lno + 1,
-                    field_column(line, idx[k]),
-                    format!("{}: `{raw}` is not a number", PARAM_NAMES[k]),
-                )
-            })?;
+        v[k] = parse_number(
+            path,
+            lno + 1,
+            field_column(line, idx[k]),
+            PARAM_NAMES[k],
+            raw,
+        )?;
     }
     Ok(Params::from_named_units(&v))
 }
@@ -262,18 +258,13 @@ pub fn parse_samples(path: &Path, text: &str, n_params: usize) -> Result<Samples
         let mut v = [0.0; 3];
         for k in 0..3 {
             let raw = fields.get(idx[k]).map(|f| f.trim()).unwrap_or("");
-            v[k] = raw
-                .parse::<f64>()
-                .ok()
-                .filter(|x| x.is_finite())
-                .ok_or_else(|| {
-                    Error::input(
-                        path,
-                        lno + 1,
-                        field_column(line, idx[k].min(fields.len())),
-                        format!("{}: `{raw}` is not a number", SAMPLE_COLUMNS[k]),
-                    )
-                })?;
+            v[k] = parse_number(
+                path,
+                lno + 1,
+                field_column(line, idx[k].min(fields.len())),
+                SAMPLE_COLUMNS[k],
+                raw,
+            )?;
         }
         if v[2] <= 0.0 {
             return Err(Error::input(
