@@ -10,10 +10,11 @@ cd "$(dirname "$0")/.."
 SECS=${1:-5}
 
 scripts/setup.sh
-echo "==> building the QEMU firmware and the host (release)"
-cargo build -q -p jdbb-firmware --release --target thumbv7em-none-eabihf --target-dir target/qemu \
+echo "==> building the QEMU firmware (release; about 1 min on 2 cores the first time)"
+cargo build -p jdbb-firmware --release --target thumbv7em-none-eabihf --target-dir target/qemu \
   --no-default-features --features qemu --bin jdbb-firmware
-cargo build -q -p jdbb --release
+echo "==> building the host, jdbb (release; about 3 min on 2 cores the first time)"
+cargo build -p jdbb --release
 JDBB=target/release/jdbb
 
 echo "==> starting the firmware in QEMU"

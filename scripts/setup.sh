@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Install what the firmware build and the QEMU runs need, when missing: the thumbv7em-none-eabihf
-# target, rustfmt/clippy, and Debian's qemu-system-arm. Safe to run again. Sourced by test.sh and
-# demo.sh.
+# target, rustfmt/clippy, and Debian's qemu-system-arm; and headless Chromium for the report
+# rendering test (not fatal: that test says it is skipped when Chromium cannot be had). Safe to run
+# again. Sourced by test.sh and demo.sh.
 set -euo pipefail
 
 as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
@@ -12,4 +13,8 @@ rustup component list --installed | grep -q '^clippy' || rustup component add cl
 if ! command -v qemu-system-arm >/dev/null; then
   as_root apt-get update -qq
   DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq qemu-system-arm >/dev/null
+fi
+if ! command -v chromium >/dev/null && ! command -v chromium-headless-shell >/dev/null; then
+  { as_root apt-get update -qq && DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq chromium >/dev/null; } \
+    || echo "setup.sh: could not install chromium; host/tests/report_html.rs will skip rendering" >&2
 fi

@@ -14,14 +14,14 @@ qemu-system-arm --version | head -1
 step "cargo fmt --check"
 cargo fmt --all -- --check
 
-step "clippy (host crates, all targets)"
+step "clippy (host crates, all targets; about 3 min on 2 cores the first time)"
 cargo clippy --all-targets -- -D warnings
 
-step "firmware: build (board + qemu) and clippy"
+step "firmware: build (board + qemu) and clippy (about 2 min the first time)"
 scripts/fw-build.sh
 cargo clippy -p jdbb-firmware --release --target thumbv7em-none-eabihf -- -D warnings
 cargo clippy -p jdbb-firmware --release --target thumbv7em-none-eabihf --target-dir target/qemu \
   --no-default-features --features qemu --bins -- -D warnings
 
-step "tests (core, host, integration incl. QEMU)"
+step "tests (core, host, README examples, integration incl. QEMU; about 4 min to build the first time)"
 JDBB_REQUIRE_QEMU=1 cargo test

@@ -1,13 +1,19 @@
 //! `jdbb-core`: everything about the J-DBB that both the firmware and the host must agree on.
 //!
 //! - [`geometry`]: encoder counts → decoupling-frame angles → joint deflection φ → ball distance D,
-//!   its inverse for simulation, and the sensitivity dD per count.
-//! - [`calib`]: the calibration parameters in force (one serde struct, sent on the wire).
+//!   for the extended instrument model; its inverse for simulation; the sensitivity dD per count
+//!   and the partial derivatives a calibration fit needs; the on-chip kernel.
+//! - [`calib`]: the calibration parameters in force (one serde struct, sent on the wire): bar
+//!   lengths, encoders (resolution, zero, direction, eccentricity), frame geometry (skew, tilts,
+//!   pivot offsets); [`Param`] addresses each continuous one for a fit.
 //! - [`quadrature`]: extending a wrapping hardware counter to a continuous `i64`, index referencing.
 //! - [`machine`]: seed 000's error equation (1) and its positioning-error models.
 //! - [`protocol`]: every message between device and host, and their framing (postcard, CRC-32, COBS).
 //! - [`sim`]: a simulated circular test producing encoder counts (QEMU build, tests).
-//! - [`sampler`]: the device's sample path (counts → D → batches, counted drops), hardware-free.
+//! - [`sampler`]: the device's sample path (counts → D → batches, counted drops and overruns),
+//!   hardware-free.
+//! - [`link`]: the device's writer policy: an absent host, the queue's room for replies, runs.
+//! - [`reset`]: why the device last started (reset flags, a recorded panic or fault).
 //! - [`math`]: the one place that names which floating-point implementation is used.
 //!
 //! `no_std`, no allocation. The `std` feature only adds conveniences for the host.
@@ -16,11 +22,13 @@
 
 pub mod calib;
 pub mod geometry;
+pub mod link;
 pub mod machine;
 pub mod math;
 pub mod protocol;
 pub mod quadrature;
+pub mod reset;
 pub mod sampler;
 pub mod sim;
 
-pub use calib::{Calibration, EncoderCal};
+pub use calib::{Calibration, EncoderCal, FrameCal, Param};

@@ -60,20 +60,20 @@ pub fn sqrt_f32(x: f32) -> f32 {
     #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
     {
         // Rust exposes no FPU register class for single-precision-only FPUs (`sreg` needs the
-        // `vfp2` feature, which implies f64 hardware the M4F lacks): go through s0, saved on the
-        // stack, with the value in an integer register.
+        // `vfp2` feature, which implies f64 hardware the M4F lacks), but an explicit register can
+        // be named and clobbered: the value goes through s15 (caller-saved, so nothing to
+        // restore) from and to an integer register.
         let bits: u32;
-        // SAFETY: s0 is restored; only the stack below SP is touched.
+        // SAFETY: only s15 is written, and it is declared clobbered.
         unsafe {
             core::arch::asm!(
-                "vpush {{s0}}",
-                "vmov s0, {x}",
-                "vsqrt.f32 s0, s0",
-                "vmov {r}, s0",
-                "vpop {{s0}}",
+                "vmov s15, {x}",
+                "vsqrt.f32 s15, s15",
+                "vmov {r}, s15",
                 x = in(reg) x.to_bits(),
                 r = lateout(reg) bits,
-                options(pure, nomem, preserves_flags),
+                out("s15") _,
+                options(pure, nomem, nostack, preserves_flags),
             );
         }
         f32::from_bits(bits)
@@ -81,6 +81,33 @@ pub fn sqrt_f32(x: f32) -> f32 {
     #[cfg(not(all(target_arch = "arm", target_abi = "eabihf")))]
     {
         libm::sqrtf(x)
+    }
+}
+
+/// (sin x, cos x) in f64 by Taylor polynomials after reduction by π/2, for |x| ≤ 1e4: ≲ 1e-15
+/// absolute. Plain IEEE arithmetic and no tables: libm's `sin`/`sincos` bring its argument
+/// reduction (about 8 KiB of flash on the M4F), which the firmware does not need for the one-off
+/// constants of the on-chip kernel; and the host computes the same bits.
+pub fn sin_cos_poly(x: f64) -> (f64, f64) {
+    const PIO2_HI: f64 = core::f64::consts::FRAC_PI_2; // f64 nearest π/2
+    const PIO2_LO: f64 = 6.123_233_995_736_766e-17; // π/2 − PIO2_HI
+    let k = round(x * core::f64::consts::FRAC_2_PI);
+    let r = (x - k * PIO2_HI) - k * PIO2_LO; // |r| ≤ π/4
+    let r2 = r * r;
+    // Nested Taylor series: the first dropped terms are r¹⁷/17! and r¹⁸/18! (< 2e-17).
+    let mut s = 1.0;
+    let mut c = 1.0;
+    for n in (1..=8).rev() {
+        let n = n as f64;
+        s = 1.0 - r2 / ((2.0 * n) * (2.0 * n + 1.0)) * s;
+        c = 1.0 - r2 / ((2.0 * n - 1.0) * (2.0 * n)) * c;
+    }
+    let s = r * s;
+    match (k as i64).rem_euclid(4) {
+        0 => (s, c),
+        1 => (c, -s),
+        2 => (-s, -c),
+        _ => (-c, s),
     }
 }
 
@@ -159,5 +186,21 @@ mod tests {
         assert_eq!(tan_f32(0.0), 0.0);
         assert_eq!(tan_f32(-0.3), -tan_f32(0.3));
         assert!(ulps(tan_f32(3.0), libm::tan(3.0)) <= 1.0);
+    }
+
+    #[test]
+    fn sin_cos_poly_matches_libm() {
+        let mut worst = 0.0f64;
+        for i in -20_000..=20_000 {
+            let x = i as f64 * 0.000_731 + 1e-3 * (i % 7) as f64;
+            let (s, c) = sin_cos_poly(x);
+            worst = worst
+                .max((s - libm::sin(x)).abs())
+                .max((c - libm::cos(x)).abs());
+        }
+        assert!(worst < 2e-15, "{worst:e}");
+        assert_eq!(sin_cos_poly(0.0), (0.0, 1.0));
+        let (s, _) = sin_cos_poly(1e-9);
+        assert_eq!(s, 1e-9);
     }
 }

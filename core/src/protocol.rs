@@ -16,6 +16,20 @@
 //!
 //! The format is a contract: `tests` at the bottom pin exact bytes (golden vectors). Any change to a
 //! message must bump [`PROTOCOL_VERSION`], which the device reports in [`DeviceInfo`].
+//!
+//! # Versions
+//!
+//! - **1**: the first release.
+//! - **2**: [`DeviceInfo`] ends with the device's health and identity — [`DeviceInfo::chip_id`]
+//!   (the chip's unique ID, also the USB serial number), [`DeviceInfo::reset_cause`] (why the
+//!   device last started, including a recorded panic or fault), [`DeviceInfo::index`] (index
+//!   referencing of both encoders, [`IndexStatus`]) and [`DeviceInfo::overruns`] (sample-clock
+//!   ticks the sample task missed, also counted as dropped); [`Command::ArmIndex`] is new (it
+//!   is the last variant, so the indices of the version-1 commands are unchanged). The
+//!   [`Calibration`] in `Info` and `SetCalibration` carries the extended instrument model (per
+//!   encoder a fine zero and the once-per-turn error; skew, tilts and pivot offsets of the
+//!   frames). New fields are appended at the end of a struct and new variants at the end of an
+//!   enum.
 
 use crc::{Crc, CRC_32_ISCSI};
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
@@ -23,7 +37,8 @@ use serde::{de::DeserializeOwned, Deserialize, Serialize};
 use crate::calib::{Calibration, CalibrationError};
 
 /// Version of this wire format. Bump on any change to a message or the framing.
-pub const PROTOCOL_VERSION: u16 = 1;
+/// See the module docs' *Versions*.
+pub const PROTOCOL_VERSION: u16 = 2;
 
 /// Samples per [`SampleBatch`].
 pub const BATCH_LEN: usize = 16;
@@ -80,7 +95,8 @@ pub struct SampleBatch {
     /// Sequence number of the first sample; counts every sample taken since sampling started,
     /// including dropped ones, so a gap in `seq` equals the samples dropped in between.
     pub seq: u32,
-    /// Total samples the device dropped since sampling started (queue full).
+    /// Total samples the device dropped since sampling started: queue or link full, no host
+    /// reading, or sample-clock overruns ([`DeviceInfo::overruns`]).
     pub dropped: u32,
     /// The samples, oldest first.
     pub samples: heapless::Vec<Sample, BATCH_LEN>,
@@ -94,6 +110,70 @@ pub enum Board {
     BlackPillF411,
     /// QEMU `netduinoplus2`: simulated encoders, USART2.
     QemuNetduinoPlus2,
+}
+
+/// How an encoder's count zero is defined.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Reference {
+    /// Not referenced: counts are relative to power-up.
+    None,
+    /// Count zero is the index window's lower edge (see `quadrature::Encoder`).
+    Index,
+    /// Count zero is where the host sent [`Command::Zero`].
+    Zero,
+}
+
+/// Index referencing of one encoder, as reported in [`DeviceInfo::index`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct IndexStatus {
+    /// What count zero is.
+    pub reference: Reference,
+    /// The next accepted index pass will (re-)reference the encoder (at power-up, and after
+    /// [`Command::ArmIndex`]).
+    pub armed: bool,
+    /// Accepted index passes since power-up (the window's lower edge crossed while moving).
+    pub passes: u32,
+    /// Count, in the reference in force before it, at which the last accepted pass was seen:
+    /// 0 (±1 count) while no count is lost or gained; after a re-reference, how far the zero moved.
+    pub last_pass_count: i64,
+}
+
+/// Why the device last started: reset flags of the chip plus what the firmware recorded before a
+/// reset it caused itself. Several bits can be set (a power-on also sets the pin-reset flag).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ResetCause(pub u8);
+
+impl ResetCause {
+    /// The NRST pin was pulled low (reset button, a debug probe, and every power-on).
+    pub const PIN: u8 = 1 << 0;
+    /// Power-on or power-down reset.
+    pub const POWER: u8 = 1 << 1;
+    /// Supply brown-out.
+    pub const BROWN_OUT: u8 = 1 << 2;
+    /// Software reset (`SYSRESETREQ`): the firmware reset itself, see [`Self::PANIC`] and
+    /// [`Self::FAULT`], or a debug probe did.
+    pub const SOFTWARE: u8 = 1 << 3;
+    /// Independent or window watchdog.
+    pub const WATCHDOG: u8 = 1 << 4;
+    /// Low-power management reset.
+    pub const LOW_POWER: u8 = 1 << 5;
+    /// The firmware panicked and reset itself.
+    pub const PANIC: u8 = 1 << 6;
+    /// A hard fault (bus, memory or usage fault escalated) made the firmware reset itself.
+    pub const FAULT: u8 = 1 << 7;
+
+    /// Whether all bits of `mask` are set.
+    pub fn has(self, mask: u8) -> bool {
+        self.0 & mask == mask
+    }
+
+    /// Whether the firmware reset itself after a panic or a fault.
+    pub fn crashed(self) -> bool {
+        self.0 & (Self::PANIC | Self::FAULT) != 0
+    }
 }
 
 /// The device's description of itself: sent at start-up and in reply to [`Command::GetInfo`].
@@ -112,6 +192,55 @@ pub struct DeviceInfo {
     pub sampling: bool,
     /// The calibration in force: D in every sample was computed with it.
     pub calibration: Calibration,
+    /// The chip's 96-bit unique ID, as it lies in memory; all zero on QEMU. Its 24 upper-case
+    /// hex digits, in this order, are the board's USB serial number. (v2)
+    pub chip_id: [u8; 12],
+    /// Why the device last started. (v2)
+    pub reset_cause: ResetCause,
+    /// Index referencing of encoders 1 and 2. (v2)
+    pub index: [IndexStatus; 2],
+    /// Sample-clock ticks the sample task missed since sampling started (it ran more than one
+    /// period late); each is also counted in [`SampleBatch::dropped`]. (v2)
+    pub overruns: u32,
+}
+
+/// The device's greeting: who it is and why it started — [`DeviceInfo`] without the calibration,
+/// the index status and the overrun count, so that its frame fits one 64-byte full-speed USB
+/// packet (a host that opens the port after the device was configured still receives it whole,
+/// from the endpoint's buffer). Sent at power-up on the UART and when a USB host configures the
+/// device; the full description is [`DeviceMsg::Info`], in reply to [`Command::GetInfo`]. (v2)
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Hello {
+    /// [`PROTOCOL_VERSION`] of the firmware.
+    pub protocol_version: u16,
+    /// Firmware version (major, minor, patch).
+    pub firmware_version: [u8; 3],
+    /// Hardware.
+    pub board: Board,
+    /// Sample clock (Hz).
+    pub sample_rate_hz: u32,
+    /// Whether the device is streaming samples.
+    pub sampling: bool,
+    /// As [`DeviceInfo::chip_id`].
+    pub chip_id: [u8; 12],
+    /// As [`DeviceInfo::reset_cause`].
+    pub reset_cause: ResetCause,
+}
+
+impl Hello {
+    /// The greeting part of a full description.
+    pub fn of(info: &DeviceInfo) -> Hello {
+        Hello {
+            protocol_version: info.protocol_version,
+            firmware_version: info.firmware_version,
+            board: info.board,
+            sample_rate_hz: info.sample_rate_hz,
+            sampling: info.sampling,
+            chip_id: info.chip_id,
+            reset_cause: info.reset_cause,
+        }
+    }
 }
 
 /// Device → host.
@@ -129,6 +258,8 @@ pub enum DeviceMsg {
     Pong(u32),
     /// A command was refused.
     Rejected(CommandError),
+    /// The device's greeting (see [`Hello`]). (v2)
+    Hello(Hello),
 }
 
 /// Host → device.
@@ -150,6 +281,10 @@ pub enum Command {
     Ping(u32),
     /// Ask for [`DeviceMsg::Info`].
     GetInfo,
+    /// Re-arm the index of both encoders: the next accepted pass over each index re-references
+    /// that encoder (the reference in force stays until then). Answered with
+    /// [`DeviceMsg::Info`]. (v2)
+    ArmIndex,
 }
 
 /// Why the device refused a command.
@@ -296,7 +431,7 @@ impl<const N: usize> Decoder<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::{Direction, EncoderCal};
+    use crate::calib::{Direction, EncoderCal, FrameCal};
     use proptest::prelude::*;
 
     fn golden_batch() -> DeviceMsg {
@@ -334,6 +469,25 @@ mod tests {
             sample_rate_hz: 1000,
             sampling: true,
             calibration: Calibration::DEFAULT,
+            chip_id: [
+                0x30, 0x00, 0x2d, 0x00, 0x10, 0x51, 0x33, 0x39, 0x38, 0x31, 0x35, 0x32,
+            ],
+            reset_cause: ResetCause(ResetCause::SOFTWARE | ResetCause::PANIC | ResetCause::PIN),
+            index: [
+                IndexStatus {
+                    reference: Reference::Index,
+                    armed: false,
+                    passes: 3,
+                    last_pass_count: -1,
+                },
+                IndexStatus {
+                    reference: Reference::None,
+                    armed: true,
+                    passes: 0,
+                    last_pass_count: 0,
+                },
+            ],
+            overruns: 2,
         })
     }
 
@@ -364,10 +518,70 @@ mod tests {
     }
 
     #[test]
+    fn golden_hello() {
+        let DeviceMsg::Info(info) = golden_info() else {
+            unreachable!()
+        };
+        let hello = DeviceMsg::Hello(Hello::of(&info));
+        let bytes = enc_vec(&hello);
+        assert_eq!(bytes, GOLDEN_HELLO, "got {bytes:02x?}");
+        assert!(bytes.len() <= 64);
+        assert_eq!(decode_all::<DeviceMsg>(GOLDEN_HELLO), std::vec![Ok(hello)]);
+    }
+
+    /// A calibration with every field distinct, in exactly representable values (powers of two), so
+    /// the golden bytes show the field order: l1, l2, enc1 {counts/rev, zero count, direction,
+    /// zero offset, eccentricity, phase}, enc2 {…}, skew, frame1 {tilt, offset normal, offset
+    /// axial}, frame2 {…}.
+    fn golden_calibration() -> Calibration {
+        let p = |e: i32| libm::ldexp(1.0, e);
+        let mut c = Calibration::nominal(50.0, 49.5, 1 << 23);
+        c.enc1.zero_count = -3;
+        c.enc1.zero_offset_rad = p(-12);
+        c.enc1.eccentricity_rad = p(-13);
+        c.enc1.eccentricity_phase_rad = 1.5;
+        c.enc2.counts_per_rev = 1 << 20;
+        c.enc2.zero_count = 1000;
+        c.enc2.direction = Direction::Negative;
+        c.enc2.zero_offset_rad = -p(-12);
+        c.enc2.eccentricity_rad = p(-14);
+        c.enc2.eccentricity_phase_rad = -0.25;
+        c.axes_skew_rad = p(-11);
+        c.frame1 = FrameCal {
+            tilt_rad: -p(-11),
+            offset_normal_rad: p(-15),
+            offset_axial_rad: -p(-15),
+        };
+        c.frame2 = FrameCal {
+            tilt_rad: p(-10),
+            offset_normal_rad: -p(-16),
+            offset_axial_rad: p(-16),
+        };
+        c.validate().unwrap();
+        c
+    }
+
+    #[test]
     fn golden_commands() {
+        let set = enc_vec(&Command::SetCalibration(golden_calibration()));
+        assert_eq!(set, GOLDEN_SET_CALIBRATION, "got {set:02x?}");
         assert_eq!(enc_vec(&Command::Start), GOLDEN_START);
         assert_eq!(enc_vec(&Command::SetSampleRate(10_000)), GOLDEN_RATE);
         assert_eq!(enc_vec(&Command::Ping(0xdead_beef)), GOLDEN_PING);
+        assert_eq!(enc_vec(&Command::ArmIndex), GOLDEN_ARM_INDEX);
+    }
+
+    #[test]
+    fn version_1_commands_keep_their_bytes() {
+        // v2 only appended `ArmIndex`: a v1 host's commands still decode to the same commands.
+        assert_eq!(
+            decode_all::<Command>(GOLDEN_START),
+            std::vec![Ok(Command::Start)]
+        );
+        assert_eq!(
+            decode_all::<Command>(GOLDEN_PING),
+            std::vec![Ok(Command::Ping(0xdead_beef))]
+        );
     }
 
     const GOLDEN_BATCH: &[u8] = &[
@@ -376,13 +590,39 @@ mod tests {
         0x03, 0x59, 0x40, 0x05, 0x50, 0x2e, 0x61, 0xe0, 0x00,
     ];
     const GOLDEN_INFO: &[u8] = &[
-        0x01, 0x02, 0x01, 0x02, 0x01, 0x05, 0x01, 0xe8, 0x07, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01,
-        0x03, 0x49, 0x40, 0x01, 0x01, 0x01, 0x01, 0x01, 0x06, 0x49, 0x40, 0xa0, 0x9c, 0x01, 0x01,
-        0x04, 0xa0, 0x9c, 0x01, 0x01, 0x05, 0x27, 0x14, 0x3c, 0x67, 0x00,
+        0x01, 0x02, 0x02, 0x02, 0x01, 0x05, 0x01, 0xe8, 0x07, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01,
+        0x03, 0x49, 0x40, 0x01, 0x01, 0x01, 0x01, 0x01, 0x07, 0x49, 0x40, 0x80, 0x80, 0x80, 0x04,
+        0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01,
+        0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x05, 0x80, 0x80, 0x80, 0x04,
+        0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01,
+        0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01,
+        0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01,
+        0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01,
+        0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01,
+        0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x02, 0x30, 0x02, 0x2d, 0x0b, 0x10, 0x51, 0x33, 0x39,
+        0x38, 0x31, 0x35, 0x32, 0x49, 0x01, 0x03, 0x03, 0x01, 0x02, 0x01, 0x01, 0x06, 0x02, 0x05,
+        0xab, 0x9f, 0x72, 0x00,
+    ];
+    const GOLDEN_SET_CALIBRATION: &[u8] = &[
+        0x02, 0x03, 0x01, 0x01, 0x01, 0x01, 0x01, 0x03, 0x49, 0x40, 0x01, 0x01, 0x01, 0x01, 0x09,
+        0xc0, 0x48, 0x40, 0x80, 0x80, 0x80, 0x04, 0x05, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x03,
+        0x30, 0x3f, 0x01, 0x01, 0x01, 0x01, 0x01, 0x03, 0x20, 0x3f, 0x01, 0x01, 0x01, 0x01, 0x01,
+        0x09, 0xf8, 0x3f, 0x80, 0x80, 0x40, 0xd0, 0x0f, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x03,
+        0x30, 0xbf, 0x01, 0x01, 0x01, 0x01, 0x01, 0x03, 0x10, 0x3f, 0x01, 0x01, 0x01, 0x01, 0x01,
+        0x03, 0xd0, 0xbf, 0x01, 0x01, 0x01, 0x01, 0x01, 0x03, 0x40, 0x3f, 0x01, 0x01, 0x01, 0x01,
+        0x01, 0x03, 0x40, 0xbf, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x02, 0x3f, 0x01, 0x01, 0x01,
+        0x01, 0x01, 0x01, 0x02, 0xbf, 0x01, 0x01, 0x01, 0x01, 0x01, 0x03, 0x50, 0x3f, 0x01, 0x01,
+        0x01, 0x01, 0x01, 0x03, 0xf0, 0xbe, 0x01, 0x01, 0x01, 0x01, 0x01, 0x07, 0xf0, 0x3e, 0x4f,
+        0x12, 0x29, 0x97, 0x00,
+    ];
+    const GOLDEN_HELLO: &[u8] = &[
+        0x03, 0x04, 0x02, 0x02, 0x01, 0x06, 0x01, 0xe8, 0x07, 0x01, 0x30, 0x02, 0x2d, 0x0e, 0x10,
+        0x51, 0x33, 0x39, 0x38, 0x31, 0x35, 0x32, 0x49, 0x03, 0x94, 0xd3, 0x74, 0x00,
     ];
     const GOLDEN_START: &[u8] = &[0x01, 0x05, 0x51, 0x53, 0x7d, 0x52, 0x00];
     const GOLDEN_RATE: &[u8] = &[8, 2, 144, 78, 148, 88, 14, 6, 0];
     const GOLDEN_PING: &[u8] = &[11, 5, 239, 253, 182, 245, 13, 155, 120, 43, 223, 0];
+    const GOLDEN_ARM_INDEX: &[u8] = &[6, 7, 186, 55, 183, 134, 0];
 
     #[test]
     fn worst_case_messages_fit_max_frame() {
@@ -404,21 +644,48 @@ mod tests {
         });
         let n = enc_vec(&batch).len();
         assert!(n <= MAX_FRAME_LEN, "{n}");
+        let enc = EncoderCal {
+            counts_per_rev: u32::MAX,
+            zero_count: i64::MIN,
+            direction: Direction::Negative,
+            zero_offset_rad: f64::MAX,
+            eccentricity_rad: f64::MAX,
+            eccentricity_phase_rad: f64::MAX,
+        };
+        let frame = FrameCal {
+            tilt_rad: f64::MAX,
+            offset_normal_rad: f64::MAX,
+            offset_axial_rad: f64::MAX,
+        };
         let cal = Calibration {
             l1_mm: f64::MAX,
             l2_mm: f64::MAX,
-            enc1: EncoderCal {
-                counts_per_rev: u32::MAX,
-                zero_count: i64::MIN,
-                direction: Direction::Negative,
-            },
-            enc2: EncoderCal {
-                counts_per_rev: u32::MAX,
-                zero_count: i64::MIN,
-                direction: Direction::Negative,
-            },
+            enc1: enc,
+            enc2: enc,
+            axes_skew_rad: f64::MAX,
+            frame1: frame,
+            frame2: frame,
         };
         assert!(enc_vec(&Command::SetCalibration(cal)).len() <= MAX_FRAME_LEN);
+        let worst_index = IndexStatus {
+            reference: Reference::Zero,
+            armed: true,
+            passes: u32::MAX,
+            last_pass_count: i64::MIN,
+        };
+        let info = DeviceMsg::Info(DeviceInfo {
+            protocol_version: u16::MAX,
+            firmware_version: [u8::MAX; 3],
+            board: Board::QemuNetduinoPlus2,
+            sample_rate_hz: u32::MAX,
+            sampling: true,
+            calibration: cal,
+            chip_id: [0xff; 12],
+            reset_cause: ResetCause(0xff),
+            index: [worst_index; 2],
+            overruns: u32::MAX,
+        });
+        assert!(enc_vec(&info).len() <= MAX_FRAME_LEN);
     }
 
     #[test]
@@ -469,7 +736,7 @@ mod tests {
             cal.l1_mm = l;
             cal.enc2.zero_count = z;
             for c in [Command::Start, Command::Stop, Command::SetSampleRate(hz), Command::SetCalibration(cal),
-                      Command::Zero, Command::Ping(tok), Command::GetInfo] {
+                      Command::Zero, Command::Ping(tok), Command::GetInfo, Command::ArmIndex] {
                 let out = decode_all::<Command>(&enc_vec(&c));
                 prop_assert_eq!(out, std::vec![Ok(c)]);
             }

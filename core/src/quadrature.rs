@@ -4,6 +4,8 @@
 //! The extension is correct as long as the counter moves by less than half its range between two
 //! reads (32 767 counts for a 16-bit timer: at 20 000 counts/rev that is 1.6 rev per sample period).
 
+use crate::protocol::{IndexStatus, Reference};
+
 /// Extends a wrapping hardware count of `BITS` bits (16 or 32) to a continuous `i64`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct CountExtender<const BITS: u32> {
@@ -46,20 +48,91 @@ impl<const BITS: u32> CountExtender<BITS> {
     }
 }
 
-/// One encoder channel: count extension plus index referencing. Until the index pulse is seen,
-/// counts are relative to power-up; from then on, the count latched at the index is zero.
+/// Which way a signal edge went.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum IndexEdge {
+    /// Low to high.
+    Rising,
+    /// High to low.
+    Falling,
+}
+
+/// What [`Encoder::on_index_edge`] did with one captured index edge.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum IndexOutcome {
+    /// The index window's lower edge, crossed while the shaft moved, was the first since the
+    /// index was armed: its count is now zero.
+    Referenced,
+    /// The lower edge was crossed again; the reference in force is kept and the pass reported
+    /// ([`IndexStatus::last_pass_count`]).
+    Pass,
+    /// The upper edge of the window (rising while counting down, falling while counting up): it
+    /// depends on the pulse width, so it is not used.
+    UpperEdge,
+    /// The count has not moved since the edge, so its direction is not known yet: the next count
+    /// change decides (in [`Encoder::update`]), unless an opposite edge comes first at the same
+    /// count.
+    Pending,
+    /// An edge opposite to a pending one at the same count, with no motion in between: the index
+    /// signal went and came back while the shaft stood still — a glitch. Both are dropped.
+    Glitch,
+}
+
+/// An index edge whose direction is not known yet.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct PendingEdge {
+    at: i64,
+    edge: IndexEdge,
+}
+
+/// One encoder channel: count extension plus referencing. Until the index is seen (or the host
+/// zeroes it), counts are relative to power-up; from then on the count latched at the index is
+/// zero.
+///
+/// # Index referencing
+///
+/// An index pulse is high over a window of counts `[N, N + w]` whose width `w` depends on the
+/// encoder (gated to a quarter cycle, a half or a whole cycle) and on the approach direction
+/// through the input filter. Referencing on "the rising edge" would put the zero at `N` when the
+/// shaft comes from below and at `N + w` when it comes from above. Here both edges are captured
+/// and only the window's **lower edge** is used: a rising edge while counting up, or a falling
+/// edge while counting down. That edge is the same place whichever way the shaft comes, and a
+/// reversal inside the window gives the same count again. The direction is the sign of the count's
+/// motion after the edge: the counter read just after the capture, or, if it has not moved yet,
+/// the next count change seen by [`Encoder::update`]. A rising and a falling edge at the same
+/// count with no motion in between cancel out: a glitch (say at power-up) never references the
+/// encoder. Residual: for an index whose edges fall inside a count state (ungated), the zero is
+/// exact from both sides; when they coincide with an A/B edge (gated index), the capture may latch
+/// the count before or after that step, and the two directions can differ by one count.
+///
+/// The index is armed at power-up: the first accepted lower edge references the encoder. Later
+/// passes keep the reference and only report where they were seen
+/// ([`IndexStatus::last_pass_count`], 0 while no count is lost); [`Encoder::arm_index`]
+/// makes the next pass re-reference.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Encoder<const BITS: u32> {
     ext: CountExtender<BITS>,
     index_offset: Option<i64>,
+    pending: Option<PendingEdge>,
+    reference: Reference,
+    armed: bool,
+    passes: u32,
+    last_pass_count: i64,
 }
 
 impl<const BITS: u32> Encoder<BITS> {
-    /// A channel whose counter currently reads `raw` (extended count 0, unreferenced).
+    /// A channel whose counter currently reads `raw` (extended count 0, unreferenced, index armed).
     pub const fn new(raw: u32) -> Self {
         Encoder {
             ext: CountExtender::new(raw, 0),
             index_offset: None,
+            pending: None,
+            reference: Reference::None,
+            armed: true,
+            passes: 0,
+            last_pass_count: 0,
         }
     }
 
@@ -68,26 +141,112 @@ impl<const BITS: u32> Encoder<BITS> {
     #[inline]
     pub fn update(&mut self, raw: u32) -> i64 {
         let c = self.ext.update(raw);
+        if let Some(p) = self.pending {
+            if c != p.at {
+                self.pending = None;
+                self.decide(p, c > p.at);
+            }
+        }
         c - self.index_offset.unwrap_or(0)
     }
 
-    /// The index pulse fired while the hardware counter read `raw_at_index` (latched by a capture
-    /// channel): from now on that position is count zero. Must be called before the counter has
-    /// moved half its range past the latch.
-    pub fn on_index(&mut self, raw_at_index: u32) {
+    /// Extended count (since power-up) of a raw value read after the last update, which must be
+    /// less than half the counter's range away.
+    fn extend(&self, raw: u32) -> i64 {
         let mut probe = self.ext;
-        let at_index = probe.update(raw_at_index);
-        self.index_offset = Some(at_index);
+        probe.update(raw)
     }
 
-    /// Make the current position count zero (the host's `Zero` command).
+    /// Reference the channel at exactly this raw count (a simulated index, or a known position):
+    /// from now on that position is count zero. Disarms the index.
+    pub fn on_index(&mut self, raw_at_index: u32) {
+        let at = self.extend(raw_at_index);
+        self.set_reference(at);
+    }
+
+    fn set_reference(&mut self, at: i64) {
+        self.last_pass_count = at - self.index_offset.unwrap_or(at);
+        self.index_offset = Some(at);
+        self.reference = Reference::Index;
+        self.armed = false;
+        self.passes = self.passes.saturating_add(1);
+    }
+
+    /// One captured index edge (see the type docs): `raw_at_edge` is the counter latched by the
+    /// capture, `raw_now` the counter read after it (both less than half the counter's range from
+    /// the last [`Self::update`]), `edge` which way the index signal went.
+    pub fn on_index_edge(
+        &mut self,
+        raw_at_edge: u32,
+        raw_now: u32,
+        edge: IndexEdge,
+    ) -> IndexOutcome {
+        let at = self.extend(raw_at_edge);
+        let now = self.extend(raw_now);
+        if let Some(p) = self.pending.take() {
+            if p.at == at {
+                if p.edge != edge {
+                    return IndexOutcome::Glitch;
+                }
+                // The same edge twice at one count: the one between was lost; keep the newer.
+            } else {
+                // The shaft moved from the pending edge to this one: that decides the pending one.
+                self.decide(p, at > p.at);
+            }
+        }
+        let this = PendingEdge { at, edge };
+        if now == at {
+            self.pending = Some(this);
+            return IndexOutcome::Pending;
+        }
+        self.decide(this, now > at)
+    }
+
+    /// Classify an edge whose direction is known and act on it.
+    fn decide(&mut self, e: PendingEdge, up: bool) -> IndexOutcome {
+        let lower = matches!(
+            (e.edge, up),
+            (IndexEdge::Rising, true) | (IndexEdge::Falling, false)
+        );
+        if !lower {
+            return IndexOutcome::UpperEdge;
+        }
+        if self.armed {
+            self.set_reference(e.at);
+            IndexOutcome::Referenced
+        } else {
+            self.last_pass_count = e.at - self.index_offset.unwrap_or(0);
+            self.passes = self.passes.saturating_add(1);
+            IndexOutcome::Pass
+        }
+    }
+
+    /// Make the next accepted index pass re-reference the channel (the host's `ArmIndex`); the
+    /// reference in force stays until then.
+    pub fn arm_index(&mut self) {
+        self.armed = true;
+    }
+
+    /// Make the current position count zero (the host's `Zero` command); disarms the index.
     pub fn zero_here(&mut self) {
         self.index_offset = Some(self.ext.count());
+        self.reference = Reference::Zero;
+        self.armed = false;
     }
 
     /// Whether counts are referenced (to the index pulse or an explicit zero).
     pub fn is_referenced(&self) -> bool {
         self.index_offset.is_some()
+    }
+
+    /// The channel's referencing, as reported in `DeviceInfo`.
+    pub fn index_status(&self) -> IndexStatus {
+        IndexStatus {
+            reference: self.reference,
+            armed: self.armed,
+            passes: self.passes,
+            last_pass_count: self.last_pass_count,
+        }
     }
 }
 
@@ -123,6 +282,169 @@ mod tests {
         assert_eq!(enc.update(1000), -50);
         enc.zero_here();
         assert_eq!(enc.update(1010), 10);
+    }
+
+    /// Index edges of a shaft moving from position `from` to `to` (in counts; position p is in
+    /// count state ⌊p⌋) over an ungated index, high for positions in `[n + ½, n + w + ½)`: its
+    /// edges lie in the middle of count states n and n + w. Returns (edge, count at the edge).
+    fn index_edges(from: i64, to: i64, n: i64, w: i64) -> std::vec::Vec<(IndexEdge, i64)> {
+        // Crossing the middle of state c, going up: low → high at c = n, high → low at c = n + w.
+        let mut out = std::vec::Vec::new();
+        let states: std::vec::Vec<i64> = if to > from {
+            (from..to).collect()
+        } else {
+            (to..from).rev().collect()
+        };
+        for c in states {
+            let (rise_at, fall_at) = if to > from { (n, n + w) } else { (n + w, n) };
+            if c == rise_at {
+                out.push((IndexEdge::Rising, c));
+            }
+            if c == fall_at {
+                out.push((IndexEdge::Falling, c));
+            }
+        }
+        out
+    }
+
+    /// Feed a path of turning points to an encoder as the board does: each index edge handled
+    /// while the shaft is still in the edge's count state (the capture and the counter agree), a
+    /// sample at every turning point.
+    fn run_walk(
+        enc: &mut Encoder<32>,
+        path: &[i64],
+        n: i64,
+        w: i64,
+    ) -> std::vec::Vec<IndexOutcome> {
+        let mut outcomes = std::vec::Vec::new();
+        for pair in path.windows(2) {
+            let step = (pair[1] - pair[0]).signum();
+            for (edge, at) in index_edges(pair[0], pair[1], n, w) {
+                outcomes.push(enc.on_index_edge(at as u32, at as u32, edge));
+                // The shaft moves on; samples see the count change after the edge.
+                enc.update((at + step) as u32);
+            }
+            enc.update(pair[1] as u32);
+        }
+        outcomes
+    }
+
+    #[test]
+    fn index_zero_is_the_same_from_both_sides_whatever_the_pulse_width() {
+        for w in [1, 2, 4, 10] {
+            let n = 1000;
+            // From below.
+            let mut up = Encoder::<32>::new(0);
+            run_walk(&mut up, &[0, 2000], n, w);
+            assert_eq!(up.index_status().reference, Reference::Index);
+            // From above (the rising edge comes first, at the window's upper end).
+            let mut down = Encoder::<32>::new(2000);
+            run_walk(&mut down, &[2000, 0], n, w);
+            assert_eq!(down.index_status().reference, Reference::Index);
+            // Both put zero at the physical count n (the raw counter reads the physical count).
+            assert_eq!(up.update(n as u32), 0, "w = {w}: from below");
+            assert_eq!(down.update(n as u32), 0, "w = {w}: from above");
+        }
+    }
+
+    #[test]
+    fn reversal_inside_the_window_and_later_passes_keep_the_zero() {
+        let (n, w) = (500, 8);
+        let mut e = Encoder::<32>::new(0);
+        // In from below, turn back inside the window, out below, then across upwards and back
+        // downwards twice.
+        let out = run_walk(&mut e, &[0, 503, 400, 600, 300, 700, 0], n, w);
+        // The shaft is still in the edge's count state when the edge is handled: decided by the
+        // next count change.
+        assert!(out.iter().all(|o| *o == IndexOutcome::Pending), "{out:?}");
+        assert_eq!(e.update(n as u32), 0);
+        let st = e.index_status();
+        assert!(!st.armed);
+        // Lower edges crossed: up (ref), down, up, down, up, down = 6 accepted passes.
+        assert_eq!(st.passes, 6);
+        assert_eq!(st.last_pass_count, 0, "every pass at the reference");
+    }
+
+    #[test]
+    fn gated_index_from_both_sides_within_one_count() {
+        // Gated index: the index edge coincides with the count step into or out of state n, and
+        // the capture may latch the count on either side of that step. Whatever it latches, the
+        // two approach directions agree within one count.
+        for latch_after_step in [false, true] {
+            let zero = |from: i64, to: i64| {
+                let mut e = Encoder::<32>::new(from as u32);
+                let up = to > from;
+                // Up: Z rises with the step n−1 → n. Down: Z falls with the step n → n−1.
+                let (before, after) = if up { (999, 1000) } else { (1000, 999) };
+                let at = if latch_after_step { after } else { before };
+                let edge = if up {
+                    IndexEdge::Rising
+                } else {
+                    IndexEdge::Falling
+                };
+                e.update(before as u32);
+                e.on_index_edge(at as u32, after as u32, edge);
+                e.update(to as u32);
+                assert!(e.is_referenced());
+                e.update(1000) // physical count n = 1000 in the new reference
+            };
+            let (from_below, from_above) = (zero(0, 2000), zero(2000, 0));
+            assert!(
+                (from_below - from_above).abs() <= 1,
+                "{from_below} vs {from_above}"
+            );
+        }
+    }
+
+    #[test]
+    fn glitch_without_motion_is_rejected_and_rearm_rereferences() {
+        let mut e = Encoder::<32>::new(1234);
+        // A glitch at power-up: rising and falling with the shaft at rest.
+        assert_eq!(
+            e.on_index_edge(1234, 1234, IndexEdge::Rising),
+            IndexOutcome::Pending
+        );
+        assert_eq!(
+            e.on_index_edge(1234, 1234, IndexEdge::Falling),
+            IndexOutcome::Glitch
+        );
+        e.update(1240);
+        assert!(!e.is_referenced() && e.index_status().armed);
+        // The real index at 2000, approached with the counter read right after each edge (it has
+        // moved on already): decided at once.
+        e.update(1999);
+        assert_eq!(
+            e.on_index_edge(2000, 2001, IndexEdge::Rising),
+            IndexOutcome::Referenced
+        );
+        assert_eq!(
+            e.on_index_edge(2002, 2003, IndexEdge::Falling),
+            IndexOutcome::UpperEdge
+        );
+        e.update(3000);
+        assert_eq!(e.update(2000), 0);
+        // Counts are lost (noise): the counter is 3 counts short of the physical position. The
+        // next pass shows it without moving the zero...
+        let mut lossy = e;
+        lossy.update(2990); // physical 2993
+        let passes = lossy.index_status().passes;
+        run_walk(&mut lossy, &[2990, 1000], 1997, 2);
+        assert_eq!(lossy.index_status().passes, passes + 1);
+        assert_eq!(lossy.index_status().last_pass_count, -3);
+        assert_eq!(lossy.update(1997), -3);
+        // ...and after ArmIndex the next pass re-references and reports the shift.
+        lossy.arm_index();
+        run_walk(&mut lossy, &[1000, 2500], 1997, 2);
+        assert_eq!(lossy.update(1997), 0);
+        let st = lossy.index_status();
+        assert_eq!(
+            (st.reference, st.armed, st.last_pass_count),
+            (Reference::Index, false, -3)
+        );
+        // Zero by command disarms and says so.
+        lossy.zero_here();
+        assert_eq!(lossy.index_status().reference, Reference::Zero);
+        assert!(!lossy.index_status().armed);
     }
 
     fn check_walk<const B: u32>(start: u32, steps: &[i32]) -> Result<(), TestCaseError> {

@@ -1,15 +1,34 @@
 //! The device's sample path, free of hardware: two raw counter readings in, a [`SampleBatch`] out
-//! every [`BATCH_LEN`](crate::protocol::BATCH_LEN) samples. The firmware's sample-clock task calls [`Sampler::sample`] and
-//! nothing else, on the real board and in QEMU alike; the cycle-count program times exactly this
-//! plus the frame encoding.
+//! every [`BATCH_LEN`](crate::protocol::BATCH_LEN) samples. The firmware's sample-clock task calls
+//! [`Sampler::sample_at_tick`] and nothing else, on the real board and in QEMU alike; the
+//! cycle-count program times exactly this plus the frame encoding.
 //!
-//! No allocation, no panic path: every operation is total (wrapping sequence numbers, saturating
-//! drop counter, a batch that is sealed the moment it is full).
+//! # Overruns
+//!
+//! The sample task is handed, with the counts, a 16-bit count of sample-clock ticks kept by the
+//! hardware (the real board: TIM4 counting TIM3's update events; QEMU: the pacer's count of pended
+//! ticks). If it ran late by more than a period, the count has moved by more than one: the ticks in
+//! between are *overruns*. Their samples are lost (on the real board the counters are latched at
+//! every tick and the later latch overwrote them), so they are counted as dropped, their sequence
+//! numbers and time stamps are skipped (the time base stays exact, and the host sees the gap), and
+//! the batch in progress is sealed so that a batch always holds consecutive samples. A tick count
+//! that has not moved means there is no new latch (an interrupt that arrived twice for one tick):
+//! nothing is sampled.
+//!
+//! # Runs
+//!
+//! Every [`Sampler::restart`] (the host's `Start`) begins a new run: sequence numbers, time, drop
+//! and overrun counts restart at zero. Messages of the previous run may still be queued; drops the
+//! link reports for them are attributed to their own run ([`Sampler::count_dropped_in`]) and do
+//! not leak into the new run's count.
+//!
+//! No allocation, no panic path: every operation is total (wrapping sequence numbers and tick
+//! counts, saturating drop counters, a batch that is sealed the moment it is full).
 
 use crate::calib::Calibration;
 use crate::geometry::{Kernel, FRAME_RANGE_RAD};
-use crate::protocol::{Sample, SampleBatch, Status};
-use crate::quadrature::Encoder;
+use crate::protocol::{IndexStatus, Sample, SampleBatch, Status};
+use crate::quadrature::{Encoder, IndexEdge, IndexOutcome};
 
 /// Time of the sample clock in whole µs, advanced by one period per tick without drift: the period
 /// of `ticks` timer-clock cycles at `clock_hz` is rarely a whole number of µs, so the remainder is
@@ -65,6 +84,13 @@ impl SampleClock {
         }
     }
 
+    /// Advance by `n` periods at once (skipped ticks).
+    pub fn advance(&mut self, n: u32) {
+        let frac = self.frac as u64 + self.step_frac as u64 * n as u64;
+        self.t_us += self.step_us as u64 * n as u64 + frac / self.clock_hz as u64;
+        self.frac = (frac % self.clock_hz as u64) as u32;
+    }
+
     /// Back to t = 0.
     pub fn reset(&mut self) {
         self.t_us = 0;
@@ -81,6 +107,9 @@ pub struct Sampler {
     clock: SampleClock,
     next_seq: u32,
     dropped: u32,
+    overruns: u32,
+    last_tick: u16,
+    run: u32,
     base_status: u8,
     batch: SampleBatch,
 }
@@ -96,6 +125,9 @@ impl Sampler {
             clock,
             next_seq: 0,
             dropped: 0,
+            overruns: 0,
+            last_tick: 0,
+            run: 0,
             base_status: if simulated { Status::SIMULATED } else { 0 },
             batch: SampleBatch {
                 seq: 0,
@@ -105,10 +137,59 @@ impl Sampler {
         }
     }
 
-    /// Take one sample from the two counters' raw values; returns the batch when it is full.
-    /// Sample times come from the sample clock, which advances by one period per call.
+    /// The sample of sample-clock tick `tick` (the hardware's 16-bit tick count, see the module
+    /// docs; the tick count was 0 at [`Self::restart`]): `read(t_us)` gives the two counters' raw
+    /// values at that tick, which is at `t_us`. Returns a batch when one is sealed: full, or cut
+    /// short by overruns (the new sample then starts the next batch). A tick count that has not
+    /// moved samples nothing and returns `None`.
+    #[inline]
+    pub fn sample_at_tick(
+        &mut self,
+        tick: u16,
+        read: impl FnOnce(u64) -> [u32; 2],
+    ) -> Option<SampleBatch> {
+        let elapsed = tick.wrapping_sub(self.last_tick);
+        if elapsed == 0 {
+            return None;
+        }
+        self.last_tick = tick;
+        if elapsed > 1 {
+            return self.sample_after_overrun(u32::from(elapsed - 1), read);
+        }
+        let raw = read(self.clock.now_us());
+        self.push(raw)
+    }
+
+    /// `missed` ticks were missed before this one: count them, skip their sequence numbers and
+    /// time, seal the batch in progress (returned) and start the next with this sample.
+    #[cold]
+    #[inline(never)]
+    fn sample_after_overrun(
+        &mut self,
+        missed: u32,
+        read: impl FnOnce(u64) -> [u32; 2],
+    ) -> Option<SampleBatch> {
+        let sealed = self.take_batch();
+        self.overruns = self.overruns.saturating_add(missed);
+        self.dropped = self.dropped.saturating_add(missed);
+        self.next_seq = self.next_seq.wrapping_add(missed);
+        self.clock.advance(missed);
+        let raw = read(self.clock.now_us());
+        // The batch was just emptied: one sample cannot fill it.
+        let _ = self.push(raw);
+        sealed
+    }
+
+    /// Take the sample of the next tick from the two counters' raw values (no overrun); returns
+    /// the batch when it is full. Sample times come from the sample clock, which advances by one
+    /// period per call.
     #[inline]
     pub fn sample(&mut self, raw: [u32; 2]) -> Option<SampleBatch> {
+        self.sample_at_tick(self.last_tick.wrapping_add(1), |_| raw)
+    }
+
+    #[inline]
+    fn push(&mut self, raw: [u32; 2]) -> Option<SampleBatch> {
         let enc1 = self.enc[0].update(raw[0]);
         let enc2 = self.enc[1].update(raw[1]);
         let d_mm = self.kernel.distance_mm(enc1, enc2);
@@ -150,30 +231,55 @@ impl Sampler {
         if self.batch.samples.is_empty() {
             return None;
         }
-        let mut out = SampleBatch {
+        self.batch.dropped = self.dropped;
+        // `replace` writes only the new, empty batch's header (a swap would copy the whole
+        // sample array both ways: it shows in the sample task's worst tick).
+        let empty = SampleBatch {
             seq: self.next_seq,
             dropped: self.dropped,
             samples: heapless::Vec::new(),
         };
-        core::mem::swap(&mut out, &mut self.batch);
-        out.dropped = self.dropped;
-        Some(out)
+        Some(core::mem::replace(&mut self.batch, empty))
     }
 
-    /// The caller could not deliver `n` samples (queue or link full): count them. Sequence numbers
-    /// are not reused, so the host sees the gap and the total in the next batch's `dropped`.
+    /// The caller could not deliver `n` samples of the current run (queue or link full): count
+    /// them. Sequence numbers are not reused, so the host sees the gap and the total in the next
+    /// batch's `dropped`.
     #[inline]
     pub fn count_dropped(&mut self, n: u32) {
         self.dropped = self.dropped.saturating_add(n);
     }
 
-    /// Restart sequence numbers, time and the drop counter (the host's `Start`); any unfinished
+    /// `n` samples of run `run` ([`Self::run`] when they were sealed) could not be delivered:
+    /// counted if that is the current run, else ignored (that run's count is closed).
+    #[inline]
+    pub fn count_dropped_in(&mut self, run: u32, n: u32) {
+        if run == self.run {
+            self.count_dropped(n);
+        }
+    }
+
+    /// Start a new run (the host's `Start`): sequence numbers, time, drop and overrun counts
+    /// restart at zero, and the hardware's tick count must restart at zero with it. Any unfinished
     /// batch is discarded.
     pub fn restart(&mut self) {
         self.next_seq = 0;
         self.dropped = 0;
+        self.overruns = 0;
+        self.last_tick = 0;
+        self.run = self.run.wrapping_add(1);
         self.clock.reset();
         self.batch.samples.clear();
+    }
+
+    /// The current run: incremented by every [`Self::restart`].
+    pub fn run(&self) -> u32 {
+        self.run
+    }
+
+    /// Sample-clock ticks missed (overruns) since sampling started.
+    pub fn overruns(&self) -> u32 {
+        self.overruns
     }
 
     /// Time the next sample will carry (µs since sampling started).
@@ -193,14 +299,47 @@ impl Sampler {
 
     /// Compute D with a new calibration from the next sample on.
     pub fn set_calibration(&mut self, cal: &Calibration) {
-        self.kernel = Kernel::new(cal);
+        self.set_kernel(Kernel::new(cal));
     }
 
-    /// Encoder `ch` (0 or 1; others ignored) passed its index while its counter read `raw`.
+    /// Compute D with this kernel from the next sample on. The firmware builds the kernel
+    /// (trigonometry) outside the sampler's lock, so the sample task is held off only for the copy.
+    pub fn set_kernel(&mut self, kernel: Kernel) {
+        self.kernel = kernel;
+    }
+
+    /// Reference encoder `ch` (0 or 1; others ignored) at exactly this raw count (the simulated
+    /// encoders' index).
     pub fn on_index(&mut self, ch: usize, raw: u32) {
         if let Some(e) = self.enc.get_mut(ch) {
             e.on_index(raw);
         }
+    }
+
+    /// Encoder `ch`'s index signal made an `edge` latched at counter value `raw_at_edge`; the
+    /// counter now reads `raw_now` (see [`Encoder::on_index_edge`]). `None` for a bad channel.
+    pub fn on_index_edge(
+        &mut self,
+        ch: usize,
+        raw_at_edge: u32,
+        raw_now: u32,
+        edge: IndexEdge,
+    ) -> Option<IndexOutcome> {
+        self.enc
+            .get_mut(ch)
+            .map(|e| e.on_index_edge(raw_at_edge, raw_now, edge))
+    }
+
+    /// Re-arm both encoders' index (the host's `ArmIndex`).
+    pub fn arm_index(&mut self) {
+        for e in &mut self.enc {
+            e.arm_index();
+        }
+    }
+
+    /// Index referencing of both encoders.
+    pub fn index_status(&self) -> [IndexStatus; 2] {
+        [self.enc[0].index_status(), self.enc[1].index_status()]
     }
 
     /// Whether encoder `ch` is referenced.
@@ -300,11 +439,107 @@ mod tests {
         assert_eq!((b.seq, b.dropped, b.samples[0].t_us), (0, 0, 0));
     }
 
+    /// Runs the sampler as the sample task does, on a list of tick counts read at successive
+    /// interrupts; counts are `tick × 10` so each sample shows which tick it was taken at.
+    fn at_ticks(s: &mut Sampler, ticks: &[u16]) -> std::vec::Vec<SampleBatch> {
+        let mut out = std::vec::Vec::new();
+        for &tick in ticks {
+            let raw = [u32::from(tick) * 10, 0];
+            out.extend(s.sample_at_tick(tick, |_| raw));
+        }
+        out.extend(s.take_batch());
+        out
+    }
+
+    #[test]
+    fn overrun_is_counted_dropped_and_time_stays_exact() {
+        let mut s = sampler(); // 1 kHz
+                               // Ticks 1..=5 on time, then the task runs late: tick 6 and 7 are missed (the count says
+                               // 8), then an interrupt that arrived twice for tick 8, then on time again.
+        let batches = at_ticks(&mut s, &[1, 2, 3, 4, 5, 8, 8, 9, 10]);
+        assert_eq!(s.overruns(), 2);
+        assert_eq!(s.dropped(), 2);
+        // The batch in progress is sealed at the gap, so each batch is consecutive.
+        assert_eq!(batches.len(), 2);
+        assert_eq!(
+            (batches[0].seq, batches[0].samples.len(), batches[0].dropped),
+            (0, 5, 0)
+        );
+        assert_eq!(
+            (batches[1].seq, batches[1].samples.len(), batches[1].dropped),
+            (7, 3, 2)
+        );
+        // Every sample's time is its tick's: tick k at (k − 1) ms, whatever was missed.
+        for b in &batches {
+            for (i, smp) in b.samples.iter().enumerate() {
+                let tick = smp.enc1 / 10;
+                assert_eq!(smp.t_us, 1000 * (tick as u64 - 1));
+                assert_eq!(
+                    u64::from(b.seq) + i as u64,
+                    tick as u64 - 1,
+                    "seq = tick − 1"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn tick_count_wraps_at_16_bits() {
+        let mut s = sampler();
+        let mut ticks: std::vec::Vec<u16> = (1..=u16::MAX).collect();
+        ticks.extend([0u16, 1, 3]); // wraps, then one missed
+        let n: usize = at_ticks(&mut s, &ticks)
+            .iter()
+            .map(|b| b.samples.len())
+            .sum();
+        assert_eq!(n, 65_535 + 3);
+        assert_eq!(s.overruns(), 1);
+        assert_eq!(s.next_t_us(), 1000 * (65_535 + 4));
+    }
+
+    #[test]
+    fn clock_advance_equals_ticks() {
+        let mut a = SampleClock::new(1_000_000_000, 333_333);
+        let mut b = a;
+        for _ in 0..12_345 {
+            a.tick();
+        }
+        b.advance(12_345);
+        assert_eq!(a, b);
+    }
+
+    #[test]
+    fn drops_of_a_previous_run_do_not_leak_into_the_next() {
+        let mut s = sampler();
+        let old_run = s.run();
+        let b = at_ticks(&mut s, &[1, 2, 3]);
+        s.restart(); // the host's Start, while the old batch is still queued
+                     // The writer then fails to deliver the old run's batch, and one of the new run's.
+        s.count_dropped_in(old_run, b[0].samples.len() as u32);
+        assert_eq!(s.dropped(), 0, "the old run's drop is not the new run's");
+        s.count_dropped_in(s.run(), 16);
+        let b = at_ticks(&mut s, &[1]);
+        assert_eq!((b[0].seq, b[0].dropped, b[0].samples[0].t_us), (0, 16, 0));
+    }
+
+    #[test]
+    fn rate_change_takes_effect_at_the_next_period() {
+        // The firmware applies a new rate right after a tick (in the sample task), so the period
+        // running then keeps the old length: the next sample is one old period later, the ones
+        // after that are new periods apart.
+        let mut s = sampler(); // 1 kHz
+        at_ticks(&mut s, &[1, 2]);
+        s.set_period(96_000_000, 48_000); // 2 kHz
+        let b = at_ticks(&mut s, &[3, 4, 5]);
+        let t: std::vec::Vec<u64> = b[0].samples.iter().map(|x| x.t_us).collect();
+        assert_eq!(t, [2000, 2500, 3000]);
+    }
+
     #[test]
     fn status_flags_reference_and_range() {
         let mut s = Sampler::new(
             [0, 0],
-            &Calibration::DEFAULT,
+            &Calibration::SEED_000,
             SampleClock::new(1_000_000, 1000),
             true,
         );

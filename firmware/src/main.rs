@@ -5,19 +5,24 @@
 //!
 //! | task      | priority | trigger                    | does |
 //! |-----------|----------|----------------------------|------|
-//! | `sample`  | 3        | TIM3 update (sample clock) | raw counts → `Sampler` (counts → D → batch); a full batch goes to the queue with `try_send`, or is dropped and counted |
-//! | `pace`    | 3        | SysTick monotonic (qemu only) | pends TIM3 once per sample period: QEMU's TIM3 is not periodic |
-//! | `index1/2`| 3        | TIM2/TIM5 CC3 (board only) | index pulse latched in hardware → `Encoder::on_index` |
-//! | `usb_rx` / `uart_rx` | 2 | OTG_FS (board) / USART2 (qemu) | services the link, decodes commands, replies through the queue |
-//! | `writer`  | 1        | queue (async)              | frames each message and writes it to the link without blocking the others |
+//! | `sample`  | 3        | TIM3 update (sample clock) | tick count + counts latched at the tick → `Sampler` (overruns counted as drops, counts → D → batch); a full batch goes to the queue with `try_send`, or is dropped and counted; applies a rate change at the period boundary |
+//! | `pace`    | 3        | SysTick monotonic (qemu only) | pends TIM3 once per sample period and counts the tick: QEMU's TIM3 is not periodic |
+//! | `index1/2`| 3        | TIM2/TIM5 CC3 (board only) | index edge latched in hardware → `Encoder::on_index_edge` |
+//! | `usb_rx` / `uart_rx` | 2 | OTG_FS (board) / USART2 (qemu) | services the link, greets a host that configured the device, decodes commands, replies through the queue |
+//! | `writer`  | 1        | queue (async)              | frames each message and writes it to the link without blocking the others; discards (and counts) while no host reads |
+//! | SysTick   | 1 (board) / 3 (qemu) | monotonic tick | time base of the writer's waits (and of the qemu pacer); below the sample task on the board |
 //!
-//! The queue holds [`QUEUE_LEN`] messages. The writer waits for a link that is momentarily full
-//! (USB packets not yet read by the host) for up to [`LINK_TIMEOUT_US`] per frame, then drops the
-//! frame and counts its samples; while it waits, the queue fills and the sample task drops whole
-//! batches, counted too. The sample task never waits, allocates or panics.
+//! The queue holds [`QUEUE_LEN`] messages, of which sample batches may take [`BATCH_QUOTA`], so a
+//! reply always finds room. The writer waits for a link that is momentarily full (USB packets
+//! not yet read by the host) for up to [`LINK_TIMEOUT_US`] per frame; then it drops the frame,
+//! takes the host for absent (`jdbb_core::link::Presence`), throws away what the link still
+//! buffers, and discards every message until the host is back (a command, the link coming up, or
+//! probe bytes read), counting their samples as dropped. The sample task never waits, allocates or
+//! panics.
 //!
 //! Sampling starts at power-up at [`DEFAULT_RATE_HZ`] (both boards, see `board::AUTO_START`); the
-//! device sends `DeviceMsg::Info` first.
+//! device sends `DeviceMsg::Hello` first: at power-up on the UART, when the host has configured
+//! the device on USB.
 #![no_std]
 #![no_main]
 
@@ -25,8 +30,11 @@
 use defmt_rtt as _;
 #[cfg(feature = "qemu")]
 use defmt_semihosting as _;
+// The real board's panic handler (log, mark, reset) is in `board::f411`.
+#[cfg(feature = "qemu")]
 use panic_probe as _;
 
+use jdbb_core::link::BatchQuota;
 use rtic_monotonics::systick::prelude::*;
 
 // Real board: 10 kHz, the writer's polling granularity while USB is momentarily full (at 10 kHz
@@ -39,20 +47,39 @@ const MONO_HZ: u32 = 10_000;
 const MONO_HZ: u32 = 1_000;
 systick_monotonic!(Mono, MONO_HZ);
 
+/// Logical priority of the SysTick exception (the monotonic). It is 0, above every task, unless
+/// set: on the board it goes below the sample and USB tasks, to the writer's level (the only task
+/// that waits on it); in QEMU it paces the samples, at the sample task's level.
+#[cfg(feature = "board-f411")]
+const SYSTICK_PRIO: u8 = 1;
+#[cfg(feature = "qemu")]
+const SYSTICK_PRIO: u8 = 3;
+
 /// Messages the queue between the tasks and the writer holds.
 pub const QUEUE_LEN: usize = 16;
+/// Places of the queue sample batches may take; the rest are kept for replies.
+pub const BATCH_QUOTA: usize = QUEUE_LEN - 4;
 /// Sample clock at power-up (Hz).
 pub const DEFAULT_RATE_HZ: u32 = 1_000;
-/// How long the writer waits for a full link before it drops a frame (µs).
+/// How long the writer waits for a full link before it drops a frame and takes the host for
+/// absent (µs).
 pub const LINK_TIMEOUT_US: u32 = 20_000;
 const LINK_POLL_US: u32 = 250;
 
+/// Batches in the queue (taken by the sample task, given back by the writer).
+static BATCHES: BatchQuota = BatchQuota::new(BATCH_QUOTA);
+
 #[rtic::app(device = stm32f4xx_hal::pac, peripherals = true, dispatchers = [SPI2, SPI3])]
 mod app {
-    use super::{Mono, DEFAULT_RATE_HZ, LINK_POLL_US, LINK_TIMEOUT_US, QUEUE_LEN};
+    use super::{
+        Mono, BATCHES, DEFAULT_RATE_HZ, LINK_POLL_US, LINK_TIMEOUT_US, QUEUE_LEN, SYSTICK_PRIO,
+    };
+    use cortex_m::peripheral::scb::SystemHandler;
+    use jdbb_core::geometry::Kernel;
+    use jdbb_core::link::{Outgoing, Presence, ProbeStep};
     use jdbb_core::protocol::{
-        self, Command, CommandError, Decoder, DeviceInfo, DeviceMsg, FrameError, MAX_FRAME_LEN,
-        MAX_SAMPLE_RATE_HZ, PROTOCOL_VERSION,
+        self, Command, CommandError, Decoder, DeviceInfo, DeviceMsg, FrameError, Hello, ResetCause,
+        SampleBatch, MAX_FRAME_LEN, MAX_SAMPLE_RATE_HZ, PROTOCOL_VERSION,
     };
     use jdbb_core::sampler::{SampleClock, Sampler};
     use jdbb_core::Calibration;
@@ -62,14 +89,15 @@ mod app {
     use rtic_sync::channel::{Receiver, Sender, TrySendError};
     use rtic_sync::make_channel;
 
-    type Tx = Sender<'static, DeviceMsg, QUEUE_LEN>;
-    type Rx = Receiver<'static, DeviceMsg, QUEUE_LEN>;
+    type Tx = Sender<'static, Outgoing, QUEUE_LEN>;
+    type Rx = Receiver<'static, Outgoing, QUEUE_LEN>;
 
     #[shared]
     struct Shared {
         sampler: Sampler,
         timer: SampleTimer,
         link: board::Link,
+        presence: Presence,
         control: Control,
     }
 
@@ -83,14 +111,27 @@ mod app {
     /// State of the command handler.
     pub struct Control {
         decoder: Decoder<MAX_FRAME_LEN>,
+        state: State,
+    }
+
+    /// What commands act on and replies report, besides the sampler and the timer.
+    pub struct State {
         cal: Calibration,
         reply_tx: Tx,
+        chip_id: [u8; 12],
+        reset_cause: ResetCause,
     }
 
     #[init]
-    fn init(cx: init::Context) -> (Shared, Local) {
+    fn init(mut cx: init::Context) -> (Shared, Local) {
         let parts = board::init(cx.device, DEFAULT_RATE_HZ);
         Mono::start(cx.core.SYST, parts.systick_hz);
+        // SAFETY: set once, before any task runs; RTIC does not manage SysTick's priority.
+        unsafe {
+            let bits = stm32f4xx_hal::pac::NVIC_PRIO_BITS;
+            let hw = ((1u8 << bits) - SYSTICK_PRIO) << (8 - bits);
+            cx.core.SCB.set_priority(SystemHandler::SysTick, hw);
+        }
         let mut timer = parts.timer;
         let cal = Calibration::DEFAULT;
         let clock = SampleClock::new(timer.clock_hz(), timer.period_ticks());
@@ -100,32 +141,42 @@ mod app {
             sampler.on_index(1, index[1]);
         }
 
-        let (mut reply_tx, rx) = make_channel!(DeviceMsg, QUEUE_LEN);
+        let (mut reply_tx, rx) = make_channel!(Outgoing, QUEUE_LEN);
         let batch_tx = reply_tx.clone();
         if board::AUTO_START {
             timer.start();
         }
-        // The queue is empty: the greeting always fits.
-        let _ = reply_tx.try_send(DeviceMsg::Info(info(&timer, &cal)));
+        let control = Control {
+            decoder: Decoder::new(),
+            state: State {
+                cal,
+                reply_tx: reply_tx.clone(),
+                chip_id: parts.chip_id,
+                reset_cause: parts.reset_cause,
+            },
+        };
+        if board::LINK_UP_AT_START {
+            // The queue is empty: the greeting always fits.
+            let greeting = Hello::of(&info(&timer, &sampler, &control.state));
+            let _ = reply_tx.try_send(reply(DeviceMsg::Hello(greeting)));
+        }
         writer::spawn().ok();
         #[cfg(feature = "qemu")]
         pace::spawn().ok();
         defmt::info!(
-            "jdbb firmware {}: {} Hz, sampling {}",
+            "jdbb firmware {}: {} Hz, sampling {}, reset cause {=u8:#x}",
             board::BOARD,
             timer.rate_hz(),
-            timer.is_running()
+            timer.is_running(),
+            parts.reset_cause.0
         );
         (
             Shared {
                 sampler,
                 timer,
                 link: parts.link,
-                control: Control {
-                    decoder: Decoder::new(),
-                    cal,
-                    reply_tx,
-                },
+                presence: Presence::new(board::LINK_UP_AT_START),
+                control,
             },
             Local {
                 encoders: parts.encoders,
@@ -145,30 +196,43 @@ mod app {
     /// One tick of the sample clock: the whole on-chip sample path.
     #[task(binds = TIM3, priority = 3, shared = [sampler, timer], local = [encoders, batch_tx])]
     fn sample(cx: sample::Context) {
-        let sample::SharedResources {
-            mut sampler,
-            mut timer,
-            ..
-        } = cx.shared;
+        let sample::SharedResources { sampler, timer, .. } = cx.shared;
         let encoders = cx.local.encoders;
         let tx = cx.local.batch_tx;
-        timer.lock(|t| t.clear_update());
-        sampler.lock(|s| {
-            let raw = encoders.read(s.next_t_us());
-            if let Some(batch) = s.sample(raw) {
-                if let Err(TrySendError::Full(msg) | TrySendError::NoReceiver(msg)) =
-                    tx.try_send(DeviceMsg::Batch(batch))
-                {
-                    s.count_dropped(samples_in(&msg));
-                }
+        (timer, sampler).lock(|t, s| {
+            t.clear_update();
+            let batch = encoders.sample(s);
+            if let Some(ticks) = t.apply_pending_rate() {
+                s.set_period(t.clock_hz(), ticks);
+            }
+            if let Some(batch) = batch {
+                queue_batch(tx, s, batch);
             }
         });
+    }
+
+    /// Queue a sealed batch for the writer, or count it dropped (quota or queue full).
+    fn queue_batch(tx: &mut Tx, s: &mut Sampler, batch: SampleBatch) {
+        let n = batch.samples.len() as u32;
+        if !BATCHES.try_take() {
+            s.count_dropped(n);
+            return;
+        }
+        let out = Outgoing {
+            run: s.run(),
+            msg: DeviceMsg::Batch(batch),
+        };
+        if let Err(TrySendError::Full(_) | TrySendError::NoReceiver(_)) = tx.try_send(out) {
+            BATCHES.release();
+            s.count_dropped(n);
+        }
     }
 
     /// QEMU only: the sample clock (see `board::qemu`). Woken by every monotonic tick, pends the
     /// sample task's interrupt once for every period elapsed on the lossless TIM2 µs count (up to
     /// [`PACE_BURST`] per wake-up, yielding in between so each pend runs the sample task), so the
     /// samples keep their rate on average even though QEMU delivers SysTick ticks irregularly.
+    /// Every pended tick is counted (`board::count_tick`), as TIM4 counts them on the board.
     #[cfg(feature = "qemu")]
     #[task(priority = 3)]
     async fn pace(_: pace::Context) {
@@ -186,6 +250,7 @@ mod app {
             let mut burst = 0;
             while now_us() >= next_us && burst < PACE_BURST {
                 next_us += period_us;
+                board::count_tick();
                 rtic::pend(stm32f4xx_hal::pac::Interrupt::TIM3);
                 yield_now().await;
                 burst += 1;
@@ -218,85 +283,129 @@ mod app {
         .await
     }
 
-    /// Encoder 1's index pulse (board only).
+    /// Encoder 1's index edges (board only).
     #[cfg(feature = "board-f411")]
     #[task(binds = TIM2, priority = 3, shared = [sampler])]
     fn index1(mut cx: index1::Context) {
-        if let Some(raw) = board::take_index(0) {
-            cx.shared.sampler.lock(|s| s.on_index(0, raw));
+        while let Some((at, now, edge)) = board::take_index(0) {
+            cx.shared
+                .sampler
+                .lock(|s| s.on_index_edge(0, at, now, edge));
         }
     }
 
-    /// Encoder 2's index pulse (board only).
+    /// Encoder 2's index edges (board only).
     #[cfg(feature = "board-f411")]
     #[task(binds = TIM5, priority = 3, shared = [sampler])]
     fn index2(mut cx: index2::Context) {
-        if let Some(raw) = board::take_index(1) {
-            cx.shared.sampler.lock(|s| s.on_index(1, raw));
+        while let Some((at, now, edge)) = board::take_index(1) {
+            cx.shared
+                .sampler
+                .lock(|s| s.on_index_edge(1, at, now, edge));
         }
     }
 
-    /// USB interrupt: service the stack, then read commands.
+    /// USB interrupt: service the stack, greet a host that configured the device, read commands.
     #[cfg(feature = "board-f411")]
-    #[task(binds = OTG_FS, priority = 2, shared = [link, sampler, timer, control])]
+    #[task(binds = OTG_FS, priority = 2, shared = [link, sampler, timer, presence, control])]
     fn usb_rx(cx: usb_rx::Context) {
         let usb_rx::SharedResources {
             link,
             sampler,
             timer,
+            presence,
             mut control,
             ..
         } = cx.shared;
-        control.lock(|c| receive(link, sampler, timer, c));
+        control.lock(|c| receive(link, sampler, timer, presence, c));
     }
 
     /// USART2 receive interrupt: read commands.
     #[cfg(feature = "qemu")]
-    #[task(binds = USART2, priority = 2, shared = [link, sampler, timer, control])]
+    #[task(binds = USART2, priority = 2, shared = [link, sampler, timer, presence, control])]
     fn uart_rx(cx: uart_rx::Context) {
         let uart_rx::SharedResources {
             link,
             sampler,
             timer,
+            presence,
             mut control,
             ..
         } = cx.shared;
-        control.lock(|c| receive(link, sampler, timer, c));
+        control.lock(|c| receive(link, sampler, timer, presence, c));
     }
 
-    /// Frame every queued message and write it to the link.
-    #[task(priority = 1, shared = [link, sampler], local = [rx, frame: [u8; MAX_FRAME_LEN] = [0; MAX_FRAME_LEN], cut: bool = false])]
+    /// Frame every queued message and write it to the link; while no host reads, discard and count.
+    #[task(priority = 1, shared = [link, sampler, presence], local = [rx, frame: [u8; MAX_FRAME_LEN] = [0; MAX_FRAME_LEN], cut: bool = false])]
     async fn writer(cx: writer::Context) {
         let writer::SharedResources {
             mut link,
             mut sampler,
+            mut presence,
             ..
         } = cx.shared;
         let writer::LocalResources { rx, frame, cut, .. } = cx.local;
-        while let Ok(msg) = rx.recv().await {
-            let n = samples_in(&msg);
+        while let Ok(out) = rx.recv().await {
+            if out.is_batch() {
+                BATCHES.release();
+            }
+            let n = out.samples();
+            if !presence.lock(|p| p.is_present()) {
+                sampler.lock(|s| s.count_dropped_in(out.run, n));
+                probe(&mut link, &mut presence);
+                continue;
+            }
             // A frame abandoned half-way is closed with a delimiter first: the host then loses
             // (and counts as corrupt) that frame only.
             if *cut {
                 if send(&mut link, &[0]).await == 1 {
                     *cut = false;
                 } else {
-                    sampler.lock(|s| s.count_dropped(n));
+                    sampler.lock(|s| s.count_dropped_in(out.run, n));
+                    host_gone(&mut link, &mut presence, cut);
                     continue;
                 }
             }
-            let Ok(bytes) = protocol::encode(&msg, frame) else {
+            let Ok(bytes) = protocol::encode(&out.msg, frame) else {
                 // Cannot happen: MAX_FRAME_LEN bounds every message (tested in the core).
-                sampler.lock(|s| s.count_dropped(n));
+                sampler.lock(|s| s.count_dropped_in(out.run, n));
                 continue;
             };
             let len = bytes.len();
             let written = send(&mut link, bytes).await;
             if written < len {
-                sampler.lock(|s| s.count_dropped(n));
+                sampler.lock(|s| s.count_dropped_in(out.run, n));
                 *cut = written > 0;
-                defmt::warn!("link full: frame dropped ({} samples)", n);
+                host_gone(&mut link, &mut presence, cut);
             }
+        }
+    }
+
+    /// The link made no progress for the timeout: the host is absent. Throw away what the link
+    /// still buffers (it would reach a later host stale) and close the frame cut there.
+    fn host_gone(
+        link: &mut impl rtic::Mutex<T = board::Link>,
+        presence: &mut impl rtic::Mutex<T = Presence>,
+        cut: &mut bool,
+    ) {
+        if presence.lock(|p| p.on_timeout()) {
+            link.lock(|l| l.discard_pending());
+            *cut = true;
+            defmt::warn!("host not reading: discarding until it is back");
+        }
+    }
+
+    /// While the host is absent: one step of the probe that finds it back (see
+    /// `jdbb_core::link::Presence`).
+    fn probe(
+        link: &mut impl rtic::Mutex<T = board::Link>,
+        presence: &mut impl rtic::Mutex<T = Presence>,
+    ) {
+        let drained = link.lock(|l| l.drained());
+        if presence.lock(|p| p.probe_step(drained)) == ProbeStep::Send
+            && link.lock(|l| l.write(&[0])) == 1
+        {
+            presence.lock(|p| p.probe_sent());
         }
     }
 
@@ -320,49 +429,75 @@ mod app {
         off
     }
 
-    fn samples_in(msg: &DeviceMsg) -> u32 {
-        match msg {
-            DeviceMsg::Batch(b) => b.samples.len() as u32,
-            _ => 0,
-        }
+    /// A reply (not a batch: it does not take a place of the batch quota).
+    fn reply(msg: DeviceMsg) -> Outgoing {
+        Outgoing { run: 0, msg }
     }
 
-    fn info(timer: &SampleTimer, cal: &Calibration) -> DeviceInfo {
+    fn info(timer: &SampleTimer, sampler: &Sampler, control: &State) -> DeviceInfo {
         DeviceInfo {
             protocol_version: PROTOCOL_VERSION,
             firmware_version: FIRMWARE_VERSION,
             board: board::BOARD,
             sample_rate_hz: timer.rate_hz(),
             sampling: timer.is_running(),
-            calibration: *cal,
+            calibration: control.cal,
+            chip_id: control.chip_id,
+            reset_cause: control.reset_cause,
+            index: sampler.index_status(),
+            overruns: sampler.overruns(),
         }
     }
 
-    /// Drain the link's receiver and act on every complete command frame.
+    /// Service the link: greet a host that just configured the device, then drain the receiver and
+    /// act on every complete command frame.
     fn receive(
         mut link: impl rtic::Mutex<T = board::Link>,
         mut sampler: impl rtic::Mutex<T = Sampler>,
         mut timer: impl rtic::Mutex<T = SampleTimer>,
+        mut presence: impl rtic::Mutex<T = Presence>,
         control: &mut Control,
     ) {
         let mut buf = [0u8; 64];
         loop {
-            let n = link.lock(|l| if l.poll() { l.read(&mut buf) } else { 0 });
+            let (n, change) = link.lock(|l| {
+                let n = if l.poll() { l.read(&mut buf) } else { 0 };
+                (n, l.take_change())
+            });
+            let Control { decoder, state } = &mut *control;
+            match change {
+                Some(true) => {
+                    presence.lock(|p| p.on_host_activity());
+                    let greeting =
+                        DeviceMsg::Hello(Hello::of(&current_info(&mut timer, &mut sampler, state)));
+                    if state.reply_tx.try_send(reply(greeting)).is_err() {
+                        defmt::warn!("queue full: greeting dropped");
+                    }
+                }
+                Some(false) => {
+                    presence.lock(|p| p.on_timeout());
+                }
+                None => {}
+            }
             if n == 0 {
                 break;
             }
-            let Control {
-                decoder,
-                cal,
-                reply_tx,
-            } = control;
+            presence.lock(|p| p.on_host_activity());
             decoder.feed::<Command>(&buf[..n], |cmd| {
-                let reply = execute(cmd, &mut sampler, &mut timer, cal, reply_tx);
-                if reply_tx.try_send(reply).is_err() {
+                let reply_msg = execute(cmd, &mut sampler, &mut timer, state);
+                if state.reply_tx.try_send(reply(reply_msg)).is_err() {
                     defmt::warn!("queue full: reply dropped");
                 }
             });
         }
+    }
+
+    fn current_info(
+        timer: &mut impl rtic::Mutex<T = SampleTimer>,
+        sampler: &mut impl rtic::Mutex<T = Sampler>,
+        control: &State,
+    ) -> DeviceInfo {
+        timer.lock(|t| sampler.lock(|s| info(t, s, control)))
     }
 
     /// Carry out one command; returns the reply.
@@ -370,8 +505,7 @@ mod app {
         cmd: Result<Command, FrameError>,
         sampler: &mut impl rtic::Mutex<T = Sampler>,
         timer: &mut impl rtic::Mutex<T = SampleTimer>,
-        cal: &mut Calibration,
-        tx: &mut Tx,
+        control: &mut State,
     ) -> DeviceMsg {
         let cmd = match cmd {
             Ok(c) => c,
@@ -380,7 +514,7 @@ mod app {
                 return DeviceMsg::Rejected(CommandError::Malformed);
             }
         };
-        defmt::info!("command {}", cmd);
+        defmt::debug!("command {}", cmd);
         match cmd {
             Command::Start => {
                 timer.lock(|t| {
@@ -391,12 +525,22 @@ mod app {
             }
             Command::Stop => {
                 timer.lock(|t| t.stop());
-                if let Some(rest) = sampler.lock(|s| s.take_batch()) {
-                    if let Err(TrySendError::Full(m) | TrySendError::NoReceiver(m)) =
-                        tx.try_send(DeviceMsg::Batch(rest))
-                    {
-                        let n = samples_in(&m);
-                        sampler.lock(|s| s.count_dropped(n));
+                let rest = sampler.lock(|s| s.take_batch().map(|b| (s.run(), b)));
+                if let Some((run, rest)) = rest {
+                    let n = rest.samples.len() as u32;
+                    let queued = BATCHES.try_take()
+                        && match control.reply_tx.try_send(Outgoing {
+                            run,
+                            msg: DeviceMsg::Batch(rest),
+                        }) {
+                            Ok(()) => true,
+                            Err(_) => {
+                                BATCHES.release();
+                                false
+                            }
+                        };
+                    if !queued {
+                        sampler.lock(|s| s.count_dropped_in(run, n));
                     }
                 }
             }
@@ -406,21 +550,28 @@ mod app {
                 }
                 timer.lock(|t| {
                     let ticks = t.set_rate(hz);
-                    let clock_hz = t.clock_hz();
-                    sampler.lock(|s| s.set_period(clock_hz, ticks));
+                    if !t.is_running() {
+                        // Running, the sample task applies it at the next period boundary.
+                        let clock_hz = t.clock_hz();
+                        sampler.lock(|s| s.set_period(clock_hz, ticks));
+                    }
                 });
             }
             Command::SetCalibration(new) => {
                 if let Err(e) = new.validate() {
                     return DeviceMsg::Rejected(CommandError::BadCalibration(e));
                 }
-                *cal = new;
-                sampler.lock(|s| s.set_calibration(&new));
+                control.cal = new;
+                // The trigonometry runs here, at the command's priority; the sample task waits
+                // only for the copy.
+                let kernel = Kernel::new(&new);
+                sampler.lock(|s| s.set_kernel(kernel));
             }
             Command::Zero => sampler.lock(|s| s.zero_here()),
+            Command::ArmIndex => sampler.lock(|s| s.arm_index()),
             Command::Ping(token) => return DeviceMsg::Pong(token),
             Command::GetInfo => {}
         }
-        DeviceMsg::Info(timer.lock(|t| info(t, cal)))
+        DeviceMsg::Info(current_info(timer, sampler, control))
     }
 }

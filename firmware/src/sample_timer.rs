@@ -1,4 +1,17 @@
-//! The real board's sample clock: TIM3 (16-bit) as a periodic update interrupt, register-level.
+//! The real board's sample clock, register-level: TIM3 (16-bit) makes one update event per sample
+//! period, which
+//!
+//! - raises the sample task's interrupt (TIM3 update);
+//! - is TIM3's trigger output (TRGO, `CR2.MMS = update`), on which TIM2 and TIM5 latch their
+//!   counts into CCR4 (input capture on TRC; see `board::f411`), so both encoders are read at the
+//!   same instant in hardware, however late the interrupt runs;
+//! - clocks TIM4 (external clock mode 1 on ITR2 = TIM3's TRGO, RM0383 table "TIMx internal trigger
+//!   connection"), a 16-bit count of sample-clock ticks: the sample task learns from it how many
+//!   ticks passed since it last ran (overruns, see `jdbb_core::sampler`).
+//!
+//! A new rate is written right after a tick by the sample task ([`SampleTimer::apply_pending_rate`])
+//! into the preloaded PSC/ARR, so the period running then completes with its old length and the
+//! new one starts at the next update event: the sample clock never restarts mid-period.
 //! (QEMU's TIM3 model cannot do this; the `qemu` board paces the same interrupt from SysTick.)
 
 use stm32f4xx_hal::pac;
@@ -6,47 +19,99 @@ use stm32f4xx_hal::rcc::{Enable, Reset};
 
 const CR1_CEN: u32 = 1 << 0;
 const CR1_URS: u32 = 1 << 2;
+const CR1_ARPE: u32 = 1 << 7;
+const CR2_MMS_UPDATE: u32 = 0b010 << 4;
 const DIER_UIE: u32 = 1 << 0;
+const SR_UIF: u32 = 1 << 0;
 const EGR_UG: u32 = 1 << 0;
+/// TIM4 slave mode: external clock mode 1 (`SMS = 111`) from ITR2 (`TS = 010`) = TIM3's TRGO.
+const TIM4_SMCR_ECM1_ITR2: u32 = 0b111 | (0b010 << 4);
 
-/// TIM3 driven by a `clock_hz` input clock.
+/// The sample task's view of the tick counter: TIM4's count of TIM3 update events (wraps at
+/// 2¹⁶), reset to 0 by [`SampleTimer::start`].
+#[inline]
+pub fn tick_count() -> u16 {
+    // SAFETY: read-only access to a counter configured in `SampleTimer::new` and written only by
+    // `SampleTimer::start`.
+    unsafe { (*pac::TIM4::ptr()).cnt().read().bits() as u16 }
+}
+
+/// TIM3 as the sample clock, TIM4 counting its ticks, both from a `clock_hz` timer clock.
 pub struct SampleTimer {
     tim: pac::TIM3,
     clock_hz: u32,
     period_ticks: u32,
+    pending: Option<(u32, u32)>,
 }
 
 impl SampleTimer {
-    /// Enable TIM3 with a `clock_hz` input clock and program `rate_hz`; the timer stays stopped
-    /// until [`Self::start`].
-    pub fn new(tim: pac::TIM3, clock_hz: u32, rate_hz: u32) -> Self {
+    /// Enable TIM3 and TIM4 with a `clock_hz` input clock and program `rate_hz`; the sample clock
+    /// stays stopped until [`Self::start`].
+    pub fn new(tim: pac::TIM3, tim4: pac::TIM4, clock_hz: u32, rate_hz: u32) -> Self {
         unsafe {
             pac::TIM3::enable_unchecked();
             pac::TIM3::reset_unchecked();
+            pac::TIM4::enable_unchecked();
+            pac::TIM4::reset_unchecked();
         }
-        // Only counter overflow raises the update interrupt, not the UG we use to load PSC/ARR.
-        tim.cr1().write(|w| unsafe { w.bits(CR1_URS) });
+        // Only counter overflow raises the update interrupt, not the UG we use to load PSC/ARR;
+        // ARR is preloaded so a new period starts cleanly at an update event.
+        tim.cr1().write(|w| unsafe { w.bits(CR1_URS | CR1_ARPE) });
+        tim.cr2().write(|w| unsafe { w.bits(CR2_MMS_UPDATE) });
+        tim4.arr().write(|w| unsafe { w.bits(0xffff) });
+        tim4.smcr()
+            .write(|w| unsafe { w.bits(TIM4_SMCR_ECM1_ITR2) });
+        tim4.cr1().write(|w| unsafe { w.bits(CR1_CEN) });
         let mut t = SampleTimer {
             tim,
             clock_hz,
             period_ticks: 0,
+            pending: None,
         };
-        t.set_rate(rate_hz);
+        let (psc, arr) = t.divide(rate_hz);
+        t.write(psc, arr); // loaded by the UG in `start`
         t
     }
 
-    /// Program the nearest period to `rate_hz` (≥ 1) the 16-bit prescaler and reload allow; returns
-    /// the period in input-clock ticks, `(PSC + 1) · (ARR + 1)`, which is exact (see
-    /// [`jdbb_core::sampler::SampleClock`]).
-    pub fn set_rate(&mut self, rate_hz: u32) -> u32 {
+    /// Prescaler and reload for the nearest period to `rate_hz` (≥ 1) the 16-bit registers allow.
+    fn divide(&self, rate_hz: u32) -> (u32, u32) {
         let total = (self.clock_hz / rate_hz.max(1)).max(2);
         let psc = (total - 1) / 65_536; // smallest prescaler that makes ARR fit 16 bits
         let arr = (total / (psc + 1)).clamp(2, 65_536) - 1;
+        (psc, arr)
+    }
+
+    /// Write PSC/ARR (both preloaded: they take effect at the next update event, or at the UG in
+    /// [`Self::start`]).
+    fn write(&mut self, psc: u32, arr: u32) -> u32 {
         self.tim.psc().write(|w| unsafe { w.bits(psc) });
         self.tim.arr().write(|w| unsafe { w.bits(arr) });
-        self.tim.egr().write(|w| unsafe { w.bits(EGR_UG) }); // load PSC now, restart the count
         self.period_ticks = (psc + 1) * (arr + 1);
         self.period_ticks
+    }
+
+    /// Program the nearest period to `rate_hz`; returns it in input-clock ticks,
+    /// `(PSC + 1) · (ARR + 1)`, which is exact (see [`jdbb_core::sampler::SampleClock`]). While
+    /// the clock runs, the change waits for the sample task ([`Self::apply_pending_rate`]) and the
+    /// caller must not change the sampler's period itself.
+    pub fn set_rate(&mut self, rate_hz: u32) -> u32 {
+        let (psc, arr) = self.divide(rate_hz);
+        if self.is_running() {
+            self.pending = Some((psc, arr));
+            (psc + 1) * (arr + 1)
+        } else {
+            self.pending = None;
+            self.write(psc, arr)
+        }
+    }
+
+    /// Called by the sample task right after a tick: write a rate change asked for while running,
+    /// so that it starts with the period after the current one; returns the new period (ticks)
+    /// for the sampler's clock.
+    #[inline]
+    pub fn apply_pending_rate(&mut self) -> Option<u32> {
+        let (psc, arr) = self.pending.take()?;
+        Some(self.write(psc, arr))
     }
 
     /// Input clock of the timer (Hz).
@@ -59,24 +124,40 @@ impl SampleTimer {
         self.period_ticks
     }
 
-    /// Effective sample rate (Hz, rounded).
+    /// Sample rate (Hz, rounded), including a change that waits for the next period.
     pub fn rate_hz(&self) -> u32 {
-        (self.clock_hz + self.period_ticks / 2) / self.period_ticks.max(1)
+        let ticks = match self.pending {
+            Some((psc, arr)) => (psc + 1) * (arr + 1),
+            None => self.period_ticks,
+        };
+        (self.clock_hz + ticks / 2) / ticks.max(1)
     }
 
-    /// Start counting with the update interrupt enabled; the first sample comes one period later.
+    /// Start counting with the update interrupt enabled; the first tick (tick count 1) comes one
+    /// full period later. The tick count restarts at 0 (with `Sampler::restart`).
     pub fn start(&mut self) {
-        self.tim.cnt().write(|w| unsafe { w.bits(0) });
+        if let Some((psc, arr)) = self.pending.take() {
+            self.write(psc, arr);
+        }
+        // UG restarts the counter and the prescaler and loads PSC/ARR. It is also a TRGO pulse
+        // (one tick for TIM4, one capture), so TIM4 is cleared after it — after a pause much longer
+        // than the few timer clocks TIM4's slave controller takes to count it.
+        self.tim.egr().write(|w| unsafe { w.bits(EGR_UG) });
+        cortex_m::asm::delay(64);
+        // SAFETY: TIM4 is the tick counter, configured in `new`; only this function writes it.
+        unsafe { (*pac::TIM4::ptr()).cnt().write(|w| w.bits(0)) };
         self.tim.sr().write(|w| unsafe { w.bits(0) });
         self.tim.dier().write(|w| unsafe { w.bits(DIER_UIE) });
         self.tim
             .cr1()
-            .write(|w| unsafe { w.bits(CR1_URS | CR1_CEN) });
+            .write(|w| unsafe { w.bits(CR1_URS | CR1_ARPE | CR1_CEN) });
     }
 
     /// Stop counting and mask the interrupt.
     pub fn stop(&mut self) {
-        self.tim.cr1().write(|w| unsafe { w.bits(CR1_URS) });
+        self.tim
+            .cr1()
+            .write(|w| unsafe { w.bits(CR1_URS | CR1_ARPE) });
         self.tim.dier().write(|w| unsafe { w.bits(0) });
         self.tim.sr().write(|w| unsafe { w.bits(0) });
     }
@@ -86,9 +167,11 @@ impl SampleTimer {
         self.tim.cr1().read().bits() & CR1_CEN != 0
     }
 
-    /// Acknowledge the update interrupt (first thing in the sample task).
+    /// Acknowledge the update interrupt (first thing in the sample task). Clears UIF only
+    /// (the status bits are cleared by writing 0, so every other bit is written 1). A tick that
+    /// came while UIF was still set is not lost: TIM4 counted it.
     #[inline]
     pub fn clear_update(&mut self) {
-        self.tim.sr().write(|w| unsafe { w.bits(0) });
+        self.tim.sr().write(|w| unsafe { w.bits(!SR_UIF) });
     }
 }

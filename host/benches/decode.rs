@@ -7,8 +7,8 @@
 use std::hint::black_box;
 use std::time::Instant;
 
-use jdbb::record::write_csv_lines;
-use jdbb::stream::{Poll, Stream};
+use jdbb::link::record::write_csv_lines;
+use jdbb::link::stream::{Poll, Stream};
 use jdbb_core::geometry::{counts_for_distance, distance_mm};
 use jdbb_core::protocol::{self, DeviceMsg, Sample, SampleBatch, Status, BATCH_LEN, MAX_FRAME_LEN};
 use jdbb_core::Calibration;

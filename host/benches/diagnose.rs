@@ -10,9 +10,11 @@
 //! forward selection, the exact refit, residual harmonics, G and H. CSV parsing is not timed.
 use std::time::Instant;
 
-use jdbb::diagnose::{diagnose, parse_pitch, read_samples, Options};
-use jdbb::model::Path;
-use jdbb::simulate::{distances_mm, measure, nominal_path, parse_effect, PathSpec};
+use jdbb::circular::diagnose::{diagnose, Options};
+use jdbb::circular::input::read_samples;
+use jdbb::circular::model::parse_pitch;
+use jdbb::circular::model::Path;
+use jdbb::circular::simulate::{distances_mm, measure, nominal_path, parse_effect, PathSpec};
 
 fn simulated(n: usize) -> (Path, Vec<f64>) {
     let period_s = std::f64::consts::TAU * 50.0 / (1000.0 / 60.0);

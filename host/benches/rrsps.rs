@@ -8,10 +8,10 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use jdbb::rrsps::cmd::simulate;
 use jdbb::rrsps::design::Branch;
 use jdbb::rrsps::identify::{identify, Method};
 use jdbb::rrsps::io::{read_samples, Samples};
+use jdbb::rrsps::simulate::simulate;
 use jdbb::rrsps::Params;
 
 fn design() -> Params {

@@ -26,11 +26,24 @@ pub enum Error {
         #[source]
         source: std::io::Error,
     },
-    /// A file could not be created, written or read.
+    /// An input file could not be read (missing, unreadable, a directory): bad input, exit 2.
+    #[error("cannot read {path}: {source}")]
+    InputFile {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// An output file could not be created or written.
     #[error("{action} {path}: {source}")]
     File {
         action: &'static str,
         path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// Standard output could not be written (a full disk; a closed pipe is not an error).
+    #[error("cannot write to standard output: {source}")]
+    Stdout {
         #[source]
         source: std::io::Error,
     },
@@ -43,13 +56,27 @@ pub enum Error {
     /// A fit or computation could not produce a trustworthy answer.
     #[error("{0}")]
     Numerics(String),
+    /// The history database could not be opened, read or written.
+    #[error("history database {path}: {source}. Is it a jdbb history file, on a disk you may write? (--db PATH chooses another)")]
+    Database {
+        path: PathBuf,
+        #[source]
+        source: rusqlite::Error,
+    },
 }
 
 impl Error {
-    /// Process exit code: 2 for bad input or usage, 1 for everything else.
+    /// Process exit code: 2 for bad input (a file missing, unreadable or malformed, a history
+    /// file that is not a database) or usage, 1 for everything else (a device, an output, a
+    /// computation that failed).
     pub fn exit_code(&self) -> u8 {
         match self {
-            Error::Input { .. } | Error::Usage(_) => 2,
+            Error::Input { .. } | Error::InputFile { .. } | Error::Usage(_) => 2,
+            // A --db that is not a database is bad input too.
+            Error::Database {
+                source: rusqlite::Error::SqliteFailure(e, _),
+                ..
+            } if e.code == rusqlite::ErrorCode::NotADatabase => 2,
             _ => 1,
         }
     }
@@ -71,34 +98,6 @@ impl Error {
             location,
             message: message.into(),
         }
-    }
-}
-
-/// Parse one numeric field of an input file: a finite f64, or an input error at
-/// `path:line:column` that names the column and shows what was there. Every CSV reader of the
-/// host uses it, so bad numbers read the same whatever the command.
-pub fn parse_number(
-    path: &std::path::Path,
-    line: usize,
-    column: usize,
-    name: &str,
-    raw: &str,
-) -> Result<f64> {
-    let raw = raw.trim();
-    match raw.parse::<f64>() {
-        Ok(x) if x.is_finite() => Ok(x),
-        Ok(_) => Err(Error::input(
-            path,
-            line,
-            column,
-            format!("{name} is {raw}; every value must be finite"),
-        )),
-        Err(_) => Err(Error::input(
-            path,
-            line,
-            column,
-            format!("{name}: `{raw}` is not a number"),
-        )),
     }
 }
 

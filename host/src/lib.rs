@@ -1,34 +1,35 @@
-//! `jdbb`, the host side of the J-DBB double ball bar.
+//! `jdbb`, the host side of the J-DBB double ball bar. One folder per concern:
 //!
-//! One module per concern:
-//! - [`stream`]: frames from a serial port (USB CDC or a QEMU pty) → decoded samples, with loss,
-//!   corruption and device-reset accounting.
-//! - [`record`]: the `seq,t_us,enc1,enc2,d_mm` CSV, written so a killed process leaves a valid file.
-//! - [`cli`]: the command line (`jdbb live`, `jdbb record`, `jdbb devices`, ...).
+//! | module | what it is for |
+//! |---|---|
+//! | [`link`] | the instrument connection: frame stream and its accounting, recording, live readout |
+//! | [`circular`] | circular tests: effect models, simulation, diagnosis, report and plots |
+//! | [`compensate`] | a diagnosis as settings of a CNC controller (LinuxCNC, grblHAL, Marlin, Klipper) |
+//! | [`history`] | a machine's diagnoses over time in one SQLite file; trends |
+//! | [`rotary`] | rotary axes (seed 002): six geometric errors; angle-indexed run diagnosis |
+//! | [`rrsps`] | the A/C table as an RRSPS linkage (seed 004): design, synthesis, identification |
+//! | [`numerics`] | least squares, minimax, forward selection: used by all of the above |
+//! | [`table`] | the one reader of CSV tables (named columns, `file:line:col` errors) |
+//! | [`cli`] | the command line: one file per subcommand, the only code that prints |
+//! | [`units`] | ASCII units in files and JSON, symbols for people |
+//! | [`dates`] | dates in reports and the history (RFC 3339, UTC) |
+//! | [`error`] | the error type and its exit codes |
 //!
-//! The instrument model, wire protocol and machine error models live in `jdbb-core` and are shared
-//! with the firmware.
+//! Dependencies point one way: `cli` → `compensate`, `history` → `circular`, `rotary`, `rrsps`,
+//! `link` → `numerics`,
+//! `table` → `jdbb_core` (the instrument model, wire protocol and machine error models shared
+//! with the firmware). No module below `cli` prints or reads the command line.
+pub mod circular;
 pub mod cli;
-/// `jdbb diagnose`: baseline, candidate-effect selection, identifiability, residual harmonics.
-pub mod diagnose;
+pub mod compensate;
+pub mod dates;
 pub mod error;
-/// Least-squares engine (Levenberg–Marquardt on accumulated normal equations, rank and covariance).
-pub mod fit;
-/// `jdbb live`: the latest D, sample rate and loss counters on one terminal line.
-pub mod live;
-/// Minimax (Chebyshev) engine on the same problems: sequential LP with an exchange active set.
-pub mod minimax;
-/// Candidate machine effects of a circular test and the exact model D = |p + δ + c| + e.
-pub mod model;
-pub mod record;
-/// Ballbar-style polar plot (SVG, PNG) of a diagnosis.
-pub mod report;
-/// Seed 002: six geometric errors of a rotary axis (C turntable, B head) from DBB runs.
+pub mod history;
+pub mod link;
+pub mod numerics;
 pub mod rotary;
-/// Seed 004: the DBB test of an A/C table as an RRSPS linkage: motion design and identification.
 pub mod rrsps;
-/// `jdbb simulate`: circular tests on a machine with chosen errors, as diagnosis CSV.
-pub mod simulate;
-pub mod stream;
+pub mod table;
+pub mod units;
 
 pub use error::{Error, Result};

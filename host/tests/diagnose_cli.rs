@@ -232,7 +232,7 @@ fn bad_input_names_file_line_and_column() {
     );
     let mut nan = format!("{header}{}", circle_rows(40));
     nan.push_str("0.5,1,NaN,0,50\n");
-    expect_input_error(&nan, &[], "42:3: y_mm is NaN");
+    expect_input_error(&nan, &[], "42:7: y_mm is NaN");
     let back = format!("{header}{}0.1,1,1,0,50\n", circle_rows(40));
     expect_input_error(&back, &[], "42:1: time goes backwards");
     expect_input_error(
@@ -243,12 +243,12 @@ fn bad_input_names_file_line_and_column() {
     expect_input_error(
         &format!("{header}{}", circle_rows(40)),
         &["--pitch", "z=5"],
-        "1:4: a pitch was given for axis z",
+        "1:15: a pitch was given for axis z",
     );
     expect_input_error(
         &format!("{header}-1,50,0,0,abc\n{}", circle_rows(40)),
         &[],
-        "2:5: d_mm: `abc` is not a number",
+        "2:11: d_mm: `abc` is not a number",
     );
 }
 
@@ -257,9 +257,12 @@ fn unknown_effect_and_missing_file_fail_cleanly() {
     let o = jdbb(&["simulate", "--effect", "wobble_x=3"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("unknown effect `wobble_x`"));
+    // A missing input file is bad input (exit 2), and its cause is printed once.
     let o = jdbb(&["diagnose", "--samples", "/nonexistent/x.csv"]);
-    assert_eq!(o.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("/nonexistent/x.csv"));
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("/nonexistent/x.csv"), "{err}");
+    assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
 }
 
 #[test]

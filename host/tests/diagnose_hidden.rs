@@ -1,9 +1,9 @@
 //! Hidden-effect tests of `jdbb diagnose` (issue 3): data are simulated with effects drawn at
 //! random, the diagnosis runs without being told, and must name the effect, its value within 5 %
 //! or 3 σ, and nothing else. Seeded, so every run draws the same cases.
-use jdbb::diagnose::{diagnose, Diagnosis, Options};
-use jdbb::model::{Axis, Effect, Pair, Path};
-use jdbb::simulate::{distances_mm, measure, nominal_path, EffectValue, PathSpec};
+use jdbb::circular::diagnose::{diagnose, Diagnosis, Options};
+use jdbb::circular::model::{Axis, Effect, Pair, Path};
+use jdbb::circular::simulate::{distances_mm, measure, nominal_path, EffectValue, PathSpec};
 use rand::{Rng, SeedableRng};
 
 /// A circular test: ccw then cw circles at the radii, 200 Hz, 1000 mm/min, xy plane at height h.
@@ -45,7 +45,7 @@ fn setup(rng: &mut impl Rng) -> Vec<EffectValue> {
 }
 
 /// Machine effects found (set-up excluded).
-fn machine(d: &Diagnosis) -> Vec<&jdbb::diagnose::Found> {
+fn machine(d: &Diagnosis) -> Vec<&jdbb::circular::diagnose::Found> {
     d.effects.iter().filter(|f| !f.effect.is_setup()).collect()
 }
 
@@ -99,12 +99,12 @@ fn a_hidden_random_effect_is_named_alone_with_its_value() {
             3 => {
                 let a = rng.gen_range(1.0..4.0);
                 let e = Effect::Cyclic(axis);
-                (e, e.params_from_value(a, phase), e.name(), a)
+                (e, e.params_from_value(a, phase).unwrap(), e.name(), a)
             }
             4 => {
                 let b = rng.gen_range(0.06..0.2);
                 let e = Effect::Interference(axis);
-                (e, e.params_from_value(b, phase), e.name(), b)
+                (e, e.params_from_value(b, phase).unwrap(), e.name(), b)
             }
             5 => {
                 let s = sign * rng.gen_range(20.0..60.0);
@@ -114,7 +114,7 @@ fn a_hidden_random_effect_is_named_alone_with_its_value() {
             6 => {
                 let t = sign * rng.gen_range(0.1..0.6);
                 let e = Effect::ServoMismatch(Pair::Xy);
-                (e, vec![t], e.name(), t)
+                (e, vec![t, 0.0], e.name(), t)
             }
             7 => {
                 let a = sign * rng.gen_range(10.0..40.0);
@@ -136,8 +136,9 @@ fn a_hidden_random_effect_is_named_alone_with_its_value() {
         assert_eq!(
             names(&d),
             vec![name.clone()],
-            "case {case}: hidden {} (R {radius:.1} mm, σ {sigma:.2} µm)",
-            effect.name()
+            "case {case}: hidden {} (R {radius:.1} mm, σ {sigma:.2} µm)\n{}",
+            effect.name(),
+            jdbb::circular::report::summary(&d)
         );
         assert_value(&d, &name, truth);
         // The set-up is recovered too, and the fit leaves white noise.

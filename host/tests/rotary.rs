@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use jdbb::rotary::{
+use jdbb::rotary::six_errors::{
     length_change, per_angle, placement, read_table, Axis, FourierProblem, Geometry, Kind, Table,
 };
 use rand::{Rng, SeedableRng};
@@ -140,7 +140,7 @@ fn synthetic(axis: Axis, coef: &[[f64; 5]], offsets_mm: &[f64], noise_mm: f64, s
         }
         text += "\n";
     }
-    let mut t = jdbb::rotary::parse_table(Path::new("synthetic.csv"), &text).unwrap();
+    let mut t = jdbb::rotary::six_errors::parse_table(Path::new("synthetic.csv"), &text).unwrap();
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
     let noise = Normal::new(0.0, noise_mm.max(1e-300)).unwrap();
     for (run, &off) in t.runs.iter_mut().zip(offsets_mm) {
@@ -194,14 +194,14 @@ fn per_angle_recovers_c_errors_and_flags_b_rank_deficiency() {
 /// noise, every coefficient the fit calls determined is within 3σ of the truth.
 #[test]
 fn fourier_fit_recovers_determined_coefficients_within_3_sigma() {
-    use jdbb::fit::{least_squares, LsqOptions};
+    use jdbb::numerics::lsq::{least_squares, LsqOptions};
     for (axis, n_runs) in [(Axis::C, 7), (Axis::B, 6)] {
         let mut rng = rand::rngs::StdRng::seed_from_u64(42);
         let coef = hidden_errors(&mut rng);
         let offsets: Vec<f64> = (0..n_runs).map(|_| rng.gen_range(-0.05..0.05)).collect();
         let t = synthetic(axis, &coef, &offsets, 0.5e-3, 9);
         let prob = FourierProblem::new(axis, &t, &GEOM, 2, true).unwrap();
-        let n = jdbb::fit::Problem::n_params(&prob);
+        let n = jdbb::numerics::lsq::Problem::n_params(&prob);
         let fit = least_squares(&prob, &vec![0.0; n], &LsqOptions::default()).unwrap();
         assert!(
             (fit.rms - 0.5e-3).abs() < 0.25e-3,

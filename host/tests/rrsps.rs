@@ -3,10 +3,10 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use jdbb::rrsps::cmd::simulate;
 use jdbb::rrsps::design::Branch;
 use jdbb::rrsps::identify::{identify, Identification, Method};
 use jdbb::rrsps::io::{read_params, Samples};
+use jdbb::rrsps::simulate::simulate;
 use jdbb::rrsps::{Params, PARAM_NAMES};
 use rand::{Rng, SeedableRng};
 
@@ -16,27 +16,11 @@ const D_MM: f64 = 300.0;
 const NOISE_UM: f64 = 0.45;
 
 fn table() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/rrsps_parameters_table2_3.csv")
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/rrsps_parameters_table2_3.csv")
 }
 
 fn table_file() -> PathBuf {
-    // The shared data lives outside the repo on the development machine; tests carry a copy of
-    // the two Table 2 rows so they run from a fresh clone.
-    let p = table();
-    if p.exists() {
-        return p;
-    }
-    let dir = std::env::temp_dir().join(format!("jdbb-rrsps-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let f = dir.join("table2.csv");
-    std::fs::write(
-        &f,
-        "case,s0_mm,a0_mm,theta_a0_deg,s2_mm,a2_mm,theta_c0_deg,a1_mm,alpha12_deg\n\
-         design_range_neg,96.310,352.114,-55.000,80.000,30.000,-161.592,0,270.000\n\
-         design_range_pos,96.310,352.114,55.000,80.000,30.000,-161.592,0,270.000\n",
-    )
-    .unwrap();
-    f
+    table()
 }
 
 fn design_neg() -> Params {
@@ -276,7 +260,7 @@ fn bad_samples_give_located_errors_and_exit_2() {
         )
     };
     let wrong = write(dir.path(), "wrong.csv", "a_deg,c_deg,d\n1,2,300\n");
-    run(&wrong, "wrong.csv:1: no column `theta_a_deg`");
+    run(&wrong, "wrong.csv:1: missing column `theta_a_deg`");
     let few = write(
         dir.path(),
         "few.csv",

@@ -1,9 +1,17 @@
 //! Helpers for the integration tests in `tests/`: finding the firmware images and running them in
-//! QEMU's `netduinoplus2` (STM32F405 model; the F411 image runs there, see the README).
+//! QEMU's `netduinoplus2` (STM32F405 model; the F411 image runs there, see the README);
+//! [`gmachine`], an independent simulator of a CNC machine running a ballbar G-code program with
+//! the J-DBB recording it; an independent model of the instrument as built ([`mechanism`]) and
+//! the data it gives ([`calibration_data`]); the `jdbb` binary ([`jdbb_bin`]).
+pub mod gmachine;
+
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
+
+pub mod calibration_data;
+pub mod mechanism;
 
 /// Root of the repository.
 pub fn repo_root() -> PathBuf {
@@ -145,9 +153,29 @@ pub fn chip_error_mm(
 ) -> (f64, f64) {
     use jdbb_core::geometry;
     let reference = geometry::distance_mm(cal, sample.enc1, sample.enc2);
-    let (a, b) = geometry::frame_angles_rad(cal, sample.enc1, sample.enc2);
     (
         (sample.d_mm - reference).abs(),
-        geometry::accuracy_budget_mm(cal, a, b),
+        geometry::accuracy_budget_mm(cal, sample.enc1, sample.enc2),
     )
+}
+
+/// The `jdbb` binary built in this workspace (`target/<profile>/jdbb`, beside this test's
+/// `deps/` folder), or `$JDBB_BIN`. `cargo test` at the root builds it for the host crate's
+/// tests; alone, `cargo build -p jdbb` first.
+pub fn jdbb_bin() -> PathBuf {
+    if let Some(bin) = std::env::var_os("JDBB_BIN") {
+        return PathBuf::from(bin);
+    }
+    let exe = std::env::current_exe().expect("the test executable's path");
+    let profile_dir = exe
+        .parent()
+        .and_then(Path::parent)
+        .expect("a test executable lives in target/<profile>/deps");
+    let bin = profile_dir.join(format!("jdbb{}", std::env::consts::EXE_SUFFIX));
+    assert!(
+        bin.exists(),
+        "{} missing: run `cargo build -p jdbb` (or set JDBB_BIN)",
+        bin.display()
+    );
+    bin
 }

@@ -1,10 +1,10 @@
 //! End to end: the QEMU build of the firmware (simulated circular test, same sample path as the
-//! real board) streams over USART2 → QEMU pty → the host's `jdbb::stream` decoder. At least 10 000
+//! real board) streams over USART2 → QEMU pty → the host's `jdbb::link::stream` decoder. At least 10 000
 //! consecutive samples must arrive with zero loss and no corrupt frame, and every D computed on the
 //! chip must agree with the host's f64 reference for the same counts within the on-chip budget.
 use std::time::Duration;
 
-use jdbb::stream::Stream;
+use jdbb::link::stream::Stream;
 use jdbb_core::protocol::{Command, Status};
 use jdbb_tests::{chip_error_mm, qemu_available, qemu_elf, Qemu};
 
@@ -18,6 +18,11 @@ fn qemu_firmware_streams_10000_samples_without_loss_and_chip_d_matches_host() {
     }
     let (_qemu, pty) = Qemu::start_with_pty(&elf);
     let mut stream = Stream::open(pty.to_str().unwrap()).expect("open QEMU pty");
+    // Until QEMU notices the pty was opened, what the firmware writes is dropped.
+    assert!(
+        stream.handshake(Duration::from_secs(30)).unwrap(),
+        "the firmware never answered a ping"
+    );
     // Restart sampling so the sequence starts at 0 from our point of view, at 5 kHz so the test
     // takes about two seconds of emulated time.
     stream.send(&Command::SetSampleRate(5_000)).unwrap();

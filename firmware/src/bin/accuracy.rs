@@ -9,7 +9,7 @@
 //!
 //! # Frame stream
 //!
-//! For each of the [`calibrations`] in order (two sections):
+//! For each of the [`calibrations`] in order (three sections):
 //!
 //! 1. one `DeviceMsg::Info` whose `calibration` is the one every following D was computed with
 //!    (`sample_rate_hz = 0`, `sampling = false`, `board = QemuNetduinoPlus2`);
@@ -21,19 +21,21 @@
 //! whole ±75° working range; computed per encoder), a coarse grid of [`COARSE`]² points, steps
 //! i·2c/(COARSE−1) − c for i, j in 0..COARSE (enc1 outer, enc2 inner), then a fine grid around zero
 //! deflection, steps −[`FINE`]..=[`FINE`] on both (enc1 outer); a step s is the count
-//! `zero_count + direction·s`. So each section holds COARSE² + (2·FINE+1)² = 6 850 points, 13 700
+//! `zero_count + direction·s`. So each section holds COARSE² + (2·FINE+1)² = 6 850 points, 20 550
 //! in all, sent as 429 batch frames per section.
 #![no_std]
 #![no_main]
 
 use cortex_m_semihosting::debug;
-use jdbb_core::calib::{Calibration, Direction, EncoderCal};
+use jdbb_core::calib::{Calibration, EncoderCal};
 use jdbb_core::geometry::{Kernel, FRAME_RANGE_RAD};
 use jdbb_core::protocol::{
-    self, Board, DeviceInfo, DeviceMsg, Sample, SampleBatch, Status, MAX_FRAME_LEN,
+    self, Board, DeviceInfo, DeviceMsg, ResetCause, Sample, SampleBatch, Status, MAX_FRAME_LEN,
     PROTOCOL_VERSION,
 };
+use jdbb_core::quadrature::Encoder;
 use jdbb_firmware::usart2::Usart2;
+use jdbb_firmware::INSTRUMENT_WITH_ERRORS;
 use stm32f4xx_hal::{pac, prelude::*};
 
 /// Points per axis of the coarse grid.
@@ -41,26 +43,15 @@ pub const COARSE: i64 = 81;
 /// Half-width (count steps) of the fine grid around zero.
 pub const FINE: i64 = 8;
 
-/// The calibrations checked: the default instrument (20 000 counts/rev, L1 = L2 = 50 mm), and a
-/// much finer one with unequal bars, nonzero zeros and a reversed encoder (2²⁴ counts/rev,
-/// L1 = 50 mm, L2 = 70 mm).
-pub fn calibrations() -> [Calibration; 2] {
+/// The calibrations checked: the default instrument (L1 = L2 = 50 mm, 2²³ counts/rev, no errors);
+/// [`INSTRUMENT_WITH_ERRORS`] (every term of the extended model non-zero, unequal bars, non-zero
+/// zero counts, a reversed encoder, 2²³ counts/rev); and seed 000's coarse instrument (20 000
+/// counts/rev), where the budget is 1 % of a count's step rather than 10 nm.
+pub fn calibrations() -> [Calibration; 3] {
     [
         Calibration::DEFAULT,
-        Calibration {
-            l1_mm: 50.0,
-            l2_mm: 70.0,
-            enc1: EncoderCal {
-                counts_per_rev: 1 << 24,
-                zero_count: 1_234_567,
-                direction: Direction::Positive,
-            },
-            enc2: EncoderCal {
-                counts_per_rev: 1 << 24,
-                zero_count: -7_654_321,
-                direction: Direction::Negative,
-            },
-        },
+        INSTRUMENT_WITH_ERRORS,
+        Calibration::SEED_000,
     ]
 }
 
@@ -110,6 +101,10 @@ fn main() -> ! {
             sample_rate_hz: 0,
             sampling: false,
             calibration: cal,
+            chip_id: [0; 12],
+            reset_cause: ResetCause::default(),
+            index: [Encoder::<32>::new(0).index_status(); 2],
+            overruns: 0,
         }));
         let kernel = Kernel::new(&cal);
         let c1 = (FRAME_RANGE_RAD / cal.enc1.rad_per_count()) as i64;

@@ -3,25 +3,40 @@
 //! | signal              | pin  | peripheral            |
 //! |---------------------|------|-----------------------|
 //! | encoder 1 A / B     | PA15 / PB3 | TIM2 CH1/CH2 (AF1), quadrature ×4 |
-//! | encoder 1 index (Z) | PB10 | TIM2 CH3 input capture (AF1) |
+//! | encoder 1 index (Z) | PB10 | TIM2 CH3 input capture, both edges (AF1) |
 //! | encoder 2 A / B     | PA0 / PA1  | TIM5 CH1/CH2 (AF2), quadrature ×4 |
-//! | encoder 2 index (Z) | PA2  | TIM5 CH3 input capture (AF2) |
+//! | encoder 2 index (Z) | PA2  | TIM5 CH3 input capture, both edges (AF2) |
 //! | USB FS D− / D+      | PA11 / PA12 | OTG_FS, CDC-ACM |
 //!
-//! All encoder inputs get the internal pull-ups (open-collector encoder outputs) and a digital
-//! input filter of 8 timer clocks (83 ns at 96 MHz). The index pulse latches the count in CCR3 in
-//! hardware, so referencing is exact however late the interrupt runs. Clocks: HSE 25 MHz → PLL →
-//! SYSCLK 96 MHz (48 MHz for USB), APB1 48 MHz, timer clock 96 MHz.
+//! All encoder inputs get the internal pull-ups and a digital input filter of 8 timer clocks
+//! (83 ns at 96 MHz). Counts are latched in hardware twice:
+//!
+//! - at every sample-clock tick, into CCR4 of TIM2 and TIM5 (channel 4 captures on TRC, the
+//!   internal trigger = TIM3's update event: ITR2 for TIM2, ITR1 for TIM5), so both encoders are
+//!   sampled at the same instant whatever the interrupt latency; TIM4 counts the ticks (see
+//!   `crate::sample_timer`);
+//! - at every index edge, into CCR3, so index referencing is exact however late its interrupt runs.
+//!
+//! Clocks: HSE 25 MHz → PLL → SYSCLK 96 MHz (48 MHz for USB), APB1 48 MHz, timer clock 96 MHz,
+//! with the regulator in voltage scale 1 (needed above 84 MHz).
+
+use core::mem::MaybeUninit;
+use core::sync::atomic::{AtomicBool, Ordering};
 
 use super::Parts;
-use jdbb_core::protocol::Board;
+use jdbb_core::protocol::{Board, ResetCause, SampleBatch};
+use jdbb_core::quadrature::IndexEdge;
+use jdbb_core::reset;
+use jdbb_core::sampler::Sampler;
 use stm32f4xx_hal::otg_fs::{UsbBus, UsbBusType, USB};
 use stm32f4xx_hal::qei::{Qei, QeiExt};
 use stm32f4xx_hal::{pac, prelude::*};
 use usb_device::bus::UsbBusAllocator;
+use usb_device::class::UsbClass;
 use usb_device::prelude::*;
 use usbd_serial::SerialPort;
 
+use crate::sample_timer::tick_count;
 pub use crate::sample_timer::SampleTimer;
 
 /// Reported in `DeviceInfo`.
@@ -31,15 +46,111 @@ pub const SIMULATED: bool = false;
 /// The real board also streams from power-up (the host may `Stop`/`Start`); samples are dropped,
 /// and counted, while no host reads the port.
 pub const AUTO_START: bool = true;
+/// USB: nobody listens before the host has configured the device.
+pub const LINK_UP_AT_START: bool = false;
+
+/// USB vendor and product ID: pid.codes' test PID (1209:0001). It is for development and
+/// in-house testing only, not for instruments that are distributed: request a PID for the project
+/// from pid.codes (free for open-source hardware) and put it here. See README, "Real board".
+pub const USB_VID_PID: (u16, u16) = (0x1209, 0x0001);
 
 const CCMR1_IC1F_IC2F_N8: u32 = (0b0011 << 4) | (0b0011 << 12);
-const CCMR2_CC3S_TI3_IC3F_N8: u32 = 0b01 | (0b0011 << 4);
-const CCER_CC3E: u32 = 1 << 8;
+/// CC3: input on TI3 (the index pin), filter N = 8; CC4: input on TRC (the internal trigger).
+const CCMR2_CC3_TI3_N8_CC4_TRC: u32 = 0b01 | (0b0011 << 4) | (0b11 << 8);
+/// CC3 enabled on both edges (CC3P = CC3NP = 1); CC4 enabled (rising edge of the trigger).
+const CCER_CC3_BOTH_CC4: u32 = (1 << 8) | (1 << 9) | (1 << 11) | (1 << 12);
+const SMCR_SMS_ENCODER3: u32 = 0b011;
+/// `SMCR.TS`: ITR2 (TIM2's input from TIM3's TRGO).
+const SMCR_TS_ITR2: u32 = 0b010 << 4;
+/// `SMCR.TS`: ITR1 (TIM5's input from TIM3's TRGO).
+const SMCR_TS_ITR1: u32 = 0b001 << 4;
+const CR1_CEN: u32 = 1;
 const DIER_CC3IE: u32 = 1 << 3;
 const SR_CC3IF: u32 = 1 << 3;
+const SR_CC3OF: u32 = 1 << 11;
+/// Chip unique ID (RM0383 §24.2).
+const UID_ADDR: usize = 0x1fff_7a10;
 
-/// Bring up the board: clocks, both encoder timers with index capture, USB, TIM3 at `rate_hz`.
+/// Mark the panic and hard-fault handlers leave for the next start (see [`jdbb_core::reset`]);
+/// in `.uninit`, so the start-up code does not clear it.
+#[link_section = ".uninit.jdbb_crash_mark"]
+static mut CRASH_MARK: MaybeUninit<u32> = MaybeUninit::uninit();
+
+/// Why the chip started: `RCC_CSR`'s reset flags and the crash mark, both cleared for next time.
+fn take_reset_cause(rcc: &pac::RCC) -> ResetCause {
+    let csr = rcc.csr().read().bits();
+    rcc.csr().modify(|_, w| w.rmvf().set_bit());
+    // SAFETY: single-threaded start-up; the word is plain RAM (random after power-on, which
+    // `reset::from_stm32f4` does not trust).
+    let mark = unsafe {
+        let p = core::ptr::addr_of_mut!(CRASH_MARK) as *mut u32;
+        let mark = core::ptr::read_volatile(p);
+        core::ptr::write_volatile(p, reset::MARK_NONE);
+        mark
+    };
+    reset::from_stm32f4(csr, mark)
+}
+
+/// Leave `mark` for the next start and reset the chip.
+fn crash_reset(mark: u32) -> ! {
+    // SAFETY: interrupts are off; nothing else writes the mark.
+    unsafe { core::ptr::write_volatile(core::ptr::addr_of_mut!(CRASH_MARK) as *mut u32, mark) };
+    cortex_m::peripheral::SCB::sys_reset()
+}
+
+/// A field instrument must not hang: log the panic (non-blocking RTT; nothing waits for a probe),
+/// leave the mark and reset. The next `DeviceInfo` reports `ResetCause::PANIC`.
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    static PANICKED: AtomicBool = AtomicBool::new(false);
+    cortex_m::interrupt::disable();
+    if !PANICKED.swap(true, Ordering::Relaxed) {
+        defmt::error!("panic: {}", defmt::Display2Format(info));
+    }
+    // No `defmt::flush`: it waits for the probe whenever probe-rs left the channel in blocking
+    // mode, even after the probe is gone.
+    crash_reset(reset::MARK_PANIC)
+}
+
+/// A hard fault (escalated bus, memory or usage fault) resets too, and is reported as
+/// `ResetCause::FAULT`.
+#[cortex_m_rt::exception]
+unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
+    crash_reset(reset::MARK_FAULT)
+}
+
+/// The chip's unique ID, as it lies in memory.
+fn chip_id() -> [u8; 12] {
+    let mut id = [0u8; 12];
+    for (i, word) in id.chunks_exact_mut(4).enumerate() {
+        // SAFETY: the 96-bit unique ID is read-only system memory present on every F411.
+        let w = unsafe { core::ptr::read_volatile((UID_ADDR + 4 * i) as *const u32) };
+        word.copy_from_slice(&w.to_le_bytes());
+    }
+    id
+}
+
+/// The USB serial number: the unique ID's 12 bytes as 24 upper-case hex digits.
+fn serial_number(id: &[u8; 12]) -> &'static str {
+    const HEX: &[u8; 16] = b"0123456789ABCDEF";
+    let buf = cortex_m::singleton!(: [u8; 24] = [0; 24]).unwrap();
+    for (i, b) in id.iter().enumerate() {
+        buf[2 * i] = HEX[(b >> 4) as usize];
+        buf[2 * i + 1] = HEX[(b & 0xf) as usize];
+    }
+    core::str::from_utf8(buf).unwrap_or("0")
+}
+
+/// Bring up the board: regulator and clocks, both encoder timers with index and sample latches,
+/// the sample clock at `rate_hz`, USB.
 pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
+    let reset_cause = take_reset_cause(&dp.RCC);
+    // Voltage scale 1 before the PLL starts (RM0383 §5.1.3): the reset value, scale 2, allows
+    // HCLK ≤ 84 MHz only. VOS can be written only while the PLL is off and takes effect when it
+    // locks.
+    dp.RCC.apb1enr().modify(|_, w| w.pwren().set_bit());
+    cortex_m::asm::dsb();
+    dp.PWR.cr().modify(|_, w| w.vos().scale1());
     let rcc = dp.RCC.constrain();
     let clocks = rcc
         .cfgr
@@ -47,10 +158,14 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
         .sysclk(96.MHz())
         .require_pll48clk()
         .freeze();
+    if dp.PWR.csr().read().vosrdy().bit_is_clear() {
+        defmt::warn!("regulator not ready in voltage scale 1");
+    }
     let gpioa = dp.GPIOA.split();
     let gpiob = dp.GPIOB.split();
 
-    // Encoders: the HAL sets encoder mode 3 (×4) with ARR = u32::MAX; we add pull-ups and filters.
+    // Encoders: the HAL sets encoder mode 3 (×4) with ARR = u32::MAX and starts them; we stop
+    // them to add filters, the index capture (CH3) and the sample latch (CH4 on TRC).
     let enc1 = dp.TIM2.qei((
         gpioa.pa15.into_alternate::<1>().internal_pull_up(true),
         gpiob.pb3.into_alternate::<1>().internal_pull_up(true),
@@ -61,29 +176,33 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
     ));
     let _z1 = gpiob.pb10.internal_pull_up(true).into_alternate::<1>();
     let _z2 = gpioa.pa2.internal_pull_up(true).into_alternate::<2>();
-    unsafe {
-        let t2 = &*pac::TIM2::ptr();
-        t2.ccmr1_input()
-            .modify(|r, w| w.bits(r.bits() | CCMR1_IC1F_IC2F_N8));
-        t2.ccmr2_input().write(|w| w.bits(CCMR2_CC3S_TI3_IC3F_N8));
-        t2.ccer().modify(|r, w| w.bits(r.bits() | CCER_CC3E));
-        t2.sr().write(|w| w.bits(0));
-        t2.dier().write(|w| w.bits(DIER_CC3IE));
-        let t5 = &*pac::TIM5::ptr();
-        t5.ccmr1_input()
-            .modify(|r, w| w.bits(r.bits() | CCMR1_IC1F_IC2F_N8));
-        t5.ccmr2_input().write(|w| w.bits(CCMR2_CC3S_TI3_IC3F_N8));
-        t5.ccer().modify(|r, w| w.bits(r.bits() | CCER_CC3E));
-        t5.sr().write(|w| w.bits(0));
-        t5.dier().write(|w| w.bits(DIER_CC3IE));
+    for (ch, ts) in [(0, SMCR_TS_ITR2), (1, SMCR_TS_ITR1)] {
+        let t = encoder_timer(ch);
+        // SAFETY: the encoder timers are owned by `Encoders`; configured once, here.
+        unsafe {
+            t.cr1().modify(|r, w| w.bits(r.bits() & !CR1_CEN));
+            t.ccmr1_input()
+                .modify(|r, w| w.bits(r.bits() | CCMR1_IC1F_IC2F_N8));
+            t.ccmr2_input().write(|w| w.bits(CCMR2_CC3_TI3_N8_CC4_TRC));
+            t.ccer().modify(|r, w| w.bits(r.bits() | CCER_CC3_BOTH_CC4));
+            // The trigger selection only routes TIM3's TRGO to TRC; encoder mode ignores it.
+            t.smcr().write(|w| w.bits(SMCR_SMS_ENCODER3 | ts));
+            t.sr().write(|w| w.bits(0));
+            t.dier().write(|w| w.bits(DIER_CC3IE));
+            t.cr1().modify(|r, w| w.bits(r.bits() | CR1_CEN));
+        }
     }
     let encoders = Encoders {
         _enc1: enc1,
         _enc2: enc2,
     };
-    let initial_raw = encoders.raw();
+    let initial_raw = [
+        encoder_timer(0).cnt().read().bits(),
+        encoder_timer(1).cnt().read().bits(),
+    ];
 
     // USB FS CDC-ACM.
+    let chip_id = chip_id();
     let usb = USB::new(
         (dp.OTG_FS_GLOBAL, dp.OTG_FS_DEVICE, dp.OTG_FS_PWRCLK),
         (gpioa.pa11, gpioa.pa12),
@@ -95,22 +214,40 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
     // A 1 KiB transmit buffer holds more than a full frame (`MAX_FRAME_LEN`), so the writer
     // hands over whole frames and the USB interrupt streams them out packet by packet.
     let serial = SerialPort::new_with_store(bus, [0u8; RX_BUF], [0u8; TX_BUF]);
-    let dev = UsbDeviceBuilder::new(bus, UsbVidPid(0x16c0, 0x27dd))
+    let dev = UsbDeviceBuilder::new(bus, UsbVidPid(USB_VID_PID.0, USB_VID_PID.1))
         .strings(&[StringDescriptors::default()
-            .manufacturer("jdbb")
+            .manufacturer("jdbb open double ball bar")
             .product("J-DBB double ball bar")
-            .serial_number("JDBB-F411")])
+            .serial_number(serial_number(&chip_id))])
         .unwrap()
         .device_class(usbd_serial::USB_CLASS_CDC)
         .build();
 
     Parts {
         encoders,
-        link: Link { dev, serial },
-        timer: SampleTimer::new(dp.TIM3, clocks.timclk1().raw(), rate_hz),
+        link: Link {
+            dev,
+            serial,
+            configured: false,
+        },
+        timer: SampleTimer::new(dp.TIM3, dp.TIM4, clocks.timclk1().raw(), rate_hz),
         systick_hz: clocks.sysclk().raw(),
         initial_raw,
         index_raw: None,
+        chip_id,
+        reset_cause,
+    }
+}
+
+/// Encoder timer `ch` (0: TIM2, 1: TIM5).
+fn encoder_timer(ch: usize) -> &'static pac::tim2::RegisterBlock {
+    // SAFETY: callers only touch the registers this module configured for them (CNT, CCR3/4,
+    // SR/DIER at init and in `take_index`); TIM5's register block has TIM2's layout.
+    unsafe {
+        match ch {
+            0 => &*pac::TIM2::ptr(),
+            _ => &*(pac::TIM5::ptr() as *const pac::tim2::RegisterBlock),
+        }
     }
 }
 
@@ -121,43 +258,77 @@ pub struct Encoders {
 }
 
 impl Encoders {
-    fn raw(&self) -> [u32; 2] {
-        // SAFETY: read-only access to the counters of timers this struct owns.
-        unsafe {
-            [
-                (*pac::TIM2::ptr()).cnt().read().bits(),
-                (*pac::TIM5::ptr()).cnt().read().bits(),
-            ]
+    /// The tick count and the two counters latched at that tick. Retried if a tick comes while
+    /// reading, so the three values always belong together.
+    #[inline]
+    fn latched(&self) -> (u16, [u32; 2]) {
+        let mut tick = tick_count();
+        for _ in 0..3 {
+            let raw = [
+                encoder_timer(0).ccr4().read().bits(),
+                encoder_timer(1).ccr4().read().bits(),
+            ];
+            let again = tick_count();
+            if again == tick {
+                return (tick, raw);
+            }
+            tick = again;
         }
+        // Three ticks within a few reads cannot happen (a period is ≥ 50 µs); keep the types total.
+        (
+            tick,
+            [
+                encoder_timer(0).ccr4().read().bits(),
+                encoder_timer(1).ccr4().read().bits(),
+            ],
+        )
     }
 
-    /// The two counters' raw values now (`_t_us` is for the simulated encoders).
+    /// One tick of the sample clock: the latched counts to the sampler.
     #[inline]
-    pub fn read(&mut self, _t_us: u64) -> [u32; 2] {
-        self.raw()
+    pub fn sample(&mut self, s: &mut Sampler) -> Option<SampleBatch> {
+        let (tick, raw) = self.latched();
+        s.sample_at_tick(tick, |_| raw)
     }
 }
 
-/// Encoder `ch`'s index capture (0: TIM2, 1: TIM5): the counter value latched at the index pulse,
-/// if one arrived. Called from the timer's interrupt; the first index references the encoder and
-/// disarms the interrupt (later passes need no action).
-pub fn take_index(ch: usize) -> Option<u32> {
-    // SAFETY: SR/CCR3/DIER of the encoder timers are touched only here after init; the count
-    // register read by `Encoders::read` is not affected.
-    let tim = unsafe {
-        match ch {
-            0 => &*pac::TIM2::ptr(),
-            // TIM5's register block has the same layout as TIM2's.
-            _ => &*(pac::TIM5::ptr() as *const pac::tim2::RegisterBlock),
+/// The next index edge captured by encoder `ch` (0: TIM2, 1: TIM5), if any: the counter latched
+/// at the edge, the counter now, and which way the index went (the pin's level after the edge).
+/// Called from the timer's interrupt until it returns `None`. An edge followed by another before
+/// its level could be read is skipped (the newer one is returned).
+pub fn take_index(ch: usize) -> Option<(u32, u32, IndexEdge)> {
+    let tim = encoder_timer(ch);
+    for _ in 0..4 {
+        if tim.sr().read().bits() & SR_CC3IF == 0 {
+            return None;
         }
-    };
-    if tim.sr().read().bits() & SR_CC3IF == 0 {
-        return None;
+        let at = tim.ccr3().read().bits(); // clears CC3IF
+        let high = z_level(ch);
+        let now = tim.cnt().read().bits();
+        // Clear an overcapture (written 0; the other flags are written 1, which leaves them).
+        tim.sr().write(|w| unsafe { w.bits(!SR_CC3OF) });
+        if tim.sr().read().bits() & SR_CC3IF != 0 {
+            continue; // another edge meanwhile: `high` may be its level
+        }
+        let edge = if high {
+            IndexEdge::Rising
+        } else {
+            IndexEdge::Falling
+        };
+        return Some((at, now, edge));
     }
-    let raw = tim.ccr3().read().bits(); // reading CCR3 clears CC3IF
-    tim.dier()
-        .modify(|r, w| unsafe { w.bits(r.bits() & !DIER_CC3IE) });
-    Some(raw)
+    None
+}
+
+/// Level of encoder `ch`'s index pin (PB10, PA2).
+fn z_level(ch: usize) -> bool {
+    // SAFETY: read-only access to the input data registers.
+    unsafe {
+        match ch {
+            0 => (*pac::GPIOB::ptr()).idr().read().bits() & (1 << 10) != 0,
+            _ => (*pac::GPIOA::ptr()).idr().read().bits() & (1 << 2) != 0,
+        }
+    }
 }
 
 const RX_BUF: usize = 128;
@@ -167,6 +338,7 @@ const TX_BUF: usize = 1024;
 pub struct Link {
     dev: UsbDevice<'static, UsbBusType>,
     serial: SerialPort<'static, UsbBusType, [u8; RX_BUF], [u8; TX_BUF]>,
+    configured: bool,
 }
 
 impl Link {
@@ -176,6 +348,25 @@ impl Link {
         self.dev.poll(&mut [&mut self.serial])
     }
 
+    /// `Some(true)` once when the host has configured the device, `Some(false)` once when it is
+    /// no longer configured (reset, unplugged); a suspend keeps the state. Nothing is written to
+    /// the endpoints before the host configured the device.
+    pub fn take_change(&mut self) -> Option<bool> {
+        let now = match self.dev.state() {
+            UsbDeviceState::Configured => true,
+            UsbDeviceState::Suspend => self.configured,
+            _ => false,
+        };
+        if now == self.configured {
+            return None;
+        }
+        self.configured = now;
+        if now {
+            release_in_endpoints();
+        }
+        Some(now)
+    }
+
     /// Received bytes into `buf`; how many.
     #[inline]
     pub fn read(&mut self, buf: &mut [u8]) -> usize {
@@ -183,9 +374,68 @@ impl Link {
     }
 
     /// Queue bytes for sending without waiting; how many were taken (0 = would block: the host is
-    /// not reading, the caller counts and drops).
+    /// not reading or has not configured the device; the caller counts and drops).
     #[inline]
     pub fn write(&mut self, bytes: &[u8]) -> usize {
+        if !self.configured {
+            return 0;
+        }
         self.serial.write(bytes).unwrap_or(0)
+    }
+
+    /// Whether everything written has left the class's buffer for the endpoint.
+    pub fn drained(&mut self) -> bool {
+        self.configured && self.serial.flush().is_ok()
+    }
+
+    /// Throw away what the class still buffers for sending (stale data for an absent host).
+    pub fn discard_pending(&mut self) {
+        // The class's reset clears both buffers (the receive buffer is always empty here: the
+        // USB task drains it) and the line state, which this firmware does not use.
+        UsbClass::reset(&mut self.serial);
+    }
+}
+
+/// At every (re)configuration: an IN endpoint whose transfer was cut by a bus reset can stay
+/// enabled (the driver's reset sets EPDIS without the NAK sequence of RM0383 §22.17.6, "IN
+/// endpoint disable"), and every later write would return WouldBlock. Nothing has been written
+/// since the configuration, so an enabled endpoint is such a leftover: disable it the documented
+/// way and flush its transmit FIFO. Bounded waits: a stuck core cannot hang the USB task.
+fn release_in_endpoints() {
+    const EPENA: u32 = 1 << 31;
+    const EPDIS: u32 = 1 << 30;
+    const SNAK: u32 = 1 << 27;
+    const INT_EPDISD: u32 = 1 << 1;
+    const INT_INEPNE: u32 = 1 << 6;
+    const GRSTCTL_TXFFLSH: u32 = 1 << 5;
+    const GRSTCTL_AHBIDL: u32 = 1 << 31;
+    const SPIN: u32 = 10_000;
+    let wait = |done: &dyn Fn() -> bool| {
+        for _ in 0..SPIN {
+            if done() {
+                break;
+            }
+        }
+    };
+    // SAFETY: called from the USB task with the link locked, between two polls of the driver;
+    // touches only IN endpoints 1..=3's control/interrupt registers and the FIFO flush.
+    let (dev, global) = unsafe { (&*pac::OTG_FS_DEVICE::ptr(), &*pac::OTG_FS_GLOBAL::ptr()) };
+    for i in 0..3 {
+        let ep = dev.diep(i);
+        if ep.ctl().read().bits() & EPENA != 0 {
+            ep.ctl().modify(|r, w| unsafe { w.bits(r.bits() | SNAK) });
+            wait(&|| ep.int().read().bits() & INT_INEPNE != 0);
+            ep.ctl()
+                .modify(|r, w| unsafe { w.bits(r.bits() | SNAK | EPDIS) });
+            wait(&|| ep.int().read().bits() & INT_EPDISD != 0);
+            ep.int()
+                .write(|w| unsafe { w.bits(INT_EPDISD | INT_INEPNE) });
+        }
+        wait(&|| global.grstctl().read().bits() & GRSTCTL_AHBIDL != 0);
+        let txfnum = (i as u32 + 1) << 6;
+        global
+            .grstctl()
+            .write(|w| unsafe { w.bits(txfnum | GRSTCTL_TXFFLSH) });
+        wait(&|| global.grstctl().read().bits() & GRSTCTL_TXFFLSH == 0);
     }
 }

@@ -3,8 +3,15 @@
 //!
 //! - [`BOARD`], [`SIMULATED`]: what `DeviceInfo` and the status bits report;
 //! - `init`: clocks, the raw-count source, the link, the sample timer, returned as [`Parts`];
-//! - `Encoders::read(t_us) -> [u32; 2]`: the two counters' raw values at the sample taken at `t_us`;
-//! - `Link::{poll, read, write}`: the byte link to the host (non-blocking).
+//! - `Encoders::sample(&mut Sampler) -> Option<SampleBatch>`: one tick of the sample clock — the
+//!   hardware's tick count and the two counters' values at that tick, handed to
+//!   `Sampler::sample_at_tick`;
+//! - `SampleTimer`: the sample clock (`set_rate` deferred to a period boundary while running,
+//!   `apply_pending_rate` from the sample task, `start`/`stop`, `clear_update`);
+//! - `Link::{poll, take_change, read, write, drained, discard_pending}`: the byte link to the host
+//!   (non-blocking), whether it came up or went down, and its transmit buffer;
+//! - [`LINK_UP_AT_START`]: whether a host may be listening at power-up (UART) or only once the
+//!   link reports it came up (USB).
 
 #[cfg(feature = "board-f411")]
 mod f411;
@@ -32,4 +39,8 @@ pub struct Parts {
     /// board reports later pulses through its index tasks; the simulated encoders have their index
     /// at raw 0, where the simulated counter was reset).
     pub index_raw: Option<[u32; 2]>,
+    /// The chip's unique ID (zeros where there is none).
+    pub chip_id: [u8; 12],
+    /// Why the device started.
+    pub reset_cause: jdbb_core::protocol::ResetCause,
 }

@@ -14,13 +14,16 @@
 //!   following period doubles, and left alone the interrupt fires back to back. So the sample clock
 //!   is paced in software: [`SampleTimer`] here only holds the period (whole µs), and the
 //!   application's `pace` task, woken every 1 ms by the SysTick monotonic, pends the TIM3
-//!   interrupt once for every period elapsed on TIM2's count ([`pace_clock_raw_us`]) — the very
+//!   interrupt once for every period elapsed on TIM2's count ([`pace_clock_raw_us`]), counting
+//!   each pended tick ([`count_tick`], the tick count the real board keeps in TIM4) — the very
 //!   same sample task then runs. QEMU computes TIM2's count from its virtual clock, so no period is
 //!   lost when QEMU delivers SysTick interrupts late or merged (it does on a loaded host: a 10 kHz
 //!   monotonic alone ran at ~60 % of real time). After a stall of the emulator longer than a burst
 //!   the pacer resumes from the present instead of flooding the queue.
-//! - Cost: the simulation runs in software f64 on the emulated M4F, ~33 000 instructions per
-//!   sample (`scripts/fw-cycles.sh`), so on QEMU's real-time clock rates above ~2 kHz overload the
+//! - Cost: the simulation (the default instrument, `Calibration::DEFAULT`: 2²³ counts/rev) runs in
+//!   software f64 on the emulated M4F, ~36 000 instructions per sample (`scripts/fw-cycles.sh`;
+//!   ~94 000 for an instrument with eccentric encoders, whose inverse iterates), so on QEMU's
+//!   real-time clock rates above ~2 kHz overload the
 //!   emulated CPU and samples are dropped (counted); under `-icount shift=0,sleep=off` nothing is
 //!   dropped at any rate (see `scripts/qemu-run.sh`).
 //! - SysTick runs at the machine's 168 MHz CPU clock (measured, see above).
@@ -28,7 +31,8 @@
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use super::Parts;
-use jdbb_core::protocol::Board;
+use jdbb_core::protocol::{Board, ResetCause, SampleBatch};
+use jdbb_core::sampler::Sampler;
 use jdbb_core::sim::CircularTest;
 use stm32f4xx_hal::{pac, prelude::*};
 
@@ -44,6 +48,8 @@ pub const PACE_HZ: u32 = 1_000_000;
 pub const SYSTICK_HZ: u32 = 168_000_000;
 /// The QEMU build starts sampling at boot, so a host sees data without sending `Start`.
 pub const AUTO_START: bool = true;
+/// A UART has no connection state: a host may listen from power-up.
+pub const LINK_UP_AT_START: bool = true;
 
 /// Bring up the board: HSI clocks, USART2, TIM3 as the sample clock at `rate_hz`.
 pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
@@ -67,6 +73,9 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
         systick_hz: SYSTICK_HZ,
         initial_raw: [0, 0],
         index_raw: Some([0, 0]),
+        // QEMU models no unique ID (reading its address would fault) and no reset flags.
+        chip_id: [0; 12],
+        reset_cause: ResetCause::default(),
     }
 }
 
@@ -95,11 +104,19 @@ pub struct Encoders {
 }
 
 impl Encoders {
+    /// One tick of the sample clock: the pacer's tick count, and the simulated counters at the
+    /// tick's time, to the sampler.
+    #[inline]
+    pub fn sample(&mut self, s: &mut Sampler) -> Option<SampleBatch> {
+        let tick = TICKS.load(Ordering::Relaxed) as u16;
+        s.sample_at_tick(tick, |t_us| self.read(t_us))
+    }
+
     /// The simulated counters' raw values for the sample taken at `t_us` (the extended counts
     /// truncated to 32 bits, as a 32-bit timer would hold them). Holds the last value if the
     /// test's radius were out of the instrument's reach.
     #[inline]
-    pub fn read(&mut self, t_us: u64) -> [u32; 2] {
+    fn read(&mut self, t_us: u64) -> [u32; 2] {
         if let Some((c1, c2)) = self.test.counts_at(t_us) {
             self.last = [c1 as u32, c2 as u32];
         }
@@ -130,6 +147,28 @@ impl Link {
     pub fn write(&mut self, bytes: &[u8]) -> usize {
         self.uart.write(bytes)
     }
+
+    /// A UART never comes up or goes down.
+    pub fn take_change(&mut self) -> Option<bool> {
+        None
+    }
+
+    /// Nothing is buffered beyond the transmit register.
+    pub fn drained(&mut self) -> bool {
+        true
+    }
+
+    /// Nothing to discard.
+    pub fn discard_pending(&mut self) {}
+}
+
+/// Ticks of the sample clock pended by the pacer since sampling started (the real board's TIM4).
+static TICKS: AtomicU32 = AtomicU32::new(0);
+
+/// The pacer pends one more tick of the sample clock.
+#[inline]
+pub fn count_tick() {
+    TICKS.fetch_add(1, Ordering::Relaxed);
 }
 
 /// Period of the running sample clock in µs, 0 when stopped; read by the pacer.
@@ -145,6 +184,7 @@ pub fn pace_period_us() -> u32 {
 /// by the application from SysTick (see the module docs).
 pub struct SampleTimer {
     period_ticks: u32,
+    pending: Option<u32>,
     running: bool,
 }
 
@@ -153,20 +193,40 @@ impl SampleTimer {
     pub fn new(rate_hz: u32) -> Self {
         let mut t = SampleTimer {
             period_ticks: 1,
+            pending: None,
             running: false,
         };
         t.set_rate(rate_hz);
         t
     }
 
-    /// The nearest whole-µs period to `rate_hz`; returns it in ticks of [`Self::clock_hz`] (µs).
-    pub fn set_rate(&mut self, rate_hz: u32) -> u32 {
+    fn period_for(rate_hz: u32) -> u32 {
         let hz = rate_hz.max(1);
-        self.period_ticks = ((PACE_HZ + hz / 2) / hz).max(1);
+        ((PACE_HZ + hz / 2) / hz).max(1)
+    }
+
+    /// The nearest whole-µs period to `rate_hz`; returns it in ticks of [`Self::clock_hz`] (µs).
+    /// While running, the change waits for the sample task ([`Self::apply_pending_rate`]), as on
+    /// the real board.
+    pub fn set_rate(&mut self, rate_hz: u32) -> u32 {
+        let ticks = Self::period_for(rate_hz);
         if self.running {
-            PACE_PERIOD.store(self.period_ticks, Ordering::Relaxed);
+            self.pending = Some(ticks);
+        } else {
+            self.pending = None;
+            self.period_ticks = ticks;
         }
-        self.period_ticks
+        ticks
+    }
+
+    /// Called by the sample task right after a tick: apply a rate change asked for while running
+    /// from the next period on; returns the new period for the sampler's clock.
+    #[inline]
+    pub fn apply_pending_rate(&mut self) -> Option<u32> {
+        let ticks = self.pending.take()?;
+        self.period_ticks = ticks;
+        PACE_PERIOD.store(ticks, Ordering::Relaxed);
+        Some(ticks)
     }
 
     /// Clock of the period (Hz).
@@ -179,13 +239,18 @@ impl SampleTimer {
         self.period_ticks
     }
 
-    /// Effective sample rate (Hz, rounded).
+    /// Sample rate (Hz, rounded), including a change that waits for the next period.
     pub fn rate_hz(&self) -> u32 {
-        (PACE_HZ + self.period_ticks / 2) / self.period_ticks
+        let ticks = self.pending.unwrap_or(self.period_ticks);
+        (PACE_HZ + ticks / 2) / ticks
     }
 
-    /// Start pacing.
+    /// Start pacing; the tick count restarts at 0 (with `Sampler::restart`).
     pub fn start(&mut self) {
+        if let Some(ticks) = self.pending.take() {
+            self.period_ticks = ticks;
+        }
+        TICKS.store(0, Ordering::Relaxed);
         self.running = true;
         PACE_PERIOD.store(self.period_ticks, Ordering::Relaxed);
     }

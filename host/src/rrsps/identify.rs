@@ -4,15 +4,15 @@
 //! `free` ones, which get one value per test (the paper's cases M2/M3 moved s0 with the X axis).
 //! The residual of sample i is d(eq. 26; p, θA_i, θC_i) − d*_i.
 //!
-//! Least squares ([`crate::fit`]) gives standard errors, singular values and the undetermined
-//! combinations; minimax ([`crate::minimax`], the paper's saddle programme) starts from the
+//! Least squares ([`crate::numerics::lsq`]) gives standard errors, singular values and the undetermined
+//! combinations; minimax ([`crate::numerics::minimax`], the paper's saddle programme) starts from the
 //! least-squares answer and minimises the largest residual. The standard errors reported with a
 //! minimax fit are those of the least-squares fit of the same data (a minimax estimate has no
 //! simple covariance; the two estimates differ by far less than those errors at Gaussian noise).
 use super::io::Samples;
 use super::{Params, Prepared, SinCos, IS_ANGLE, PARAM_NAMES};
-use crate::fit::{least_squares, LsqFit, LsqOptions, Problem};
-use crate::minimax::{minimax, MinimaxOptions};
+use crate::numerics::lsq::{least_squares, LsqFit, LsqOptions, Problem};
+use crate::numerics::minimax::{minimax, MinimaxOptions};
 use crate::{Error, Result};
 
 /// Fitting criterion.
@@ -468,17 +468,4 @@ pub fn identify(
             .collect(),
         weakest,
     })
-}
-
-/// Format `value ± sigma` with the digits the standard error supports (two significant digits
-/// of sigma); an undetermined value is shown to 3 decimals and flagged.
-pub fn format_estimate(value: f64, sigma: Option<f64>) -> String {
-    match sigma {
-        Some(s) if s > 0.0 && s.is_finite() => {
-            let decimals = (1 - s.log10().floor() as i32).clamp(0, 12) as usize;
-            format!("{value:.decimals$} ± {s:.decimals$}")
-        }
-        Some(_) => format!("{value} ± 0"),
-        None => format!("{value:.3} (undetermined)"),
-    }
 }

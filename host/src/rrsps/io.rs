@@ -1,33 +1,24 @@
 //! Files of the RRSPS commands: parameter sets (TOML `name = value` or CSV with the eight names as
 //! columns, like `rrsps_parameters_table2_3.csv`) and samples (CSV `theta_a_deg,theta_c_deg,d_mm`).
 //! Every malformed input is reported as `file:line:column: what to do`.
-use crate::error::parse_number;
 use std::path::{Path, PathBuf};
 
 use super::{Params, PARAM_NAMES};
+use crate::table::{read_text, Table};
 use crate::{Error, Result};
-
-fn read(path: &Path) -> Result<String> {
-    std::fs::read_to_string(path).map_err(|source| Error::File {
-        action: "cannot read",
-        path: path.to_path_buf(),
-        source,
-    })
-}
 
 /// Read a parameter set. `.toml` files hold `s0_mm = 96.31` lines (all eight names, nothing
 /// else); other files are CSV with a header naming the eight columns (extra columns such as
 /// `case` and `note` are ignored). A CSV with several rows needs `case` to pick one by its
 /// `case` column.
 pub fn read_params(path: &Path, case: Option<&str>) -> Result<Params> {
-    let text = read(path)?;
     if path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
     {
-        parse_params_toml(path, &text)
+        parse_params_toml(path, &read_text(path)?)
     } else {
-        parse_params_csv(path, &text, case)
+        params_from(Table::open(path)?, case)
     }
 }
 
@@ -86,84 +77,65 @@ fn parse_params_toml(path: &Path, text: &str) -> Result<Params> {
     Ok(Params::from_named_units(&v))
 }
 
-/// 1-based column (character position) of field `idx` in a comma-separated line.
-fn field_column(line: &str, idx: usize) -> usize {
-    line.split(',')
-        .take(idx)
-        .map(|f| f.chars().count() + 1)
-        .sum::<usize>()
-        + 1
+#[cfg(test)]
+fn parse_params_csv(path: &Path, text: &str, case: Option<&str>) -> Result<Params> {
+    params_from(Table::from_text(path, text)?, case)
 }
 
-fn parse_params_csv(path: &Path, text: &str, case: Option<&str>) -> Result<Params> {
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty() && !l.starts_with('#'));
-    let Some((hline, header)) = lines.next() else {
-        return Err(Error::input(
-            path,
-            1,
-            0,
-            "empty file: expected a header line with the eight parameter names",
-        ));
-    };
-    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
-    let mut idx = [0usize; 8];
-    for (k, name) in PARAM_NAMES.iter().enumerate() {
-        idx[k] = cols.iter().position(|c| c == name).ok_or_else(|| {
-            Error::input(
-                path,
-                hline + 1,
-                0,
-                format!(
-                    "no column `{name}`; a parameter CSV needs the columns {} (found: {})",
-                    PARAM_NAMES.join(","),
-                    cols.join(",")
-                ),
-            )
-        })?;
+fn params_from(mut t: Table, case: Option<&str>) -> Result<Params> {
+    let path = t.path().to_path_buf();
+    let cols = t.require(&PARAM_NAMES)?;
+    let case_col = t.optional("case");
+    if case.is_some() && case_col.is_none() {
+        return Err(Error::Usage(format!(
+            "{}: --case given but the file has no `case` column",
+            path.display()
+        )));
     }
-    let case_col = cols.iter().position(|&c| c == "case");
-    let rows: Vec<(usize, &str)> = lines.collect();
-    let row = match (case, case_col) {
-        (Some(name), Some(cc)) => rows
-            .iter()
-            .find(|(_, l)| l.split(',').nth(cc).map(str::trim) == Some(name))
-            .ok_or_else(|| {
-                let cases: Vec<&str> = rows
-                    .iter()
-                    .filter_map(|(_, l)| l.split(',').nth(cc).map(str::trim))
-                    .collect();
-                Error::Usage(format!(
-                    "{}: no case `{name}`; the file has: {}",
-                    path.display(),
-                    cases.join(", ")
-                ))
-            })?,
-        (Some(_), None) => {
-            return Err(Error::Usage(format!(
-                "{}: --case given but the file has no `case` column",
-                path.display()
-            )))
-        }
-        (None, _) if rows.len() == 1 => &rows[0],
-        (None, Some(cc)) if !rows.is_empty() => {
-            let cases: Vec<&str> = rows
-                .iter()
-                .filter_map(|(_, l)| l.split(',').nth(cc).map(str::trim))
-                .collect();
+    // Keep the rows' numbers (or their errors) with their case names; only the chosen row's
+    // errors matter.
+    let mut rows: Vec<(String, usize, Result<[f64; 8]>)> = vec![];
+    while let Some(row) = t.next_row()? {
+        let name = match &case_col {
+            Some(c) => row.text(c).unwrap_or("").to_string(),
+            None => String::new(),
+        };
+        let values = (|| {
+            let mut v = [0.0; 8];
+            for (k, c) in cols.iter().enumerate() {
+                v[k] = row.number(c)?;
+            }
+            Ok(v)
+        })();
+        rows.push((name, row.line(), values));
+    }
+    let cases = || {
+        rows.iter()
+            .map(|r| r.0.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let chosen = match case {
+        Some(name) => rows.iter().position(|r| r.0 == name).ok_or_else(|| {
+            Error::Usage(format!(
+                "{}: no case `{name}`; the file has: {}",
+                path.display(),
+                cases()
+            ))
+        })?,
+        None if rows.len() == 1 => 0,
+        None if !rows.is_empty() && case_col.is_some() => {
             return Err(Error::Usage(format!(
                 "{} holds {} parameter sets; pick one with --case ({})",
                 path.display(),
                 rows.len(),
-                cases.join(", ")
-            )));
+                cases()
+            )))
         }
-        (None, _) => {
+        None => {
             return Err(Error::input(
-                path,
-                hline + 2,
+                &path,
+                t.header_line() + 1,
                 0,
                 format!(
                     "expected exactly one row of parameters, found {}",
@@ -172,19 +144,7 @@ fn parse_params_csv(path: &Path, text: &str, case: Option<&str>) -> Result<Param
             ))
         }
     };
-    let (lno, line) = *row;
-    let fields: Vec<&str> = line.split(',').collect();
-    let mut v = [0.0; 8];
-    for k in 0..8 {
-        let raw = fields.get(idx[k]).map(|f| f.trim()).unwrap_or("");
-        v[k] = parse_number(
-            path,
-            lno + 1,
-            field_column(line, idx[k]),
-            PARAM_NAMES[k],
-            raw,
-        )?;
-    }
+    let v = rows.swap_remove(chosen).2?;
     Ok(Params::from_named_units(&v))
 }
 
@@ -212,66 +172,40 @@ pub const SAMPLE_COLUMNS: [&str; 3] = ["theta_a_deg", "theta_c_deg", "d_mm"];
 
 /// Read a samples CSV (`theta_a_deg,theta_c_deg,d_mm`, any column order, other columns ignored)
 /// and check that it can identify `n_params` parameters: enough distinct positions, and both
-/// axes moving.
+/// axes moving. Bar lengths must be positive and below [`MAX_BAR_MM`].
 pub fn read_samples(path: &Path, n_params: usize) -> Result<Samples> {
-    let text = read(path)?;
-    parse_samples(path, &text, n_params)
+    samples_from(Table::open(path)?, n_params)
 }
 
 /// [`read_samples`] on text already read.
 pub fn parse_samples(path: &Path, text: &str, n_params: usize) -> Result<Samples> {
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty() && !l.starts_with('#'));
-    let Some((hline, header)) = lines.next() else {
-        return Err(Error::input(
-            path,
-            1,
-            0,
-            "empty file: expected the header theta_a_deg,theta_c_deg,d_mm",
-        ));
-    };
-    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
-    let mut idx = [0usize; 3];
-    for (k, name) in SAMPLE_COLUMNS.iter().enumerate() {
-        idx[k] = cols.iter().position(|c| c == name).ok_or_else(|| {
-            Error::input(
-                path,
-                hline + 1,
-                0,
-                format!(
-                    "no column `{name}`: a samples file needs the header theta_a_deg,theta_c_deg,d_mm (found: {})",
-                    cols.join(",")
-                ),
-            )
-        })?;
-    }
+    samples_from(Table::from_text(path, text)?, n_params)
+}
+
+/// Longest bar length (mm) a samples file may hold: ten metres, far beyond any ball bar.
+pub const MAX_BAR_MM: f64 = 10_000.0;
+
+fn samples_from(mut t: Table, n_params: usize) -> Result<Samples> {
+    let path = t.path().to_path_buf();
+    let cols = t.require(&SAMPLE_COLUMNS)?;
     let mut s = Samples {
-        path: path.to_path_buf(),
+        path: path.clone(),
         theta_a_rad: Vec::new(),
         theta_c_rad: Vec::new(),
         d_mm: Vec::new(),
     };
-    for (lno, line) in lines {
-        let fields: Vec<&str> = line.split(',').collect();
+    while let Some(row) = t.next_row()? {
         let mut v = [0.0; 3];
-        for k in 0..3 {
-            let raw = fields.get(idx[k]).map(|f| f.trim()).unwrap_or("");
-            v[k] = parse_number(
-                path,
-                lno + 1,
-                field_column(line, idx[k].min(fields.len())),
-                SAMPLE_COLUMNS[k],
-                raw,
-            )?;
+        for (k, c) in cols.iter().enumerate() {
+            v[k] = row.number(c)?;
         }
-        if v[2] <= 0.0 {
-            return Err(Error::input(
-                path,
-                lno + 1,
-                field_column(line, idx[2]),
-                format!("d_mm = {} must be a positive bar length (mm)", v[2]),
+        if !(v[2] > 0.0 && v[2] < MAX_BAR_MM) {
+            return Err(row.error(
+                &cols[2],
+                format!(
+                    "d_mm = {} must be a bar length between 0 and {MAX_BAR_MM} mm",
+                    v[2]
+                ),
             ));
         }
         s.theta_a_rad.push(v[0].to_radians());
@@ -293,10 +227,8 @@ pub fn parse_samples(path: &Path, text: &str, n_params: usize) -> Result<Samples
     pos.sort_unstable();
     pos.dedup();
     if pos.len() <= n_params {
-        return Err(Error::input(
-            path,
-            hline + 1,
-            0,
+        return Err(t.header_error(
+            None,
             format!(
                 "{} samples at {} distinct (A, C) positions: identifying {} parameters needs more than {} positions; record a longer motion",
                 s.d_mm.len(),
@@ -310,10 +242,8 @@ pub fn parse_samples(path: &Path, text: &str, n_params: usize) -> Result<Samples
         let lo = angles.iter().copied().fold(f64::INFINITY, f64::min);
         let hi = angles.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         if hi - lo < 1e-9 {
-            return Err(Error::input(
-                path,
-                hline + 1,
-                field_column(header, idx[k]),
+            return Err(t.header_error(
+                Some(&cols[k]),
                 format!(
                     "{} never changes (always {}°): the {} axis must move during the test, or the linkage parameters cannot be identified",
                     SAMPLE_COLUMNS[k],
@@ -379,7 +309,7 @@ mod tests {
         let e = parse_samples(Path::new("s.csv"), "a,b,c\n1,2,3\n", 0).unwrap_err();
         assert!(
             e.to_string()
-                .starts_with("s.csv:1: no column `theta_a_deg`"),
+                .starts_with("s.csv:1: missing column `theta_a_deg`"),
             "{e}"
         );
     }

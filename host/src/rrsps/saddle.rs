@@ -67,8 +67,8 @@
 //! - g10: a2 ≤ r_t; g11, g12: s2 within the ball-height limits; g13: d in the bar series.
 use super::design::{design_with_grid, eq9, theta_a_for, Branch};
 use super::Params;
-use crate::fit::Problem;
-use crate::minimax::{minimax, MinimaxOptions};
+use crate::numerics::lsq::Problem;
+use crate::numerics::minimax::{minimax, MinimaxOptions};
 use crate::{Error, Result};
 
 /// Machine and instrument limits of g1–g13. The paper's Table 1 and §5 give the table radius

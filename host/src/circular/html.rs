@@ -1,0 +1,403 @@
+//! `report.html`: the report a person reads, files or shows. One self-contained page: inline
+//! CSS, the polar plots as inline SVG, nothing fetched.
+//!
+//! What it says, in order: the verdict against the tolerance; the test conditions (machine,
+//! date, plane, circles with radius, height and feed, plan, instrument calibration); the machine
+//! effects ranked by their share of the error, each with value ± standard error and its cause;
+//! G and H of every circle per ISO 230-4 with the minimum-zone centre ([`super::zone`]); the
+//! polar plot of every circle.
+//!
+//! Definitions the page states too:
+//! - *share of the error* of an effect: the mean square of the radial deviation that effect
+//!   alone makes (after the same set-up removal as the plot), over the mean square of the plotted
+//!   measured deviation (JSON `effects[].share`);
+//! - *pass*: every circle's G (each direction, minimum-zone centre) is at most the tolerance.
+//!
+//! The page is built from the diagnosis JSON read back as a [`DiagnosisDoc`] (so it shows what
+//! the file says) and from the [`Diagnosis`] for the plotted traces.
+use std::fmt::Write;
+
+use super::diagnose::Diagnosis;
+use super::document::{CircleDoc, DiagnosisDoc, ZoneDoc};
+use super::plot::{polar_svg, View};
+use crate::units::{format_estimate, human};
+use crate::Result;
+
+/// `text` with the five HTML special characters escaped.
+pub fn escape(text: &str) -> String {
+    let mut s = String::with_capacity(text.len());
+    for c in text.chars() {
+        match c {
+            '&' => s.push_str("&amp;"),
+            '<' => s.push_str("&lt;"),
+            '>' => s.push_str("&gt;"),
+            '"' => s.push_str("&quot;"),
+            '\'' => s.push_str("&#39;"),
+            c => s.push(c),
+        }
+    }
+    s
+}
+
+/// The verdict of a diagnosis file against its tolerance: Some(pass) if a tolerance was given.
+pub fn verdict(doc: &DiagnosisDoc) -> Option<bool> {
+    doc.tolerance.as_ref().map(|t| t.pass)
+}
+
+const STYLE: &str = "
+body { font-family: 'DejaVu Sans', Arial, sans-serif; margin: 24px auto; max-width: 1100px;
+       color: #222; line-height: 1.35; }
+h1 { font-size: 24px; margin-bottom: 4px; }
+h2 { font-size: 18px; margin-top: 28px; border-bottom: 1px solid #ccc; padding-bottom: 3px; }
+.sub { color: #555; margin-top: 0; }
+.verdict { font-size: 20px; font-weight: bold; padding: 10px 14px; border-radius: 6px;
+           margin: 14px 0; }
+.pass { background: #d9f2dc; color: #155d22; border: 1px solid #7cc488; }
+.fail { background: #fbdcdc; color: #8a1414; border: 1px solid #e08787; }
+.none { background: #eee; color: #444; border: 1px solid #bbb; }
+table { border-collapse: collapse; margin: 8px 0; }
+th, td { border: 1px solid #ccc; padding: 4px 8px; text-align: left; vertical-align: top; }
+th { background: #f3f3f3; }
+td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
+td.share { white-space: nowrap; }
+.bar { display: inline-block; height: 10px; background: #4a7bb7; vertical-align: middle; }
+.note { color: #555; font-size: 13px; }
+.plots { display: flex; flex-wrap: wrap; gap: 16px; }
+.plot { flex: 1 1 520px; max-width: 800px; }
+.plot svg { width: 100%; height: auto; border: 1px solid #ddd; }
+";
+
+fn fmt_opt(x: Option<f64>, decimals: usize) -> String {
+    match x {
+        Some(v) if v.is_finite() => format!("{v:.decimals$}"),
+        _ => "–".into(),
+    }
+}
+
+/// Write a JSON value of the plan or calibration as `key: value` rows.
+fn object_rows(v: &serde_json::Value, prefix: &str, out: &mut Vec<(String, String)>) {
+    match v {
+        serde_json::Value::Object(m) => {
+            for (k, x) in m {
+                let key = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                match x {
+                    serde_json::Value::Object(_) if out.len() < 40 => object_rows(x, &key, out),
+                    _ => out.push((key, compact(x))),
+                }
+            }
+        }
+        other => out.push((prefix.to_string(), compact(other))),
+    }
+}
+
+fn compact(v: &serde_json::Value) -> String {
+    match v {
+        serde_json::Value::String(s) => s.clone(),
+        other => other.to_string(),
+    }
+}
+
+fn zone_cell(z: &Option<ZoneDoc>, tol: Option<f64>) -> String {
+    match z.as_ref().and_then(|z| z.g_um) {
+        Some(g) => {
+            let mark = match tol {
+                Some(t) if g > t => " <b>✗</b>",
+                Some(_) => " ✓",
+                None => "",
+            };
+            format!("{g:.2}{mark}")
+        }
+        None => "–".into(),
+    }
+}
+
+fn centre_text(z: &Option<ZoneDoc>) -> String {
+    match z {
+        Some(z) if !z.centre.is_empty() => z
+            .centre
+            .iter()
+            .map(|(k, v)| format!("{} {}", k.trim_end_matches("_um"), fmt_opt(*v, 2)))
+            .collect::<Vec<_>>()
+            .join(", "),
+        _ => "–".into(),
+    }
+}
+
+fn circle_label(c: &CircleDoc, normal: char) -> String {
+    format!(
+        "r = {:.1} mm, {normal} = {:.1} mm",
+        c.radius_mm, c.height_mm
+    )
+}
+
+/// The whole page (see the module docs).
+pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
+    let mut h = String::new();
+    let machine = doc
+        .machine
+        .as_deref()
+        .unwrap_or("(machine not named: --machine NAME)");
+    let tol = doc.tolerance.as_ref().map(|t| t.g_um);
+    let plane = doc.plane.clone().unwrap_or_else(|| "?".into());
+    let normal = match plane.as_str() {
+        "xy" => 'z',
+        "yz" => 'x',
+        "zx" => 'y',
+        _ => '?',
+    };
+    let _ = write!(
+        h,
+        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>Circular test: {}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n",
+        escape(machine)
+    );
+    let _ = writeln!(
+        h,
+        "<h1>Circular test report: {}</h1>\n<p class=\"sub\">J-DBB double ball bar, {} samples, {}</p>",
+        escape(machine),
+        doc.samples,
+        escape(doc.date_utc.as_deref().unwrap_or("date not recorded"))
+    );
+
+    // Verdict.
+    let g_max = doc.g_um();
+    match (&doc.tolerance, g_max) {
+        (Some(t), Some(g)) => {
+            let _ = writeln!(
+                h,
+                "<div class=\"verdict {}\">{}: largest circular deviation G = {:.2} µm {} tolerance {:.2} µm</div>",
+                if t.pass { "pass" } else { "fail" },
+                if t.pass { "PASS" } else { "FAIL" },
+                g,
+                if t.pass { "≤" } else { ">" },
+                t.g_um
+            );
+        }
+        _ => {
+            let _ = writeln!(
+                h,
+                "<div class=\"verdict none\">No tolerance given (jdbb diagnose --tolerance-um): largest circular deviation G = {} µm</div>",
+                fmt_opt(g_max, 2)
+            );
+        }
+    }
+
+    // Conditions.
+    let _ = writeln!(h, "<h2>Test conditions</h2>\n<table>");
+    let mut rows: Vec<(String, String)> = vec![
+        ("Machine".into(), machine.to_string()),
+        (
+            "Date (UTC)".into(),
+            doc.date_utc
+                .clone()
+                .unwrap_or_else(|| "not recorded".into()),
+        ),
+        (
+            "Plane".into(),
+            format!("{plane} (angle measured from the first axis towards the second)"),
+        ),
+    ];
+    for (k, c) in doc.circles.iter().enumerate() {
+        rows.push((
+            format!("Circle {}", k + 1),
+            format!(
+                "{}, feed {} mm/min, {} samples (ccw and cw)",
+                circle_label(c, normal),
+                fmt_opt(c.feed_mm_min, 0),
+                c.samples
+            ),
+        ));
+    }
+    let pitch: Vec<String> = doc
+        .pitch_mm
+        .iter()
+        .filter_map(|(k, v)| v.map(|p| format!("{k} {p} mm")))
+        .collect();
+    if !pitch.is_empty() {
+        rows.push(("Screw/scale pitch".into(), pitch.join(", ")));
+    }
+    match &doc.plan {
+        Some(p) => {
+            let mut r = vec![];
+            object_rows(p, "", &mut r);
+            for (k, v) in r {
+                rows.push((format!("Plan: {k}"), v));
+            }
+        }
+        None => rows.push(("Plan".into(), "not given".into())),
+    }
+    match &doc.calibration {
+        Some(c) => {
+            let mut r = vec![];
+            object_rows(c, "", &mut r);
+            let text: Vec<String> = r.into_iter().map(|(k, v)| format!("{k} {v}")).collect();
+            rows.push(("Instrument calibration".into(), text.join(", ")));
+        }
+        None => rows.push((
+            "Instrument calibration".into(),
+            "not given (jdbb diagnose --calibration FILE)".into(),
+        )),
+    }
+    rows.push((
+        "Tolerance on G".into(),
+        tol.map_or("not given".into(), |t| format!("{t} µm")),
+    ));
+    rows.push((
+        "Fit".into(),
+        format!(
+            "RMS {} µm before (ideal machine), {} µm after the model (gain ×{})",
+            fmt_opt(doc.baseline.rms_um, 3),
+            fmt_opt(doc.final_fit.rms_um, 3),
+            fmt_opt(doc.gain, 1)
+        ),
+    ));
+    for (k, v) in rows {
+        let _ = writeln!(h, "<tr><th>{}</th><td>{}</td></tr>", escape(&k), escape(&v));
+    }
+    let _ = writeln!(h, "</table>");
+
+    // Effects ranked by share.
+    let _ = writeln!(h, "<h2>What the errors are, largest share first</h2>");
+    let mut effects: Vec<_> = doc.machine_effects().collect();
+    effects.sort_by(|a, b| {
+        b.0.share
+            .unwrap_or(0.0)
+            .total_cmp(&a.0.share.unwrap_or(0.0))
+    });
+    if effects.is_empty() {
+        let _ = writeln!(
+            h,
+            "<p>No machine effect is supported by the data: what remains is noise.</p>"
+        );
+    } else {
+        let _ = writeln!(
+            h,
+            "<table>\n<tr><th>#</th><th>effect</th><th>value ± σ</th><th>share of the error</th><th>RMS alone</th><th>cause</th></tr>"
+        );
+        for (k, (e, _)) in effects.iter().enumerate() {
+            let share = e.share.unwrap_or(f64::NAN);
+            let bar = if share.is_finite() {
+                format!(
+                    "<span class=\"bar\" style=\"width:{:.0}px\"></span> ",
+                    (share.clamp(0.0, 1.0) * 120.0).max(1.0)
+                )
+            } else {
+                String::new()
+            };
+            let _ = writeln!(
+                h,
+                "<tr><td class=\"num\">{}</td><td>{}</td><td class=\"num\">{} {}</td><td class=\"share\">{bar}{}</td><td class=\"num\">{} µm</td><td>{}</td></tr>",
+                k + 1,
+                escape(&e.name),
+                escape(&format_estimate(e.value.unwrap_or(f64::NAN), e.sigma)),
+                escape(&human(&e.unit)),
+                if share.is_finite() {
+                    format!("{:.1} %", 100.0 * share)
+                } else {
+                    "–".into()
+                },
+                fmt_opt(e.contribution_rms_um, 3),
+                escape(&e.cause)
+            );
+        }
+        let _ = writeln!(
+            h,
+            "<tr><td></td><td>residual</td><td class=\"num\">RMS {} µm</td><td colspan=\"3\">noise and what no candidate explains</td></tr>\n</table>",
+            fmt_opt(doc.final_fit.rms_um, 3)
+        );
+    }
+    let setup: Vec<String> = doc
+        .effects
+        .iter()
+        .filter(|e| e.setup)
+        .map(|e| {
+            format!(
+                "{} = {} {}",
+                e.name,
+                format_estimate(e.value.unwrap_or(f64::NAN), e.sigma),
+                human(&e.unit)
+            )
+        })
+        .collect();
+    let _ = writeln!(
+        h,
+        "<p class=\"note\">Share of the error: the mean square of the radial deviation an effect alone makes, over the mean square of the plotted measured deviation (set-up removed); shares of correlated effects need not add up to 100 %. ± is one standard error. Set-up, removed before everything here: {}.</p>",
+        escape(&setup.join("; "))
+    );
+    for g in &doc.confounded {
+        let _ = writeln!(
+            h,
+            "<p class=\"note\">This test cannot tell apart: {}.</p>",
+            escape(&g.join(", "))
+        );
+    }
+
+    // G and H.
+    let _ = writeln!(
+        h,
+        "<h2>Circular deviation G and hysteresis H (ISO 230-4, minimum-zone centre)</h2>\n<table>\n<tr><th>circle</th><th>feed mm/min</th><th>G ccw µm</th><th>G cw µm</th><th>G both directions µm</th><th>H µm</th><th>zone centre (ccw), µm</th><th>verdict</th></tr>"
+    );
+    for c in &doc.circles {
+        let verdict = match (tol, c.g_um) {
+            (Some(t), Some(g)) if g <= t => "pass",
+            (Some(_), Some(_)) => "fail",
+            _ => "–",
+        };
+        let _ = writeln!(
+            h,
+            "<tr><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{}</td><td>{verdict}</td></tr>",
+            escape(&circle_label(c, normal)),
+            fmt_opt(c.feed_mm_min, 0),
+            zone_cell(&c.ccw, tol),
+            zone_cell(&c.cw, tol),
+            zone_cell(&c.bidirectional, None),
+            fmt_opt(c.h_um, 2),
+            escape(&centre_text(&c.ccw)),
+        );
+    }
+    let _ = writeln!(
+        h,
+        "</table>\n<p class=\"note\">G: the radial width of the minimum zone (two concentric circles, closest together, enclosing the trace) of one circle in one direction; its centre is relative to the least-squares centre of all samples. H: the largest difference between the ccw and cw traces in a 1° bin. Pass: every circle's G in each direction is at most the tolerance.</p>"
+    );
+
+    // Plots.
+    let _ = writeln!(h, "<h2>Polar plots</h2>\n<div class=\"plots\">");
+    for (k, c) in doc.circles.iter().enumerate() {
+        if k >= d.circles.len() {
+            break;
+        }
+        let view = View {
+            circle: Some(k),
+            title: Some(format!(
+                "{}: G = {} µm, H = {} µm",
+                circle_label(c, normal),
+                fmt_opt(c.g_um, 2),
+                fmt_opt(c.h_um, 2)
+            )),
+        };
+        let svg = polar_svg(d, &view)?;
+        let _ = writeln!(h, "<div class=\"plot\">{svg}</div>");
+    }
+    let _ = writeln!(
+        h,
+        "</div>\n<p class=\"note\">Measured deviation with the least-squares set-up removed (ccw blue, cw orange), the ideal machine (green, zero deviation) and the model's machine effects (black).</p>\n<p class=\"note\">jdbb {}</p>\n</body>\n</html>",
+        env!("CARGO_PKG_VERSION")
+    );
+    Ok(h)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn text_is_escaped() {
+        assert_eq!(
+            escape("<b>&\"x\"'</b>"),
+            "&lt;b&gt;&amp;&quot;x&quot;&#39;&lt;/b&gt;"
+        );
+    }
+}

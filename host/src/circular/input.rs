@@ -1,0 +1,394 @@
+//! The inputs of a circular-test diagnosis, read into a [`Path`] and the measured D.
+//!
+//! - [`read_samples`]: CSV `t_s,x_mm,y_mm,z_mm,d_mm` (any column order, extra columns ignored):
+//!   time, the nominal (commanded) spindle-ball centre relative to the table ball in machine axes,
+//!   and the measured ball distance D. `jdbb simulate` writes this.
+//! - [`read_record_with_path`]: a `jdbb record` file (`seq,t_us,enc1,enc2,d_mm`) and the nominal
+//!   path as CSV `t_s,x_mm,y_mm,z_mm`, whose t_s = 0 lies `offset_s` seconds after the record's
+//!   first sample. The path is interpolated linearly at each record time. Record samples outside
+//!   the path's span, or inside a gap of the path (two path points further apart in time than 5
+//!   median path intervals: the path does not say where the machine was), are left out.
+//!
+//! Every file goes through [`crate::table`]; errors name `file:line:column`. What a diagnosis
+//! cannot use is refused here, as bad input: a D that is not positive, a position at the table
+//! ball, a path that does not move, or one that draws no arc of at least
+//! [`MIN_ARC_DEG`] about the table ball.
+use std::path::Path as FsPath;
+
+use super::model::{Axis, Path};
+use super::runs::{main_plane, split_runs, MAX_RUN_STEP_RAD};
+use crate::table::Table;
+use crate::{Error, Result};
+
+/// Fewer samples than this cannot support a candidate search.
+pub const MIN_SAMPLES: usize = 32;
+
+/// A circular test needs at least one arc (one circle, one direction, no jump) of this many
+/// degrees about the table ball: ISO 230-4's partial arcs are 180° or more.
+pub const MIN_ARC_DEG: f64 = 180.0;
+
+/// Positions closer than this to the table ball (mm) cannot be a ball bar's: the bar has a length.
+const MIN_RADIUS_MM: f64 = 1.0;
+
+/// Read `t_s,x_mm,y_mm,z_mm,d_mm`. Returns the path (with `pitch_mm` applied) and D.
+pub fn read_samples(file: &FsPath, pitch_mm: [Option<f64>; 3]) -> Result<(Path, Vec<f64>)> {
+    samples_from(Table::open(file)?, pitch_mm)
+}
+
+/// [`read_samples`] on text already in memory; `file` names it in errors.
+pub fn parse_samples(
+    file: &FsPath,
+    text: &str,
+    pitch_mm: [Option<f64>; 3],
+) -> Result<(Path, Vec<f64>)> {
+    samples_from(Table::from_text(file, text)?, pitch_mm)
+}
+
+fn samples_from(mut table: Table, pitch_mm: [Option<f64>; 3]) -> Result<(Path, Vec<f64>)> {
+    const NAMES: [&str; 5] = ["t_s", "x_mm", "y_mm", "z_mm", "d_mm"];
+    let cols = table.require(&NAMES)?;
+    let mut t: Vec<f64> = Vec::new();
+    let mut p = Vec::new();
+    let mut d = Vec::new();
+    let mut last_line = table.header_line();
+    while let Some(row) = table.next_row()? {
+        last_line = row.line();
+        let mut v = [0.0f64; 5];
+        for (k, c) in cols.iter().enumerate() {
+            v[k] = row.number(c)?;
+        }
+        if let Some(&prev) = t.last() {
+            if v[0] <= prev {
+                return Err(row.error(
+                    &cols[0],
+                    format!(
+                        "time goes backwards or stands still ({} s after {prev} s); samples must be in time order",
+                        v[0]
+                    ),
+                ));
+            }
+        }
+        if v[4] <= 0.0 {
+            return Err(row.error(
+                &cols[4],
+                format!("d_mm is {}; a ball distance is positive", v[4]),
+            ));
+        }
+        if (v[1] * v[1] + v[2] * v[2] + v[3] * v[3]).sqrt() < MIN_RADIUS_MM {
+            return Err(row.error(
+                &cols[1],
+                format!(
+                    "the position ({}, {}, {}) mm is at the table ball; positions are the spindle ball's, relative to the table ball",
+                    v[1], v[2], v[3]
+                ),
+            ));
+        }
+        t.push(v[0]);
+        p.push([v[1], v[2], v[3]]);
+        d.push(v[4]);
+    }
+    let file = table.path().to_path_buf();
+    if t.len() < MIN_SAMPLES {
+        return Err(Error::input(
+            &file,
+            last_line,
+            0,
+            format!(
+                "only {} samples; a diagnosis needs at least {MIN_SAMPLES} (a full circle each way)",
+                t.len()
+            ),
+        ));
+    }
+    let path = Path::new(t, p, pitch_mm);
+    for a in Axis::ALL {
+        if pitch_mm[a.index()].is_some() && !path.moves(a) {
+            return Err(table.header_error(
+                Some(&cols[1 + a.index()]),
+                format!(
+                    "a pitch was given for axis {} but `{}` never changes; drop it from --pitch",
+                    a.letter(),
+                    NAMES[1 + a.index()]
+                ),
+            ));
+        }
+    }
+    check_circular(&path).map_err(|m| Error::Input {
+        location: file.display().to_string(),
+        message: m,
+    })?;
+    Ok((path, d))
+}
+
+/// Whether `path` is a circular test the diagnosis can work on: it moves, and draws at least one
+/// arc of [`MIN_ARC_DEG`] about the table ball. The message says what is wrong.
+pub fn check_circular(path: &Path) -> std::result::Result<(), String> {
+    let moving = Axis::ALL.iter().filter(|&&a| path.moves(a)).count();
+    if moving < 2 {
+        return Err(format!(
+            "the path moves {} axis; a circular test moves two axes around the table ball",
+            if moving == 0 { "no" } else { "only one" }
+        ));
+    }
+    let plane = main_plane(path);
+    let (_, runs) = split_runs(&path.t_s, &path.p_mm, plane, MAX_RUN_STEP_RAD);
+    let sweep_deg = runs
+        .iter()
+        .map(|r| {
+            let a = super::runs::angles(&path.p_mm[r.range.clone()], plane);
+            a.windows(2)
+                .map(|w| super::runs::wrap_pi(w[1] - w[0]).abs())
+                .sum::<f64>()
+                .to_degrees()
+        })
+        .fold(0.0, f64::max);
+    if sweep_deg < MIN_ARC_DEG {
+        return Err(format!(
+            "the longest arc about the table ball spans {sweep_deg:.1}°; a circular test needs arcs of at least {MIN_ARC_DEG}° (is this a circle centred on the table ball?)"
+        ));
+    }
+    Ok(())
+}
+
+/// A `jdbb record` file (`seq,t_us,enc1,enc2,d_mm`) with its nominal path (`t_s,x_mm,y_mm,z_mm`,
+/// t_s = 0 at `offset_s` after the record's first sample). See the module docs.
+pub fn read_record_with_path(
+    record: &FsPath,
+    nominal: &FsPath,
+    offset_s: f64,
+    pitch_mm: [Option<f64>; 3],
+) -> Result<(Path, Vec<f64>)> {
+    // The path: t_s strictly increasing.
+    let mut nt = Table::open(nominal)?;
+    let ncols = nt.require(&["t_s", "x_mm", "y_mm", "z_mm"])?;
+    let mut nom: Vec<[f64; 4]> = vec![];
+    let mut nom_last = nt.header_line();
+    while let Some(row) = nt.next_row()? {
+        let mut v = [0.0; 4];
+        for (k, c) in ncols.iter().enumerate() {
+            v[k] = row.number(c)?;
+        }
+        if nom.last().is_some_and(|p| v[0] <= p[0]) {
+            return Err(row.error(
+                &ncols[0],
+                format!(
+                    "time goes backwards or stands still ({} after {})",
+                    v[0],
+                    nom.last().map_or(0.0, |p| p[0])
+                ),
+            ));
+        }
+        nom_last = row.line();
+        nom.push(v);
+    }
+    if nom.len() < 2 {
+        return Err(Error::input(
+            nominal,
+            nom_last,
+            0,
+            "the path needs at least 2 points",
+        ));
+    }
+    let mut gaps: Vec<f64> = nom.windows(2).map(|w| w[1][0] - w[0][0]).collect();
+    gaps.sort_by(f64::total_cmp);
+    let max_gap_s = 5.0 * gaps[gaps.len() / 2];
+
+    let mut rt = Table::open(record)?;
+    let rcols = rt.require(&["t_us", "d_mm"])?;
+    let mut t = vec![];
+    let mut p = vec![];
+    let mut d = vec![];
+    let mut j = 0;
+    let mut t0: Option<f64> = None;
+    let mut prev_t_us: Option<f64> = None;
+    let mut rec_last = rt.header_line();
+    let (first_s, last_s) = (nom[0][0], nom[nom.len() - 1][0]);
+    while let Some(row) = rt.next_row()? {
+        rec_last = row.line();
+        let t_us = row.number(&rcols[0])?;
+        let d_mm = row.number(&rcols[1])?;
+        if prev_t_us.is_some_and(|prev| t_us <= prev) {
+            return Err(row.error(
+                &rcols[0],
+                format!(
+                    "time goes backwards or stands still ({t_us} µs after {} µs); a record holds one run",
+                    prev_t_us.unwrap_or(0.0)
+                ),
+            ));
+        }
+        prev_t_us = Some(t_us);
+        if d_mm <= 0.0 {
+            return Err(row.error(
+                &rcols[1],
+                format!("d_mm is {d_mm}; a ball distance is positive"),
+            ));
+        }
+        let ts = (t_us - *t0.get_or_insert(t_us)) * 1e-6 - offset_s;
+        if ts < first_s || ts > last_s {
+            continue;
+        }
+        while j + 2 < nom.len() && nom[j + 1][0] < ts {
+            j += 1;
+        }
+        let (a, b) = (&nom[j], &nom[j + 1]);
+        if b[0] - a[0] > max_gap_s {
+            continue;
+        }
+        let f = ((ts - a[0]) / (b[0] - a[0])).clamp(0.0, 1.0);
+        p.push([
+            a[1] + f * (b[1] - a[1]),
+            a[2] + f * (b[2] - a[2]),
+            a[3] + f * (b[3] - a[3]),
+        ]);
+        t.push(ts);
+        d.push(d_mm);
+    }
+    if t.len() < MIN_SAMPLES {
+        return Err(Error::input(
+            record,
+            rec_last,
+            0,
+            format!(
+                "only {} record samples fall inside the path's time span; check --path-offset-s (need {MIN_SAMPLES})",
+                t.len()
+            ),
+        ));
+    }
+    let path = Path::new(t, p, pitch_mm);
+    for a in Axis::ALL {
+        if pitch_mm[a.index()].is_some() && !path.moves(a) {
+            return Err(nt.header_error(
+                Some(&ncols[1 + a.index()]),
+                format!("a pitch was given for axis {} but the path never moves it; drop it from --pitch", a.letter()),
+            ));
+        }
+    }
+    check_circular(&path).map_err(|m| Error::Input {
+        location: nominal.display().to_string(),
+        message: m,
+    })?;
+    Ok((path, d))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 180-sample ccw circle of radius 50 mm (2° steps), columns in another order.
+    fn circle_text() -> String {
+        let mut text = String::from("d_mm,t_s,x_mm,y_mm,z_mm\n");
+        for i in 0..180 {
+            let a = (i as f64 * 2.0).to_radians();
+            text.push_str(&format!("50,{i},{},{},0\n", 50.0 * a.cos(), 50.0 * a.sin()));
+        }
+        text
+    }
+
+    #[test]
+    fn csv_errors_name_line_and_column() {
+        let f = FsPath::new("s.csv");
+        let e = parse_samples(f, "t_s,x_mm,y_mm,z_mm\n0,1,2,3\n", [None; 3]).unwrap_err();
+        assert!(
+            e.to_string().starts_with("s.csv:1: missing column `d_mm`"),
+            "{e}"
+        );
+        let e = parse_samples(
+            f,
+            "t_s,x_mm,y_mm,z_mm,d_mm\n0,1,2,3,4\n1,1,NaN,3,4\n",
+            [None; 3],
+        )
+        .unwrap_err();
+        assert!(e.to_string().starts_with("s.csv:3:5: y_mm is NaN"), "{e}");
+        let e = parse_samples(
+            f,
+            "t_s,x_mm,y_mm,z_mm,d_mm\n0,1,2,3,4\n0,1,2,3,4\n",
+            [None; 3],
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string().starts_with("s.csv:3:1: time goes backwards"),
+            "{e}"
+        );
+        let e = parse_samples(f, "t_s,x_mm,y_mm,z_mm,d_mm\n0,1,2,3,4\n", [None; 3]).unwrap_err();
+        assert!(e.to_string().contains("only 1 samples"), "{e}");
+        let text = circle_text();
+        let (p, d) = parse_samples(f, &text, [None; 3]).unwrap();
+        assert_eq!(d.len(), 180);
+        assert!(p.moves(Axis::X) && !p.moves(Axis::Z));
+        let e = parse_samples(f, &text, [None, None, Some(5.0)]).unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("s.csv:1:20: a pitch was given for axis z"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn what_a_diagnosis_cannot_use_is_refused() {
+        let f = FsPath::new("s.csv");
+        let text = circle_text();
+        // Negative D.
+        let bad = text.replacen("\n50,3,", "\n-50,3,", 1);
+        let e = parse_samples(f, &bad, [None; 3]).unwrap_err();
+        assert!(e.to_string().starts_with("s.csv:5:1: d_mm is -50"), "{e}");
+        // All zero positions.
+        let mut zeros = String::from("t_s,x_mm,y_mm,z_mm,d_mm\n");
+        for i in 0..40 {
+            zeros.push_str(&format!("{i},0,0,0,50\n"));
+        }
+        let e = parse_samples(f, &zeros, [None; 3]).unwrap_err();
+        assert!(e.to_string().contains("is at the table ball"), "{e}");
+        // Stationary.
+        let still: String = std::iter::once("t_s,x_mm,y_mm,z_mm,d_mm\n".to_string())
+            .chain((0..40).map(|i| format!("{i},50,0,0,50\n")))
+            .collect();
+        let e = parse_samples(f, &still, [None; 3]).unwrap_err();
+        assert!(e.to_string().contains("moves no axis"), "{e}");
+        // A straight line past the table ball.
+        let line: String = std::iter::once("t_s,x_mm,y_mm,z_mm,d_mm\n".to_string())
+            .chain(
+                (0..40)
+                    .map(|i| format!("{i},{},{},0,50\n", i as f64 - 20.0, 30.0 + 0.5 * i as f64)),
+            )
+            .collect();
+        let e = parse_samples(f, &line, [None; 3]).unwrap_err();
+        assert!(e.to_string().contains("needs arcs of at least 180°"), "{e}");
+        assert_eq!(e.exit_code(), 2);
+    }
+
+    #[test]
+    fn record_samples_in_a_gap_of_the_path_are_left_out() {
+        // Path: a ccw circle 0..10 s, nothing between 10 and 20 s, a cw circle 20..30 s. Record
+        // samples every 0.01 s from 0 to 30 s.
+        let dir = tempfile::tempdir().unwrap();
+        let path_file = dir.path().join("path.csv");
+        let rec_file = dir.path().join("rec.csv");
+        let mut path = String::from("t_s,x_mm,y_mm,z_mm\n");
+        for k in 0..=100 {
+            let a = (k as f64 * 3.6).to_radians();
+            path.push_str(&format!(
+                "{},{},{},0\n",
+                0.1 * k as f64,
+                50.0 * a.cos(),
+                50.0 * a.sin()
+            ));
+        }
+        for k in 0..=100 {
+            let a = (-(k as f64) * 3.6).to_radians();
+            let t = 20.0 + 0.1 * k as f64;
+            path.push_str(&format!("{t},{},{},0\n", 50.0 * a.cos(), 50.0 * a.sin()));
+        }
+        std::fs::write(&path_file, path).unwrap();
+        let mut rec = String::from("seq,t_us,enc1,enc2,d_mm\n");
+        for i in 0..=3000 {
+            rec.push_str(&format!("{i},{},0,0,50\n", i * 10_000));
+        }
+        std::fs::write(&rec_file, rec).unwrap();
+        let (p, d) = read_record_with_path(&rec_file, &path_file, 0.0, [None; 3]).unwrap();
+        assert_eq!(d.len(), p.len());
+        assert!(
+            p.t_s.iter().all(|&t| t <= 10.0 + 1e-6 || t >= 20.0 - 1e-6),
+            "a sample inside the gap was kept"
+        );
+        assert!((1999..=2002).contains(&p.len()), "{} samples", p.len());
+    }
+}

@@ -1,0 +1,1009 @@
+//! Candidate effects of a circular test: parametric models of the error δ added to the nominal
+//! spindle-ball position, and the exact ball-distance model D = |p + δ + c| + e built from them.
+//!
+//! Most effects are *linear in their parameters* given the nominal path: a periodic term
+//! A·sin(2πk/p + φ) is fitted as A_s·sin(2πk/p) + A_c·cos(2πk/p), so a fit never has to search a
+//! phase. Two are not: the reversal spike's decay time τ and the servo delay's common lag. The
+//! exact geometry and those two are handled by [`ExactModel`] with the least-squares engine in
+//! [`crate::numerics::lsq`] ([`Effect::add_delta_block`], [`Effect::gradient_block`]).
+//! Linearised at the nominal path (seed 000 eq. 1, ΔR = u·δ with u = p/|p|), each parameter of
+//! a [`Candidate`] is one column of a linear model, which the diagnosis uses for a fast search
+//! ([`Candidate::columns_block`]): a spike at a trial τ, a servo delay by its mismatch and the
+//! cross term of mismatch and lag (see [`Effect::ServoMismatch`]).
+//!
+//! Conventions (the same as `jdbb_core::machine`): positions in mm relative to the table ball,
+//! velocities mm/s, δ positive lengthens the axis. Parameters are in their reporting units (µm,
+//! µm/m, µm/m², µm per mm/s, ms, µm/min) so the fit's column scaling is well conditioned.
+// Index loops over the axes (k in 0..3) and samples mirror the equations; keep them.
+#![allow(clippy::needless_range_loop)]
+use std::fmt;
+
+pub use super::path::{parse_pitch, Axis, Pair, Path};
+
+/// One candidate effect. Names (see [`Effect::name`]) are the issue's, used everywhere.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Effect {
+    /// c: the table ball is not where assumed (µm per axis); D = |p + δ + c| + e.
+    SetupOffset,
+    /// e added to D (µm).
+    LengthOffset,
+    /// δ_k = a·k, a in µm/m (seed 000 eq. 2, first-order uniform contraction).
+    Scale(Axis),
+    /// δ_k = b·k², b in µm/m² (seed 000 eq. 5, second-order uniform contraction).
+    Scale2(Axis),
+    /// δ_k = ±f/2 moving ±k, f in µm (seed 000 eq. 14, opposite clearance).
+    Backlash(Axis),
+    /// δ_k = A·sin(2πk/p + φ), A in µm (seed 000 eq. 8, periodic error).
+    Cyclic(Axis),
+    /// δ_k = b·v_k·sin(2πk/p + φ), b in µm per mm/s (seed 000 eq. 11, interference).
+    Interference(Axis),
+    /// δ_i = s·j, s in µm/m.
+    Squareness(Pair),
+    /// A true delay: axis i follows its command τ_i late, δ_i = p_i(t − τ_i) − p_i(t), and j by
+    /// τ_j. Parameters: the mismatch Δτ = τ_i − τ_j (`dtau_ms`, the reported value) and the common
+    /// lag τ̄ = (τ_i + τ_j)/2 (`lag_ms`). Evaluated to second order,
+    /// δ_i = −τ_i·v_i + τ_i²·a_i/2 (the third-order term, R·ω³·τ³/6, is below 0.04 µm for
+    /// τ ≤ 10 ms at ω ≤ 1.7 rad/s). To first order only Δτ is seen (the common lag moves the ball
+    /// along the path); the cross term τ̄·Δτ·(a_i, −a_j)/2 looks like a scale mismatch on one
+    /// circle at one speed and is told apart from one by a second radius or feed, where the
+    /// angular speed ω differs (a_k = −ω²·p_k on a circle).
+    ServoMismatch(Pair),
+    /// Identifiable combination scale_i − scale_j (µm/m) when the isotropic scale is confounded
+    /// with length_offset: δ_i = +(a/2)·i, δ_j = −(a/2)·j.
+    ScaleMismatch(Pair),
+    /// At each reversal of axis k (time t_r, new direction s): δ_k = −h·s·exp(−(t − t_r)/τ) for
+    /// t ≥ t_r until the next reversal of k: the axis sticks, then catches up. h in µm, τ in ms.
+    ReversalSpike(Axis),
+    /// D changes linearly with time: +r·(t − t₀) with r in µm/min and t₀ the first sample.
+    Drift,
+}
+
+impl fmt::Display for Effect {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.name())
+    }
+}
+
+/// Smallest spike decay time (ms) the model evaluates: a fit that steps τ below it sees a spike
+/// that is gone after one sample.
+pub(crate) const MIN_TAU_MS: f64 = 1e-3;
+
+impl Effect {
+    /// Every effect name the user may give, in the order (without the derived
+    /// `scale_mismatch_*`, which the diagnosis introduces itself but which also parse).
+    pub fn all() -> Vec<Effect> {
+        let mut v = vec![Effect::SetupOffset, Effect::LengthOffset];
+        for a in Axis::ALL {
+            v.push(Effect::Scale(a));
+        }
+        for a in Axis::ALL {
+            v.push(Effect::Scale2(a));
+        }
+        for a in Axis::ALL {
+            v.push(Effect::Backlash(a));
+        }
+        for a in Axis::ALL {
+            v.push(Effect::Cyclic(a));
+        }
+        for a in Axis::ALL {
+            v.push(Effect::Interference(a));
+        }
+        for p in Pair::ALL {
+            v.push(Effect::Squareness(p));
+        }
+        for p in Pair::ALL {
+            v.push(Effect::ServoMismatch(p));
+        }
+        for a in Axis::ALL {
+            v.push(Effect::ReversalSpike(a));
+        }
+        v.push(Effect::Drift);
+        v
+    }
+
+    /// The effect's name, e.g. `scale_x`, `servo_mismatch_xy`.
+    pub fn name(&self) -> String {
+        match *self {
+            Effect::SetupOffset => "setup_offset".into(),
+            Effect::LengthOffset => "length_offset".into(),
+            Effect::Scale(a) => format!("scale_{}", a.letter()),
+            Effect::Scale2(a) => format!("scale2_{}", a.letter()),
+            Effect::Backlash(a) => format!("backlash_{}", a.letter()),
+            Effect::Cyclic(a) => format!("cyclic_{}", a.letter()),
+            Effect::Interference(a) => format!("interference_{}", a.letter()),
+            Effect::Squareness(p) => format!("squareness_{}", p.name()),
+            Effect::ServoMismatch(p) => format!("servo_mismatch_{}", p.name()),
+            Effect::ScaleMismatch(p) => format!("scale_mismatch_{}", p.name()),
+            Effect::ReversalSpike(a) => format!("reversal_spike_{}", a.letter()),
+            Effect::Drift => "drift".into(),
+        }
+    }
+
+    /// Parse an effect name; None if unknown.
+    pub fn parse(name: &str) -> Option<Effect> {
+        match name {
+            "setup_offset" => return Some(Effect::SetupOffset),
+            "length_offset" => return Some(Effect::LengthOffset),
+            "drift" => return Some(Effect::Drift),
+            _ => {}
+        }
+        let (head, tail) = name.rsplit_once('_')?;
+        match head {
+            "scale" => Axis::parse(tail).map(Effect::Scale),
+            "scale2" => Axis::parse(tail).map(Effect::Scale2),
+            "backlash" => Axis::parse(tail).map(Effect::Backlash),
+            "cyclic" => Axis::parse(tail).map(Effect::Cyclic),
+            "interference" => Axis::parse(tail).map(Effect::Interference),
+            "squareness" => Pair::parse(tail).map(Effect::Squareness),
+            "servo_mismatch" => Pair::parse(tail).map(Effect::ServoMismatch),
+            "scale_mismatch" => Pair::parse(tail).map(Effect::ScaleMismatch),
+            "reversal_spike" => Axis::parse(tail).map(Effect::ReversalSpike),
+            _ => None,
+        }
+    }
+
+    /// Setup (not a machine error): the ball positions of this particular set-up.
+    pub fn is_setup(&self) -> bool {
+        matches!(self, Effect::SetupOffset | Effect::LengthOffset)
+    }
+
+    /// Unit of the effect's value.
+    pub fn unit(&self) -> &'static str {
+        match self {
+            Effect::SetupOffset | Effect::LengthOffset => "um",
+            Effect::Scale(_) | Effect::Squareness(_) | Effect::ScaleMismatch(_) => "um/m",
+            Effect::Scale2(_) => "um/m^2",
+            Effect::Backlash(_) | Effect::Cyclic(_) | Effect::ReversalSpike(_) => "um",
+            Effect::Interference(_) => "um/(mm/s)",
+            Effect::ServoMismatch(_) => "ms",
+            Effect::Drift => "um/min",
+        }
+    }
+
+    /// Names of the parameters (JSON keys).
+    pub fn param_names(&self) -> &'static [&'static str] {
+        match self {
+            Effect::SetupOffset => &["x_um", "y_um", "z_um"],
+            Effect::LengthOffset => &["e_um"],
+            Effect::Scale(_) | Effect::ScaleMismatch(_) => &["a_um_per_m"],
+            Effect::Scale2(_) => &["b_um_per_m2"],
+            Effect::Backlash(_) => &["f_um"],
+            Effect::Cyclic(_) => &["sin_um", "cos_um"],
+            Effect::Interference(_) => &["sin_um_per_mm_s", "cos_um_per_mm_s"],
+            Effect::Squareness(_) => &["s_um_per_m"],
+            Effect::ServoMismatch(_) => &["dtau_ms", "lag_ms"],
+            Effect::ReversalSpike(_) => &["h_um", "tau_ms"],
+            Effect::Drift => &["rate_um_per_min"],
+        }
+    }
+
+    pub fn n_params(&self) -> usize {
+        self.param_names().len()
+    }
+
+    /// Whether the effect needs a pitch.
+    pub fn periodic_axis(&self) -> Option<Axis> {
+        match *self {
+            Effect::Cyclic(a) | Effect::Interference(a) => Some(a),
+            _ => None,
+        }
+    }
+
+    /// Whether the model is linear in all the effect's parameters (given the nominal path).
+    pub fn is_linear(&self) -> bool {
+        !matches!(self, Effect::ServoMismatch(_) | Effect::ReversalSpike(_))
+    }
+
+    /// The physical cause, in words.
+    pub fn cause(&self) -> String {
+        match *self {
+            Effect::SetupOffset => "the table ball is not where assumed (set-up offset)".into(),
+            Effect::LengthOffset => "the bar length differs from its assumed value".into(),
+            Effect::Scale(a) => format!(
+                "{} axis scale error: uniform contraction/expansion of its ball screw or scale, usually thermal (seed 000 eq. 2)",
+                a.letter().to_ascii_uppercase()
+            ),
+            Effect::Scale2(a) => format!(
+                "{} axis second-order contraction: screw or scale fixed at both ends and heated (seed 000 eq. 5)",
+                a.letter().to_ascii_uppercase()
+            ),
+            Effect::Backlash(a) => format!(
+                "{} axis backlash (opposite clearance): lost motion at reversal (seed 000 eq. 14)",
+                a.letter().to_ascii_uppercase()
+            ),
+            Effect::Cyclic(a) => format!(
+                "{} axis periodic error of the ball screw or scale at its pitch (seed 000 eq. 8)",
+                a.letter().to_ascii_uppercase()
+            ),
+            Effect::Interference(a) => format!(
+                "{} axis interference of the detection device: periodic error growing with speed (seed 000 eq. 11)",
+                a.letter().to_ascii_uppercase()
+            ),
+            Effect::Squareness(p) => {
+                let (i, j) = p.axes();
+                format!(
+                    "squareness error between {} and {}: {} moves by s per metre of {}",
+                    i.letter().to_ascii_uppercase(),
+                    j.letter().to_ascii_uppercase(),
+                    i.letter().to_ascii_uppercase(),
+                    j.letter().to_ascii_uppercase()
+                )
+            }
+            Effect::ServoMismatch(p) => {
+                let (i, j) = p.axes();
+                format!(
+                    "servo mismatch: {} follows its command dtau later than {} (position-loop gains or time constants differ; tuning, not a setting)",
+                    i.letter().to_ascii_uppercase(),
+                    j.letter().to_ascii_uppercase()
+                )
+            }
+            Effect::ReversalSpike(a) => format!(
+                "{} axis reversal spike: at each reversal the axis sticks by h and catches up with time constant tau (friction, stick-slip, lost motion taken up by the servo)",
+                a.letter().to_ascii_uppercase()
+            ),
+            Effect::Drift => "the ball distance drifts with time during the test (warm-up of the machine or the instrument)".into(),
+            Effect::ScaleMismatch(p) => {
+                let (i, j) = p.axes();
+                format!(
+                    "scale mismatch between {} and {} (scale_{} − scale_{}); their common part cannot be told from length_offset at one radius",
+                    i.letter().to_ascii_uppercase(),
+                    j.letter().to_ascii_uppercase(),
+                    i.letter(),
+                    j.letter()
+                )
+            }
+        }
+    }
+
+    /// Add this effect's δ (mm) for parameters `theta` to `q[j]` and its direct change of D (mm)
+    /// to `dd[j]` for samples i0 + j, j < q.len(). Effect by effect over a block of samples,
+    /// because the exact fit evaluates every effect on every sample on every pass.
+    pub fn add_delta_block(
+        &self,
+        path: &Path,
+        i0: usize,
+        theta: &[f64],
+        q: &mut [[f64; 3]],
+        dd: &mut [f64],
+    ) {
+        let n = q.len();
+        let p = &path.p_mm[i0..i0 + n];
+        let v = &path.v_mm_s[i0..i0 + n];
+        let dd = &mut dd[..n];
+        match *self {
+            Effect::SetupOffset => {
+                let c = [1e-3 * theta[0], 1e-3 * theta[1], 1e-3 * theta[2]];
+                for qj in q.iter_mut() {
+                    for k in 0..3 {
+                        qj[k] += c[k];
+                    }
+                }
+            }
+            Effect::LengthOffset => {
+                let e = 1e-3 * theta[0];
+                for x in dd.iter_mut() {
+                    *x += e;
+                }
+            }
+            Effect::Drift => {
+                let (t0, r) = (
+                    path.t_s.first().copied().unwrap_or(0.0),
+                    1e-3 * theta[0] / 60.0,
+                );
+                for (x, t) in dd.iter_mut().zip(&path.t_s[i0..i0 + n]) {
+                    *x += r * (t - t0);
+                }
+            }
+            Effect::Scale(a) => {
+                let (k, s) = (a.index(), 1e-6 * theta[0]);
+                for (qj, pj) in q.iter_mut().zip(p) {
+                    qj[k] += s * pj[k];
+                }
+            }
+            Effect::ScaleMismatch(pair) => {
+                let (a, b) = pair.axes();
+                let (a, b) = (a.index(), b.index());
+                let s = 0.5e-6 * theta[0];
+                for (qj, pj) in q.iter_mut().zip(p) {
+                    qj[a] += s * pj[a];
+                    qj[b] -= s * pj[b];
+                }
+            }
+            Effect::Scale2(a) => {
+                let (k, s) = (a.index(), 1e-9 * theta[0]);
+                for (qj, pj) in q.iter_mut().zip(p) {
+                    qj[k] += s * pj[k] * pj[k];
+                }
+            }
+            Effect::Backlash(a) => {
+                let (k, s) = (a.index(), 0.5e-3 * theta[0]);
+                let dir = &path.dir[i0..i0 + n];
+                for (qj, dj) in q.iter_mut().zip(dir) {
+                    qj[k] += s * f64::from(dj[k]);
+                }
+            }
+            Effect::Cyclic(a) => {
+                let k = a.index();
+                let phase = &path.phase[i0..i0 + n];
+                for (qj, ph) in q.iter_mut().zip(phase) {
+                    let (s, c) = ph[k];
+                    qj[k] += 1e-3 * (theta[0] * s + theta[1] * c);
+                }
+            }
+            Effect::Interference(a) => {
+                let k = a.index();
+                let phase = &path.phase[i0..i0 + n];
+                for ((qj, ph), vj) in q.iter_mut().zip(phase).zip(v) {
+                    let (s, c) = ph[k];
+                    qj[k] += 1e-3 * vj[k] * (theta[0] * s + theta[1] * c);
+                }
+            }
+            Effect::Squareness(pair) => {
+                let (a, b) = pair.axes();
+                let (a, b) = (a.index(), b.index());
+                let s = 1e-6 * theta[0];
+                for (qj, pj) in q.iter_mut().zip(p) {
+                    qj[a] += s * pj[b];
+                }
+            }
+            Effect::ServoMismatch(pair) => {
+                let (a, b) = pair.axes();
+                let acc = &path.a_mm_s2[i0..i0 + n];
+                // Per-axis delays in s.
+                let ta = 1e-3 * (theta[1] + 0.5 * theta[0]);
+                let tb = 1e-3 * (theta[1] - 0.5 * theta[0]);
+                for ((qj, vj), aj) in q.iter_mut().zip(v).zip(acc) {
+                    for (k, t) in [(a.index(), ta), (b.index(), tb)] {
+                        qj[k] += -t * vj[k] + 0.5 * t * t * aj[k];
+                    }
+                }
+            }
+            Effect::ReversalSpike(a) => {
+                let k = a.index();
+                let (h, tau) = (1e-3 * theta[0], theta[1].max(MIN_TAU_MS));
+                for_each_spike(path, k, i0, n, |j, s, dt_ms| {
+                    q[j][k] -= h * s * (-dt_ms / tau).exp();
+                });
+            }
+        }
+    }
+
+    /// The exact gradient: for samples i0 + j, the change of D (µm) per unit of each parameter
+    /// at `theta`, given u = the unit vector of the displaced position, written to
+    /// `out[j·stride + offset + k]`. For an effect linear in its parameters this does not depend
+    /// on `theta` and equals its [`Candidate::columns_block`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn gradient_block(
+        &self,
+        path: &Path,
+        i0: usize,
+        theta: &[f64],
+        u: &[[f64; 3]],
+        out: &mut [f64],
+        stride: usize,
+        offset: usize,
+    ) {
+        let n = u.len();
+        let rows = (0..n).map(|j| j * stride + offset);
+        match *self {
+            Effect::ServoMismatch(pair) => {
+                let (a, b) = pair.axes();
+                let (a, b) = (a.index(), b.index());
+                let v = &path.v_mm_s[i0..i0 + n];
+                let acc = &path.a_mm_s2[i0..i0 + n];
+                let ta = 1e-3 * (theta[1] + 0.5 * theta[0]);
+                let tb = 1e-3 * (theta[1] - 0.5 * theta[0]);
+                for (j, o) in rows.enumerate() {
+                    // dδ_k/dτ_k (mm per s) → µm of D per ms: ×1e3 (mm→µm) ×1e-3 (ms→s).
+                    let ga = u[j][a] * (-v[j][a] + ta * acc[j][a]);
+                    let gb = u[j][b] * (-v[j][b] + tb * acc[j][b]);
+                    out[o] = 0.5 * (ga - gb);
+                    out[o + 1] = ga + gb;
+                }
+            }
+            Effect::ReversalSpike(ax) => {
+                let k = ax.index();
+                let (h, tau) = (theta[0], theta[1].max(MIN_TAU_MS));
+                for o in rows.clone() {
+                    out[o] = 0.0;
+                    out[o + 1] = 0.0;
+                }
+                for_each_spike(path, k, i0, n, |j, s, dt_ms| {
+                    let e = (-dt_ms / tau).exp();
+                    let o = j * stride + offset;
+                    out[o] = -u[j][k] * s * e;
+                    out[o + 1] = -u[j][k] * h * s * e * dt_ms / (tau * tau);
+                });
+            }
+            _ => Candidate::of(*self).columns_block(path, i0, u, out, stride, offset),
+        }
+    }
+
+    /// The effect's reported value and its standard error from its parameters and their
+    /// covariance block (value = |c| for setup_offset, the amplitude for periodic effects, the
+    /// first parameter otherwise; the delta method propagates the covariance).
+    pub fn value(&self, params: &[f64], cov: &[Vec<f64>]) -> (f64, Option<f64>) {
+        let norm = |ps: &[f64]| ps.iter().map(|x| x * x).sum::<f64>().sqrt();
+        match self {
+            Effect::SetupOffset | Effect::Cyclic(_) | Effect::Interference(_) => {
+                let v = norm(params);
+                if v == 0.0 {
+                    return (0.0, None);
+                }
+                let g: Vec<f64> = params.iter().map(|x| x / v).collect();
+                let mut var = 0.0;
+                for i in 0..g.len() {
+                    for j in 0..g.len() {
+                        var += g[i] * g[j] * cov[i][j];
+                    }
+                }
+                (v, var.is_finite().then(|| var.max(0.0).sqrt()))
+            }
+            _ => (params[0], Some(cov[0][0].max(0.0).sqrt())),
+        }
+    }
+
+    /// Parameters from a value and an optional phase (rad), for simulation: periodic effects
+    /// A·sin(w + φ) = A cos φ · sin w + A sin φ · cos w; a servo mismatch with no common lag;
+    /// None for an effect that needs all its parameters (a spike's h and τ).
+    pub fn params_from_value(&self, value: f64, phase_rad: f64) -> Option<Vec<f64>> {
+        match self {
+            Effect::Cyclic(_) | Effect::Interference(_) => {
+                Some(vec![value * phase_rad.cos(), value * phase_rad.sin()])
+            }
+            Effect::ServoMismatch(_) => Some(vec![value, 0.0]),
+            Effect::ReversalSpike(_) | Effect::SetupOffset => None,
+            _ => Some(vec![value; self.n_params()]),
+        }
+    }
+}
+
+/// Call `f(j, s, Δt_ms)` for each sample i0 + j (j < n) after a reversal of axis k: s the new
+/// direction, Δt the time since the reversal (ms). Samples before the first reversal are skipped.
+fn for_each_spike(path: &Path, k: usize, i0: usize, n: usize, mut f: impl FnMut(usize, f64, f64)) {
+    let revs = &path.reversals[k];
+    if revs.is_empty() {
+        return;
+    }
+    let t = &path.t_s[i0..i0 + n];
+    // Index of the first reversal after t[0]; the one before it is in force.
+    let mut next = revs.partition_point(|r| r.t_s <= t[0]);
+    for (j, &tj) in t.iter().enumerate() {
+        while next < revs.len() && revs[next].t_s <= tj {
+            next += 1;
+        }
+        if next == 0 {
+            continue;
+        }
+        let r = revs[next - 1];
+        f(j, f64::from(r.new_dir), 1e3 * (tj - r.t_s));
+    }
+}
+
+/// How the linear candidate search sees an effect: columns linear in the search parameters at
+/// the nominal path, and the start of the exact refit from their coefficients. For a linear
+/// effect the search parameters are the effect's own; a reversal spike is searched at a trial
+/// decay time with h alone; a servo delay by its mismatch Δτ and the cross term q = τ̄·Δτ (ms²),
+/// whose column is (a_i, −a_j)/2 (the first-order lag column, −τ̄·v, is dead on a circle).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Candidate {
+    pub effect: Effect,
+    /// The trial decay time of a reversal spike (ms); 0 for other effects.
+    pub tau_ms: f64,
+}
+
+impl Candidate {
+    /// The search form of `effect` (a spike at 10 ms: use [`Candidate::spike`] for others).
+    pub fn of(effect: Effect) -> Candidate {
+        Candidate {
+            effect,
+            tau_ms: if matches!(effect, Effect::ReversalSpike(_)) {
+                10.0
+            } else {
+                0.0
+            },
+        }
+    }
+
+    /// A reversal spike of axis `a` at the trial decay time `tau_ms`.
+    pub fn spike(a: Axis, tau_ms: f64) -> Candidate {
+        Candidate {
+            effect: Effect::ReversalSpike(a),
+            tau_ms,
+        }
+    }
+
+    /// Number of search columns.
+    pub fn n_cols(&self) -> usize {
+        match self.effect {
+            Effect::ReversalSpike(_) => 1,
+            e => e.n_params(),
+        }
+    }
+
+    /// The exact model's parameters from the search coefficients `coef` (length `n_cols`; a
+    /// column the data could not determine is given as 0).
+    pub fn start(&self, coef: &[f64]) -> Vec<f64> {
+        match self.effect {
+            Effect::ReversalSpike(_) => vec![coef[0], self.tau_ms],
+            Effect::ServoMismatch(_) => {
+                let lag = if coef[0].abs() > 1e-6 {
+                    (coef[1] / coef[0]).clamp(-50.0, 50.0)
+                } else {
+                    0.0
+                };
+                vec![coef[0], lag]
+            }
+            _ => coef.to_vec(),
+        }
+    }
+
+    /// The search columns at samples i0 + j for unit vectors `u[j]`: the change of D (µm) per
+    /// unit of each search parameter (seed 000 eq. 1), written to `out[j·stride + offset + k]`.
+    pub fn columns_block(
+        &self,
+        path: &Path,
+        i0: usize,
+        u: &[[f64; 3]],
+        out: &mut [f64],
+        stride: usize,
+        offset: usize,
+    ) {
+        let n = u.len();
+        let p = &path.p_mm[i0..i0 + n];
+        let v = &path.v_mm_s[i0..i0 + n];
+        let rows = (0..n).map(|j| j * stride + offset);
+        match self.effect {
+            Effect::SetupOffset => {
+                for (j, o) in rows.enumerate() {
+                    out[o..o + 3].copy_from_slice(&u[j]);
+                }
+            }
+            Effect::LengthOffset => {
+                for o in rows {
+                    out[o] = 1.0;
+                }
+            }
+            Effect::Drift => {
+                let t0 = path.t_s.first().copied().unwrap_or(0.0);
+                let t = &path.t_s[i0..i0 + n];
+                for (j, o) in rows.enumerate() {
+                    out[o] = (t[j] - t0) / 60.0;
+                }
+            }
+            Effect::Scale(a) => {
+                let k = a.index();
+                for (j, o) in rows.enumerate() {
+                    out[o] = 1e-3 * u[j][k] * p[j][k];
+                }
+            }
+            Effect::ScaleMismatch(pair) => {
+                let (a, b) = pair.axes();
+                let (a, b) = (a.index(), b.index());
+                for (j, o) in rows.enumerate() {
+                    out[o] = 0.5e-3 * (u[j][a] * p[j][a] - u[j][b] * p[j][b]);
+                }
+            }
+            Effect::Scale2(a) => {
+                let k = a.index();
+                for (j, o) in rows.enumerate() {
+                    out[o] = 1e-6 * u[j][k] * p[j][k] * p[j][k];
+                }
+            }
+            Effect::Backlash(a) => {
+                let k = a.index();
+                let dir = &path.dir[i0..i0 + n];
+                for (j, o) in rows.enumerate() {
+                    out[o] = 0.5 * u[j][k] * f64::from(dir[j][k]);
+                }
+            }
+            Effect::Cyclic(a) | Effect::Interference(a) => {
+                let k = a.index();
+                let cyclic = matches!(self.effect, Effect::Cyclic(_));
+                for (j, o) in rows.enumerate() {
+                    let (s, c) = path.phase[i0 + j][k];
+                    let g = if cyclic { u[j][k] } else { u[j][k] * v[j][k] };
+                    out[o] = g * s;
+                    out[o + 1] = g * c;
+                }
+            }
+            Effect::Squareness(pair) => {
+                let (a, b) = pair.axes();
+                let (a, b) = (a.index(), b.index());
+                for (j, o) in rows.enumerate() {
+                    out[o] = 1e-3 * u[j][a] * p[j][b];
+                }
+            }
+            Effect::ServoMismatch(pair) => {
+                let (a, b) = pair.axes();
+                let (a, b) = (a.index(), b.index());
+                let acc = &path.a_mm_s2[i0..i0 + n];
+                for (j, o) in rows.enumerate() {
+                    out[o] = 0.5 * (u[j][b] * v[j][b] - u[j][a] * v[j][a]);
+                    // q = τ̄·Δτ in ms²: δ = ±(q/2)·a·1e-6 mm = ±(q/2)·a·1e-3 µm.
+                    out[o + 1] = 0.5e-3 * (u[j][a] * acc[j][a] - u[j][b] * acc[j][b]);
+                }
+            }
+            Effect::ReversalSpike(ax) => {
+                let k = ax.index();
+                let tau = self.tau_ms.max(MIN_TAU_MS);
+                for o in rows {
+                    out[o] = 0.0;
+                }
+                for_each_spike(path, k, i0, n, |j, s, dt_ms| {
+                    out[j * stride + offset] = -u[j][k] * s * (-dt_ms / tau).exp();
+                });
+            }
+        }
+    }
+}
+
+/// A set of effects with their parameters laid out one after another.
+#[derive(Debug, Clone)]
+pub struct EffectSet {
+    pub effects: Vec<Effect>,
+    /// Index of each effect's first parameter.
+    pub offsets: Vec<usize>,
+    pub n_params: usize,
+}
+
+impl EffectSet {
+    pub fn new(effects: Vec<Effect>) -> EffectSet {
+        let mut offsets = Vec::with_capacity(effects.len());
+        let mut n = 0;
+        for e in &effects {
+            offsets.push(n);
+            n += e.n_params();
+        }
+        EffectSet {
+            effects,
+            offsets,
+            n_params: n,
+        }
+    }
+
+    /// Exact model distance (mm) at sample i for parameters `theta`: |p + δ + c| + e.
+    pub fn distance_mm(&self, path: &Path, i: usize, theta: &[f64]) -> f64 {
+        let (q, d) = self.displaced(path, i, theta);
+        (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() + d
+    }
+
+    /// The displaced spindle-ball position p + δ + c (mm) and the length offset e (mm) at sample
+    /// i for parameters `theta`.
+    pub fn displaced(&self, path: &Path, i: usize, theta: &[f64]) -> ([f64; 3], f64) {
+        let mut q = [[0.0; 3]];
+        let mut d = [0.0];
+        self.displaced_block(path, i, theta, &mut q, &mut d);
+        (q[0], d[0])
+    }
+
+    /// [`EffectSet::displaced`] for samples i0..i0 + q.len() at once: writes p + δ + c (mm) to
+    /// `q[j]` and e (mm) to `dd[j]` for sample i0 + j.
+    pub fn displaced_block(
+        &self,
+        path: &Path,
+        i0: usize,
+        theta: &[f64],
+        q: &mut [[f64; 3]],
+        dd: &mut [f64],
+    ) {
+        let n = q.len();
+        q.copy_from_slice(&path.p_mm[i0..i0 + n]);
+        dd[..n].fill(0.0);
+        for (e, &o) in self.effects.iter().zip(&self.offsets) {
+            e.add_delta_block(path, i0, &theta[o..o + e.n_params()], q, dd);
+        }
+    }
+
+    /// [`EffectSet::distance_mm`] of every sample of the path (bit for bit the same), a block
+    /// of samples at a time.
+    pub fn distances_mm(&self, path: &Path, theta: &[f64]) -> Vec<f64> {
+        const BLOCK: usize = 256;
+        let m = path.len();
+        let mut out = Vec::with_capacity(m);
+        let mut q = [[0.0; 3]; BLOCK];
+        let mut dd = [0.0; BLOCK];
+        let mut i0 = 0;
+        while i0 < m {
+            let len = BLOCK.min(m - i0);
+            self.displaced_block(path, i0, theta, &mut q[..len], &mut dd[..len]);
+            out.extend(
+                q[..len]
+                    .iter()
+                    .zip(&dd[..len])
+                    .map(|(q, d)| (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() + d),
+            );
+            i0 += len;
+        }
+        out
+    }
+}
+
+/// The exact geometry D = |p + δ(θ) + c| + e as a least-squares problem; residuals in µm.
+pub struct ExactModel<'a> {
+    pub path: &'a Path,
+    pub d_mm: &'a [f64],
+    pub set: &'a EffectSet,
+}
+
+impl crate::numerics::lsq::Problem for ExactModel<'_> {
+    fn n_params(&self) -> usize {
+        self.set.n_params
+    }
+    fn n_residuals(&self) -> usize {
+        self.d_mm.len()
+    }
+    fn eval(&self, theta: &[f64], visit: &mut dyn FnMut(usize, f64, &[f64])) {
+        // The gradient of |q| with respect to a parameter is u·∂δ/∂θ with u = q/|q|, evaluated
+        // at the displaced position a block of samples at a time.
+        const BLOCK: usize = 256;
+        let n = self.set.n_params;
+        let m = self.d_mm.len();
+        let mut grads = vec![0.0; BLOCK * n];
+        let mut q = [[0.0; 3]; BLOCK];
+        let mut dd = [0.0; BLOCK];
+        let mut u = Vec::with_capacity(BLOCK);
+        let mut res = Vec::with_capacity(BLOCK);
+        let mut i0 = 0;
+        while i0 < m {
+            let len = BLOCK.min(m - i0);
+            u.clear();
+            res.clear();
+            self.set
+                .displaced_block(self.path, i0, theta, &mut q[..len], &mut dd[..len]);
+            for (j, (q, d)) in q[..len].iter().zip(&dd[..len]).enumerate() {
+                let r = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
+                u.push([q[0] / r, q[1] / r, q[2] / r]);
+                res.push(1e3 * (r + d - self.d_mm[i0 + j]));
+            }
+            for (e, &o) in self.set.effects.iter().zip(&self.set.offsets) {
+                e.gradient_block(
+                    self.path,
+                    i0,
+                    &theta[o..o + e.n_params()],
+                    &u,
+                    &mut grads,
+                    n,
+                    o,
+                );
+            }
+            for j in 0..len {
+                visit(i0 + j, res[j], &grads[j * n..(j + 1) * n]);
+            }
+            i0 += len;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use jdbb_core::machine::{AxisErrors, MachineErrors};
+
+    /// A ccw circle of radius r in xy at 0.5 rad/s, 100 Hz, pitch 5 mm on x and y.
+    fn circle(r: f64, n: usize) -> Path {
+        let t: Vec<f64> = (0..n).map(|i| i as f64 * 0.01).collect();
+        let p = t
+            .iter()
+            .map(|&t| {
+                let th = t * 0.5;
+                [r * th.cos(), r * th.sin(), 0.0]
+            })
+            .collect();
+        Path::new(t, p, [Some(5.0), Some(5.0), None])
+    }
+
+    /// Every effect, including the derived scale mismatches.
+    fn every_effect() -> Vec<Effect> {
+        let mut v = Effect::all();
+        v.extend(Pair::ALL.map(Effect::ScaleMismatch));
+        v
+    }
+
+    /// Some parameters for `e` (a spike's τ positive).
+    fn some_params(e: Effect) -> Vec<f64> {
+        match e {
+            Effect::ReversalSpike(_) => vec![2.5, 12.0],
+            Effect::ServoMismatch(_) => vec![1.5, 3.0],
+            _ => (0..e.n_params()).map(|k| 3.0 - 2.5 * k as f64).collect(),
+        }
+    }
+
+    #[test]
+    fn names_round_trip() {
+        for e in every_effect() {
+            assert_eq!(Effect::parse(&e.name()), Some(e));
+            assert_eq!(e.param_names().len(), e.n_params());
+        }
+        assert_eq!(Effect::parse("scale_w"), None);
+        assert_eq!(Effect::parse("backlash"), None);
+        assert_eq!(Effect::all().len(), 2 + 5 * 3 + 2 * 3 + 3 + 1);
+    }
+
+    #[test]
+    fn deltas_match_the_core_machine_models() {
+        // Each effect's δ must reproduce jdbb_core::machine's δ (µm) at a few samples, which
+        // checks units and sign conventions against the shared models.
+        let path = circle(40.0, 700);
+        let ax = AxisErrors {
+            scale_um_per_m: 30.0,
+            scale2_um_per_m2: 700.0,
+            cyclic_um: 2.0,
+            cyclic_phase_rad: 0.7,
+            interference_um_per_mm_s: 0.3,
+            interference_phase_rad: -0.4,
+            pitch_mm: 5.0,
+            backlash_um: 6.0,
+        };
+        let m = MachineErrors {
+            axes: [ax, AxisErrors::default(), AxisErrors::default()],
+            squareness_um_per_m: [12.0, 0.0, 0.0],
+        };
+        let set = EffectSet::new(vec![
+            Effect::Scale(Axis::X),
+            Effect::Scale2(Axis::X),
+            Effect::Cyclic(Axis::X),
+            Effect::Interference(Axis::X),
+            Effect::Backlash(Axis::X),
+            Effect::Squareness(Pair::Xy),
+        ]);
+        let mut theta = vec![30.0, 700.0];
+        theta.extend(Effect::Cyclic(Axis::X).params_from_value(2.0, 0.7).unwrap());
+        theta.extend(
+            Effect::Interference(Axis::X)
+                .params_from_value(0.3, -0.4)
+                .unwrap(),
+        );
+        theta.extend([6.0, 12.0]);
+        for i in [3usize, 250, 400, 650] {
+            let expect = m.error_um(path.p_mm[i], path.v_mm_s[i], path.dir[i]);
+            let (q, dd) = set.displaced(&path, i, &theta);
+            assert_eq!(dd, 0.0);
+            for k in 0..3 {
+                let got = 1e3 * (q[k] - path.p_mm[i][k]);
+                assert!(
+                    (got - expect[k]).abs() < 1e-9,
+                    "sample {i} axis {k}: {got} vs {expect:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn gradients_are_the_derivatives_of_the_exact_model() {
+        // Finite differences of D (µm) against gradient_block, for every effect, at parameters
+        // away from zero, on a circle with reversals and a pitch.
+        let path = circle(40.0, 1300);
+        assert!(!path.reversals[0].is_empty() && !path.reversals[1].is_empty());
+        for e in every_effect() {
+            let set = EffectSet::new(vec![e]);
+            let theta = some_params(e);
+            let n = e.n_params();
+            let (i0, len) = (1000, 120);
+            let mut q = vec![[0.0; 3]; len];
+            let mut dd = vec![0.0; len];
+            set.displaced_block(&path, i0, &theta, &mut q, &mut dd);
+            let u: Vec<[f64; 3]> = q
+                .iter()
+                .map(|q| {
+                    let r = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
+                    [q[0] / r, q[1] / r, q[2] / r]
+                })
+                .collect();
+            let mut grad = vec![f64::NAN; len * n];
+            e.gradient_block(&path, i0, &theta, &u, &mut grad, n, 0);
+            for k in 0..n {
+                let h = 1e-4 * theta[k].abs().max(1.0);
+                let mut up = theta.clone();
+                let mut down = theta.clone();
+                up[k] += h;
+                down[k] -= h;
+                for j in (0..len).step_by(7) {
+                    let d = |th: &[f64]| 1e3 * set.distance_mm(&path, i0 + j, th);
+                    let fd = (d(&up) - d(&down)) / (2.0 * h);
+                    let g = grad[j * n + k];
+                    assert!(
+                        (fd - g).abs() < 1e-5 * (1.0 + g.abs()),
+                        "{e} param {k} sample {}: fd {fd} vs {g}",
+                        i0 + j
+                    );
+                }
+            }
+            if e.is_linear() {
+                // The search columns are the gradient, whatever θ.
+                let mut cols = vec![f64::NAN; len * n];
+                Candidate::of(e).columns_block(&path, i0, &u, &mut cols, n, 0);
+                assert_eq!(cols, grad, "{e}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_block_of_any_length_is_the_same_as_one_sample_at_a_time() {
+        // Blocks start anywhere (the spike finds its reversal by search): the exact fit's blocks
+        // must give the per-sample model exactly, so that speed never changes a result.
+        let path = circle(40.0, 1300);
+        let set = EffectSet::new(every_effect());
+        let theta: Vec<f64> = set.effects.iter().flat_map(|&e| some_params(e)).collect();
+        let (i0, len) = (297, 700);
+        let mut q = vec![[f64::NAN; 3]; len];
+        let mut dd = vec![f64::NAN; len];
+        set.displaced_block(&path, i0, &theta, &mut q, &mut dd);
+        let all = set.distances_mm(&path, &theta);
+        assert_eq!(all.len(), path.len());
+        for j in 0..len {
+            let (want, want_d) = set.displaced(&path, i0 + j, &theta);
+            assert_eq!(q[j], want, "sample {}", i0 + j);
+            assert_eq!(dd[j].to_bits(), want_d.to_bits());
+        }
+        for (i, d) in all.iter().enumerate() {
+            assert_eq!(d.to_bits(), set.distance_mm(&path, i, &theta).to_bits());
+        }
+    }
+
+    #[test]
+    fn direction_holds_and_reversals_are_found_where_the_velocity_crosses_zero() {
+        let path = circle(40.0, 1300); // θ = 0.5 t: x reverses at θ = π (t = 2π s)
+        let r = path.reversals[0][0];
+        assert!((r.t_s - std::f64::consts::TAU).abs() < 1e-4, "{r:?}");
+        assert_eq!(r.new_dir, 1); // past θ = π, x increases again
+        let ry = path.reversals[1][0];
+        assert!((ry.t_s - std::f64::consts::PI).abs() < 1e-4, "{ry:?}");
+        assert_eq!(ry.new_dir, -1);
+        assert_eq!(path.last_reversal(0, 1.0), None);
+        assert_eq!(path.last_reversal(0, 7.0), Some(r));
+    }
+
+    #[test]
+    fn servo_mismatch_is_a_true_delay_to_second_order() {
+        // On a circle at ω, axis k delayed by τ_k is at R·cos(ω(t − τ_x)), R·sin(ω(t − τ_y)).
+        let (r, omega) = (50.0, 0.5);
+        let path = circle(r, 1300);
+        let e = Effect::ServoMismatch(Pair::Xy);
+        let (dtau, lag) = (4.0, 6.0); // τ_x = 8 ms, τ_y = 4 ms
+        let set = EffectSet::new(vec![e]);
+        for i in [300usize, 640, 1100] {
+            let t = path.t_s[i];
+            let (tx, ty) = (1e-3 * (lag + dtau / 2.0), 1e-3 * (lag - dtau / 2.0));
+            let exact = [r * (omega * (t - tx)).cos(), r * (omega * (t - ty)).sin()];
+            let (q, _) = set.displaced(&path, i, &[dtau, lag]);
+            for k in 0..2 {
+                // Third order R·ω³·τ³/6 ≈ 1.3e-6 mm; finite-difference v, a add ~1e-6 mm.
+                assert!(
+                    (q[k] - exact[k]).abs() < 5e-6,
+                    "sample {i} axis {k}: {} vs {}",
+                    q[k],
+                    exact[k]
+                );
+            }
+        }
+        // To first order the mismatch is seen with opposite sign in the two directions:
+        // δ·u = −(Δτ/2)(u_x v_x − u_y v_y) = (Δτ/2)·R·ω·sin 2θ (ms → s) on this ccw circle.
+        let mut c = [0.0; 2];
+        let i = 40;
+        let p = path.p_mm[i];
+        let u = [p[0] / r, p[1] / r, 0.0];
+        Candidate::of(e).columns_block(&path, i, &[u], &mut c, 2, 0);
+        let th = p[1].atan2(p[0]);
+        let expect = 0.5e-3 * r * omega * (2.0 * th).sin() * 1e3;
+        assert!((c[0] - expect).abs() < 1e-4, "{} {expect}", c[0]);
+    }
+
+    #[test]
+    fn spike_and_drift_follow_their_definitions() {
+        let path = circle(40.0, 1300);
+        let rev = path.reversals[0][0];
+        let i = path.t_s.partition_point(|&t| t < rev.t_s + 0.012);
+        let dt_ms = 1e3 * (path.t_s[i] - rev.t_s);
+        let set = EffectSet::new(vec![Effect::ReversalSpike(Axis::X)]);
+        let (q, _) = set.displaced(&path, i, &[3.0, 12.0]);
+        let want = -3e-3 * f64::from(rev.new_dir) * (-dt_ms / 12.0).exp();
+        assert!((q[0] - path.p_mm[i][0] - want).abs() < 1e-12);
+        // No spike before the first reversal.
+        let (q, _) = set.displaced(&path, 10, &[3.0, 12.0]);
+        assert_eq!(q[0], path.p_mm[10][0]);
+        let drift = EffectSet::new(vec![Effect::Drift]);
+        let (_, dd) = drift.displaced(&path, 600, &[2.0]);
+        assert!((dd - 2e-3 * path.t_s[600] / 60.0).abs() < 1e-15);
+    }
+}

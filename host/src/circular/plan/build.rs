@@ -1,0 +1,494 @@
+//! Making a [`Plan`] from a [`PlanSpec`]: the circles, the path of the module docs, and the check
+//! that every point the mounted instrument visits keeps D in its range.
+use jdbb_core::calib::Calibration;
+
+use super::{
+    instrument, line_d_range, ArcRole, Circle, Dialect, Instrument, LineRole, Plan, Plane, Purpose,
+    Segment, Sense, FORMAT, GRID_MM, MAX_ARC_DEG, VERSION,
+};
+use crate::{Error, Result};
+
+/// Default lead-in and overshoot arcs (degrees).
+pub const DEFAULT_LEAD_IN_DEG: f64 = 180.0;
+/// Default overshoot arc (degrees).
+pub const DEFAULT_OVERSHOOT_DEG: f64 = 180.0;
+/// Default feed-in length (mm).
+pub const DEFAULT_FEED_IN_MM: f64 = 2.0;
+/// Default dwell (s).
+pub const DEFAULT_DWELL_S: f64 = 1.0;
+/// Every feed-in start is approached along the feed-in's own direction over this length (mm),
+/// the take-up: the axes' backlash is taken up and a reversal spike decays (in the dwell) before
+/// the feed-in, so that the feed-in's ramp in D — which times the test — carries neither.
+pub const TAKE_UP_MM: f64 = 0.5;
+/// Largest feed (mm/min).
+pub const MAX_FEED_MM_MIN: f64 = 100_000.0;
+/// Longest dwell (s).
+pub const MAX_DWELL_S: f64 = 600.0;
+/// Most lines a move between two circles is split into to keep D in range.
+const MAX_MOVE_PIECES: usize = 64;
+
+/// One circle to run: radius and height along the plane's normal (mm).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CircleSpec {
+    pub radius_mm: f64,
+    pub height_mm: f64,
+}
+
+/// What `jdbb plan` is asked for (see the module docs for each number's role).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlanSpec {
+    pub purpose: Purpose,
+    /// The circles in execution order.
+    pub circles: Vec<CircleSpec>,
+    pub plane: Plane,
+    pub feed_mm_min: f64,
+    /// The table ball's centre in program coordinates.
+    pub centre_mm: [f64; 3],
+    pub dialect: Dialect,
+    /// θ0, where each circle starts and ends (degrees from +i towards +j).
+    pub start_deg: f64,
+    pub lead_in_deg: f64,
+    pub overshoot_deg: f64,
+    pub feed_in_mm: f64,
+    /// Dwell before each feed-in and after each feed-out (s; 0: none).
+    pub dwell_s: f64,
+    /// Dwell at each reversal (s; 0: none).
+    pub reversal_dwell_s: f64,
+}
+
+impl PlanSpec {
+    /// A machine test with the default tuning: per height, per radius, in the order given.
+    pub fn machine_test(
+        radii_mm: &[f64],
+        heights_mm: &[f64],
+        plane: Plane,
+        feed_mm_min: f64,
+        centre_mm: [f64; 3],
+        dialect: Dialect,
+    ) -> PlanSpec {
+        let circles = machine_test_circles(radii_mm, heights_mm);
+        PlanSpec {
+            purpose: Purpose::MachineTest,
+            circles,
+            plane,
+            feed_mm_min,
+            centre_mm,
+            dialect,
+            start_deg: 0.0,
+            lead_in_deg: DEFAULT_LEAD_IN_DEG,
+            overshoot_deg: DEFAULT_OVERSHOOT_DEG,
+            feed_in_mm: DEFAULT_FEED_IN_MM,
+            dwell_s: DEFAULT_DWELL_S,
+            reversal_dwell_s: DEFAULT_DWELL_S,
+        }
+    }
+
+    /// Check the numbers that do not depend on the instrument: feed (0.1 to 100 000 mm/min),
+    /// angles (start within ±360°, lead-in and overshoot 0 to 360°), feed-in above 0 and below
+    /// every radius, dwells 0 to 600 s, at least one circle. The message names the option.
+    pub fn validate(&self) -> Result<()> {
+        let usage = |m: String| Err(Error::Usage(m));
+        if self.circles.is_empty() {
+            return usage("give at least one --radius (or --calibration-test)".into());
+        }
+        if !(0.1..=MAX_FEED_MM_MIN).contains(&self.feed_mm_min) {
+            return usage(format!(
+                "--feed {}: the feed is 0.1 to {MAX_FEED_MM_MIN} mm/min",
+                self.feed_mm_min
+            ));
+        }
+        if !(-360.0..=360.0).contains(&self.start_deg) {
+            return usage(format!(
+                "--start-deg {}: the start angle is within ±360°",
+                self.start_deg
+            ));
+        }
+        for (name, v) in [
+            ("--lead-in-deg", self.lead_in_deg),
+            ("--overshoot-deg", self.overshoot_deg),
+        ] {
+            if !(0.0..=360.0).contains(&v) {
+                return usage(format!("{name} {v}: an arc of 0 to 360°"));
+            }
+        }
+        for (name, v) in [
+            ("--dwell-s", self.dwell_s),
+            ("--reversal-dwell-s", self.reversal_dwell_s),
+        ] {
+            if !(0.0..=MAX_DWELL_S).contains(&v) {
+                return usage(format!("{name} {v}: a dwell of 0 to {MAX_DWELL_S} s"));
+            }
+        }
+        if !(self.feed_in_mm > 0.0 && self.feed_in_mm.is_finite()) {
+            return usage(format!(
+                "--feed-in-mm {}: the feed-in is a length above 0 mm",
+                self.feed_in_mm
+            ));
+        }
+        if !self
+            .centre_mm
+            .iter()
+            .all(|c| c.is_finite() && c.abs() <= 100_000.0)
+        {
+            return usage(format!(
+                "--centre {:?}: coordinates within ±100000 mm",
+                self.centre_mm
+            ));
+        }
+        for c in &self.circles {
+            if !(c.radius_mm > 0.0 && c.radius_mm.is_finite() && c.height_mm.is_finite()) {
+                return usage(format!(
+                    "--radius {} --height {}: a circle needs a radius above 0 and a finite height",
+                    c.radius_mm, c.height_mm
+                ));
+            }
+            if c.radius_mm <= self.feed_in_mm {
+                return usage(format!(
+                    "--radius {}: the feed-in of {} mm starts inside the circle, so the radius is above {} mm (or shorten --feed-in-mm)",
+                    c.radius_mm, self.feed_in_mm, self.feed_in_mm
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The circles of a machine test: per height, per radius, in the order given.
+pub fn machine_test_circles(radii_mm: &[f64], heights_mm: &[f64]) -> Vec<CircleSpec> {
+    heights_mm
+        .iter()
+        .flat_map(|&height_mm| {
+            radii_mm.iter().map(move |&radius_mm| CircleSpec {
+                radius_mm,
+                height_mm,
+            })
+        })
+        .collect()
+}
+
+/// Default ball distances of the calibration test: 4 spread evenly from the lowest a sphere can
+/// have (its feed-in start at latitude 0 at least 0.5 mm inside D_min) to 10 µm inside D_max.
+pub fn default_calibration_distances(inst: &Instrument, feed_in_mm: f64) -> Vec<f64> {
+    let lo = inst.d_min_mm + feed_in_mm + 0.5;
+    let hi = inst.d_max_mm - 0.01;
+    if lo >= hi {
+        return vec![q(hi)];
+    }
+    (0..4).map(|k| q(lo + (hi - lo) * k as f64 / 3.0)).collect()
+}
+
+/// The circles of the calibration test: per distance D (in order), circles at
+/// [`super::CALIBRATION_LATITUDES_DEG`] — up for the first sphere, down for the next, and so on
+/// (R = D cos λ, H = D sin λ).
+pub fn calibration_circles(distances_mm: &[f64]) -> Vec<CircleSpec> {
+    let mut out = vec![];
+    for (k, &d) in distances_mm.iter().enumerate() {
+        let mut lat = super::CALIBRATION_LATITUDES_DEG.to_vec();
+        if k % 2 == 1 {
+            lat.reverse();
+        }
+        for l in lat {
+            let (s, c) = l.to_radians().sin_cos();
+            out.push(CircleSpec {
+                radius_mm: d * c,
+                height_mm: d * s,
+            });
+        }
+    }
+    out
+}
+
+/// Round to the 1 µm grid ([`GRID_MM`]): a whole number of steps divided by the steps per mm,
+/// so the result is the double nearest the decimal the program writes.
+pub(crate) fn q(x: f64) -> f64 {
+    let per_mm = (1.0 / GRID_MM).round();
+    let r = (x * per_mm).round() / per_mm;
+    if r == 0.0 {
+        0.0 // no -0.0 in files
+    } else {
+        r
+    }
+}
+
+fn q3(p: [f64; 3]) -> [f64; 3] {
+    p.map(q)
+}
+
+/// The plan for `spec` on the instrument `cal`: the path of the module docs, refused (usage
+/// error, exit 2) if any D the mounted instrument would reach is outside its range.
+pub fn plan(spec: &PlanSpec, cal: &Calibration) -> Result<Plan> {
+    spec.validate()?;
+    let inst = instrument(cal)?;
+    let (i, j, n) = spec.plane.axes();
+    let centre = q3(spec.centre_mm);
+    let feed = (spec.feed_mm_min * 1000.0).round() / 1000.0;
+    let f = spec.feed_in_mm;
+    let dwell = (spec.dwell_s * 1000.0).round() / 1000.0;
+    let reversal_dwell = (spec.reversal_dwell_s * 1000.0).round() / 1000.0;
+    let theta0 = spec.start_deg;
+    let mut u = [0.0; 3];
+    (u[j], u[i]) = theta0.to_radians().sin_cos();
+    let mut circles = vec![];
+    let mut segments = vec![];
+    let mut previous_in: Option<[f64; 3]> = None;
+    for (k, cs) in spec.circles.iter().enumerate() {
+        let (r, h) = (q(cs.radius_mm), q(cs.height_mm));
+        check_circle(&inst, k, r, h, f + TAKE_UP_MM)?;
+        let mut c = centre;
+        c[n] = q(c[n] + h);
+        let point = |deg: f64, radius: f64| {
+            let (s, co) = deg.to_radians().sin_cos();
+            let mut p = c;
+            p[i] += radius * co;
+            p[j] += radius * s;
+            q3(p)
+        };
+        let p_in = point(theta0, r - f);
+        let p_take_up = point(theta0, r - f - TAKE_UP_MM);
+        let p0 = point(theta0, r);
+        circles.push(Circle {
+            index: k,
+            radius_mm: r,
+            height_mm: h,
+            centre_mm: c,
+            d_mm: (r * r + h * h).sqrt(),
+            plane: spec.plane,
+            feed_mm_min: feed,
+        });
+        match previous_in {
+            None => {
+                segments.push(Segment::Rapid {
+                    from_mm: p_take_up,
+                    to_mm: p_take_up,
+                });
+                segments.push(Segment::Stop);
+            }
+            Some(from) => {
+                let waypoints = move_path(&inst, &centre, (u, n), from, p_take_up).ok_or_else(|| {
+                    Error::Usage(format!(
+                        "cannot move from circle {k} to circle {} keeping D within {}; give the circles in another order",
+                        k + 1,
+                        inst.describe()
+                    ))
+                })?;
+                let mut a = from;
+                for b in waypoints {
+                    segments.push(Segment::Line {
+                        from_mm: a,
+                        to_mm: b,
+                        feed_mm_min: feed,
+                        role: LineRole::Move,
+                        circle: k,
+                    });
+                    a = b;
+                }
+            }
+        }
+        segments.push(Segment::Line {
+            from_mm: p_take_up,
+            to_mm: p_in,
+            feed_mm_min: feed,
+            role: LineRole::Move,
+            circle: k,
+        });
+        if dwell > 0.0 {
+            segments.push(Segment::Dwell { seconds: dwell });
+        }
+        segments.push(Segment::Line {
+            from_mm: p_in,
+            to_mm: p0,
+            feed_mm_min: feed,
+            role: LineRole::FeedIn,
+            circle: k,
+        });
+        let mut arcs = Arcs {
+            circle: k,
+            centre: c,
+            radius: r,
+            plane: spec.plane,
+            feed,
+            at_deg: theta0,
+            at: p0,
+            point: &point,
+            out: &mut segments,
+        };
+        let (lead, over) = (spec.lead_in_deg, spec.overshoot_deg);
+        arcs.sweep(lead, ArcRole::LeadIn);
+        arcs.sweep(360.0, ArcRole::Data);
+        arcs.sweep(over, ArcRole::Overshoot);
+        if reversal_dwell > 0.0 {
+            arcs.out.push(Segment::Dwell {
+                seconds: reversal_dwell,
+            });
+        }
+        arcs.sweep(-lead, ArcRole::LeadIn);
+        arcs.sweep(-360.0, ArcRole::Data);
+        arcs.sweep(-over, ArcRole::Overshoot);
+        let end = arcs.at;
+        segments.push(Segment::Line {
+            from_mm: end,
+            to_mm: p_in,
+            feed_mm_min: feed,
+            role: LineRole::FeedOut,
+            circle: k,
+        });
+        if dwell > 0.0 {
+            segments.push(Segment::Dwell { seconds: dwell });
+        }
+        previous_in = Some(p_in);
+    }
+    let start_mm = segments[0].to_mm().expect("the first segment is the rapid");
+    let plan = Plan {
+        format: FORMAT.into(),
+        version: VERSION,
+        purpose: spec.purpose,
+        program: spec.dialect.program_name().into(),
+        dialect: spec.dialect,
+        units: "mm".into(),
+        plane: spec.plane,
+        centre_mm: centre,
+        feed_mm_min: feed,
+        instrument: inst,
+        start_mm,
+        circles,
+        segments,
+    };
+    check_range(&plan)?;
+    Ok(plan)
+}
+
+/// Refuse a circle (0-based `k`) whose D or feed-in start is outside the range, naming the range
+/// and the radii that fit at its height.
+fn check_circle(inst: &Instrument, k: usize, r: f64, h: f64, f: f64) -> Result<()> {
+    let d = (r * r + h * h).sqrt();
+    let d_in = ((r - f) * (r - f) + h * h).sqrt();
+    if inst.contains(d) && inst.contains(d_in) {
+        return Ok(());
+    }
+    let what = if inst.contains(d) {
+        format!("its feed-in, with the take-up before it, starts {f} mm inside, at D = {d_in:.3} mm, which")
+    } else {
+        format!("D = √(R² + H²) = {d:.3} mm")
+    };
+    let r_lo = (inst.d_min_mm * inst.d_min_mm - h * h).max(0.0).sqrt() + f;
+    let r_hi = (inst.d_max_mm * inst.d_max_mm - h * h).max(0.0).sqrt();
+    let fits = if h.abs() < inst.d_max_mm && r_lo <= r_hi {
+        format!("at height {h} mm the radius can be {r_lo:.3}..{r_hi:.3} mm")
+    } else {
+        format!("no circle fits at height {h} mm")
+    };
+    Err(Error::Usage(format!(
+        "circle {} (radius {r} mm, height {h} mm): {what} is outside the instrument's range {}; {fits}",
+        k + 1,
+        inst.describe()
+    )))
+}
+
+/// The way-points (after `from`, ending at `to`) of a move between two feed-in starts keeping D
+/// in range: a straight line if it does, else lines through points spaced evenly in D and in
+/// elevation along the half-plane at the start angle that both points lie in (unit û in the
+/// circle's plane, normal axis `n`), with as few pieces as keep every line in range. `None` if
+/// 64 pieces do not.
+fn move_path(
+    inst: &Instrument,
+    c: &[f64; 3],
+    (u, n): ([f64; 3], usize),
+    from: [f64; 3],
+    to: [f64; 3],
+) -> Option<Vec<[f64; 3]>> {
+    let in_range = |a: &[f64; 3], b: &[f64; 3]| {
+        let (lo, hi) = line_d_range(c, a, b);
+        inst.contains(lo) && inst.contains(hi)
+    };
+    if in_range(&from, &to) {
+        return Some(vec![to]);
+    }
+    // (D, elevation) of a point c + ρ·û + η·n̂.
+    let polar = |p: &[f64; 3]| {
+        let rho: f64 = (0..3).map(|k| (p[k] - c[k]) * u[k]).sum();
+        let eta = p[n] - c[n];
+        (rho.hypot(eta), eta.atan2(rho))
+    };
+    let ((d0, e0), (d1, e1)) = (polar(&from), polar(&to));
+    for pieces in 2..=MAX_MOVE_PIECES {
+        let mut pts: Vec<[f64; 3]> = (1..pieces)
+            .map(|s| {
+                let t = s as f64 / pieces as f64;
+                let (d, e) = (d0 + t * (d1 - d0), e0 + t * (e1 - e0));
+                let mut p: [f64; 3] = std::array::from_fn(|k| c[k] + d * e.cos() * u[k]);
+                p[n] += d * e.sin();
+                q3(p)
+            })
+            .collect();
+        pts.push(to);
+        let mut prev = from;
+        let ok = pts.iter().all(|p| {
+            let ok = in_range(&prev, p);
+            prev = *p;
+            ok
+        });
+        if ok {
+            return Some(pts);
+        }
+    }
+    None
+}
+
+/// Appends the arcs of one circle, split into pieces of at most [`MAX_ARC_DEG`].
+struct Arcs<'a, F: Fn(f64, f64) -> [f64; 3]> {
+    circle: usize,
+    centre: [f64; 3],
+    radius: f64,
+    plane: Plane,
+    feed: f64,
+    at_deg: f64,
+    at: [f64; 3],
+    point: &'a F,
+    out: &'a mut Vec<Segment>,
+}
+
+impl<F: Fn(f64, f64) -> [f64; 3]> Arcs<'_, F> {
+    fn sweep(&mut self, sweep_deg: f64, role: ArcRole) {
+        if sweep_deg == 0.0 {
+            return;
+        }
+        let pieces = (sweep_deg.abs() / MAX_ARC_DEG - 1e-9).ceil().max(1.0) as usize;
+        let step = sweep_deg / pieces as f64;
+        for _ in 0..pieces {
+            let end_deg = self.at_deg + step;
+            let to = (self.point)(end_deg, self.radius);
+            self.out.push(Segment::Arc {
+                circle: self.circle,
+                centre_mm: self.centre,
+                radius_mm: self.radius,
+                plane: self.plane,
+                sense: if step > 0.0 { Sense::Ccw } else { Sense::Cw },
+                start_deg: self.at_deg.rem_euclid(360.0),
+                sweep_deg: step,
+                feed_mm_min: self.feed,
+                role,
+                from_mm: self.at,
+                to_mm: to,
+            });
+            self.at_deg = end_deg;
+            self.at = to;
+        }
+    }
+}
+
+/// Every mounted segment (all after the stop) keeps D in range. A guard on the construction
+/// above.
+fn check_range(plan: &Plan) -> Result<()> {
+    let inst = &plan.instrument;
+    for k in 2..plan.segments.len() {
+        if let Some((lo, hi)) = plan.d_range_mm(k) {
+            if !(inst.contains(lo) && inst.contains(hi)) {
+                return Err(Error::Usage(format!(
+                    "segment {k} of the plan reaches D = {lo:.3}..{hi:.3} mm, outside the instrument's range {}",
+                    inst.describe()
+                )));
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,761 @@
+//! The program a ballbar test runs: the nominal path of a circular test as the machine will
+//! drive it, written as `plan.json` (this module) and as a G-code program for one controller
+//! dialect ([`gcode`]). `jdbb plan` (`cli/plan.rs`) is the command; the synchronisation of a
+//! recording with its plan reads `plan.json` through [`Plan::read`], [`Plan::position_at`] and
+//! [`Plan::length_mm`].
+//!
+//! # The motion (ISO 230-4 style)
+//!
+//! Plane axes (i, j) and normal n: `xy` = (x, y; z), `yz` = (y, z; x), `zx` = (z, x; y), all
+//! right-handed, so **ccw** means the angle θ = atan2(j, i) grows: a rotation about +n. Circle k
+//! has its centre at `--centre` + H·n̂ (H = its height), radius R, start angle θ0 (`--start-deg`,
+//! default 0: on +i). Per height, per radius, in the order given (the calibration test: see
+//! below), each circle is:
+//!
+//! 1. to the feed-in start P_in = c + (R − f)(cos θ0 î + sin θ0 ĵ), f = `--feed-in-mm`: for the
+//!    first circle a **rapid** (G0) followed by a **program stop** (M0) — there the operator mounts
+//!    the instrument and presses cycle start; for the next circles a move at the feed, with the
+//!    instrument still mounted (the J-DBB's radius is free: no re-mounting). A move is one line,
+//!    or a few lines along a spiral in the (radius, height) half-plane at θ0 when a straight line
+//!    would bring the balls closer than the instrument allows (role `move`);
+//! 2. a dwell of `--dwell-s` (G4): a standstill the synchronisation can find in D;
+//! 3. the feed-in: a line from P_in to the circle at θ0 (D changes by about f·R/D);
+//! 4. counter-clockwise: the lead-in arc (θ0 → θ0 + L, L = `--lead-in-deg`), the data arc of
+//!    360°, the overshoot arc of O = `--overshoot-deg`;
+//! 5. a dwell of `--reversal-dwell-s` (default: `--dwell-s`) at the reversal;
+//! 6. clockwise: lead-in L, data 360°, overshoot O, ending at θ0 again;
+//! 7. the feed-out: a line back to P_in, and a dwell of `--dwell-s`.
+//!
+//! A dwell of 0 s is left out. Arcs are split into equal pieces of at most 180° (a full circle or
+//! an arc over 180° is ambiguous or controller-dependent with I/J/K), so with the defaults
+//! (L = O = 180°) each direction is 4 arcs of 180°, and every arc end lies on an axis of its
+//! circle.
+//!
+//! **Range.** D = √(R² + H²) on a circle; every point the program visits with the instrument
+//! mounted — circles, feed-in starts, moves between circles — stays within the instrument's range
+//! [`Instrument`]: D_min = D at the frames' ±75° ([`FRAME_RANGE_RAD`], the worst lean azimuth puts
+//! the whole deflection on one frame) and D_max = L1 + L2 (bars straight), each brought in by
+//! [`RANGE_MARGIN_MM`] for set-up error, from the calibration ([`Calibration::DEFAULT`] or
+//! `--calibration CAL.toml`). A plan that would leave it is refused with the range in the message.
+//! The range is not checked on the first rapid: the instrument is mounted after it.
+//!
+//! **Grid.** Every position in the plan and the program is on a 1 µm grid ([`GRID_MM`]: Fanuc's
+//! IS-B least input increment, the finest all four dialects take), so the program's numbers are
+//! the plan's numbers exactly; radii, heights and the centre are rounded to it. An arc end at an
+//! angle that is not a multiple of 90° is rounded too (at most 0.71 µm off its circle); feeds are
+//! rounded to 0.001 mm/min and dwells to 1 ms.
+//!
+//! # The calibration test (`--calibration-test`, purpose `calibration-test`)
+//!
+//! Spheres at several ball distances D (`--distance`, default 4 spread over the range): on each
+//! sphere, circles at the latitudes [`CALIBRATION_LATITUDES_DEG`] (0°, 30°, 60° towards +n:
+//! R = D cos λ, H = D sin λ; in plane xy the spindle ball stays level with or above the table
+//! ball), each run
+//! as above, spheres in order and latitudes alternately up and down so moves stay short. What it
+//! covers: the deflection φ(D) at every distance — by default from about 12° to 69° with 50 mm
+//! bars, most of the frames' ±75° — and for each, the bar direction B1→B2 over all azimuths and
+//! elevations 0–60°, which turns the knee about both frame axes. What it cannot set: the knee's
+//! lean azimuth about the B1–B2 line (gravity and the bars' spin in their cups decide it), so the
+//! split of φ between the two frames is measured, not planned.
+//!
+//! # plan.json (version 1)
+//!
+//! ```json
+//! {
+//!   "format": "jdbb-plan", "version": 1, "purpose": "machine-test",
+//!   "program": "ballbar.ngc", "dialect": "linuxcnc", "units": "mm", "plane": "xy",
+//!   "centre_mm": [100.0, 50.0, -20.0], "feed_mm_min": 1000.0,
+//!   "instrument": {"l1_mm": 50.0, "l2_mm": 50.0, "frame_range_deg": 75.0, "margin_mm": 0.5,
+//!                  "d_min_mm": 79.836, "d_max_mm": 99.5},
+//!   "start_mm": [188.0, 50.0, -20.0],
+//!   "circles": [{"index": 0, "radius_mm": 90.0, "height_mm": 0.0, "centre_mm": [100.0, 50.0, -20.0],
+//!                "d_mm": 90.0, "plane": "xy", "feed_mm_min": 1000.0}],
+//!   "segments": [
+//!     {"kind": "rapid", "from_mm": [188.0, 50.0, -20.0], "to_mm": [188.0, 50.0, -20.0]},
+//!     {"kind": "stop"},
+//!     {"kind": "dwell", "seconds": 1.0},
+//!     {"kind": "line", "from_mm": [188.0, 50.0, -20.0], "to_mm": [190.0, 50.0, -20.0],
+//!      "feed_mm_min": 1000.0, "role": "feed_in", "circle": 0},
+//!     {"kind": "arc", "circle": 0, "centre_mm": [100.0, 50.0, -20.0], "radius_mm": 90.0,
+//!      "plane": "xy", "sense": "ccw", "start_deg": 0.0, "sweep_deg": 180.0,
+//!      "feed_mm_min": 1000.0, "role": "lead_in", "from_mm": [190.0, 50.0, -20.0],
+//!      "to_mm": [10.0, 50.0, -20.0]}
+//!   ]
+//! }
+//! ```
+//!
+//! - `purpose`: `machine-test` or `calibration-test`; `dialect`: `linuxcnc`, `grbl`, `fanuc`,
+//!   `marlin`; `program`: the program file beside plan.json (see [`Dialect::program_name`]).
+//! - Positions are program (machine) coordinates in mm; the diagnosis works relative to the
+//!   table ball: subtract `centre_mm`. `start_mm` is where the operator mounts the instrument.
+//! - `instrument`: bar lengths, the frames' range, the margin, and the range of D every mounted
+//!   segment keeps (margin included).
+//! - `segments` are in execution order and tile the program's motion exactly: every G0, G1, G2,
+//!   G3, G4 and M0 of the program is one segment, in order, and each motion starts where the
+//!   previous one ended. `rapid` (G0; the first segment; its `from_mm` is its `to_mm`, because
+//!   the machine's position before the program is unknown — nothing is measured before the stop),
+//!   `stop` (M0: the operator, unknown duration), `dwell` (`seconds`), `line` (G1; `role`
+//!   `feed_in`, `feed_out` or `move`; `circle`: the circle it belongs to, for a move the one it
+//!   goes to), `arc` (G2/G3 of at most 180°: `centre_mm`, `radius_mm`, `plane`, `sense` `ccw`/`cw`,
+//!   `start_deg` in [0, 360) from +i towards +j, `sweep_deg` signed (+ ccw, − cw), `role`
+//!   `lead_in`, `data` or `overshoot`).
+//! - Times are not in plan.json: the machine decides them. [`Plan::nominal_duration_s`] is the
+//!   feed-rate estimate.
+//!
+//! May use: `jdbb_core::{calib, geometry}`, [`crate::table`]. Inside: [`build`] makes a plan
+//! from a [`PlanSpec`], [`gcode`] writes it.
+use std::path::Path;
+
+use jdbb_core::calib::Calibration;
+use jdbb_core::geometry::{deflection_for_distance_rad, distance_from_deflection_mm};
+use serde::{Deserialize, Serialize};
+
+use crate::{Error, Result};
+
+pub mod build;
+pub mod gcode;
+
+pub use build::{
+    calibration_circles, default_calibration_distances, machine_test_circles, plan, CircleSpec,
+    PlanSpec,
+};
+pub use gcode::write_program;
+pub use jdbb_core::geometry::FRAME_RANGE_RAD;
+
+/// The `format` of a plan.json.
+pub const FORMAT: &str = "jdbb-plan";
+/// The plan.json version this code writes and reads.
+pub const VERSION: u32 = 1;
+/// Grid of every position in a plan and its program (mm): 1 µm.
+pub const GRID_MM: f64 = 0.001;
+/// How far inside the instrument's mechanical range every D of a plan stays (mm), for set-up
+/// error: the table ball not exactly at `--centre`, the machine's own error.
+pub const RANGE_MARGIN_MM: f64 = 0.5;
+/// Largest arc of one G2/G3 block (degrees).
+pub const MAX_ARC_DEG: f64 = 180.0;
+/// Latitudes of the circles on each sphere of the calibration test (degrees towards +n).
+pub const CALIBRATION_LATITUDES_DEG: [f64; 3] = [0.0, 30.0, 60.0];
+
+/// The plane of a circle: axes (i, j) and the normal n, right-handed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Plane {
+    /// (x, y), normal z: G17.
+    Xy,
+    /// (y, z), normal x: G19.
+    Yz,
+    /// (z, x), normal y: G18.
+    Zx,
+}
+
+impl Plane {
+    /// Indices (i, j, n) of the plane's axes and its normal (x = 0, y = 1, z = 2).
+    pub fn axes(self) -> (usize, usize, usize) {
+        match self {
+            Plane::Xy => (0, 1, 2),
+            Plane::Yz => (1, 2, 0),
+            Plane::Zx => (2, 0, 1),
+        }
+    }
+
+    /// `xy`, `yz` or `zx`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Plane::Xy => "xy",
+            Plane::Yz => "yz",
+            Plane::Zx => "zx",
+        }
+    }
+
+    /// The plane called `xy`, `yz` or `zx`.
+    pub fn parse(s: &str) -> Option<Plane> {
+        [Plane::Xy, Plane::Yz, Plane::Zx]
+            .into_iter()
+            .find(|p| p.name() == s)
+    }
+}
+
+/// A controller's G-code dialect (see [`gcode`] for what differs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Dialect {
+    /// LinuxCNC (RS274/NGC).
+    Linuxcnc,
+    /// grbl 1.1 (and grblHAL).
+    Grbl,
+    /// Fanuc 0i/30i family, milling.
+    Fanuc,
+    /// Marlin 2 with `ARC_SUPPORT`.
+    Marlin,
+}
+
+impl Dialect {
+    /// Every dialect, in the order the help lists them.
+    pub const ALL: [Dialect; 4] = [
+        Dialect::Linuxcnc,
+        Dialect::Grbl,
+        Dialect::Fanuc,
+        Dialect::Marlin,
+    ];
+
+    /// `linuxcnc`, `grbl`, `fanuc` or `marlin`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Dialect::Linuxcnc => "linuxcnc",
+            Dialect::Grbl => "grbl",
+            Dialect::Fanuc => "fanuc",
+            Dialect::Marlin => "marlin",
+        }
+    }
+
+    /// The dialect called `name`.
+    pub fn parse(name: &str) -> Option<Dialect> {
+        Dialect::ALL.into_iter().find(|d| d.name() == name)
+    }
+
+    /// The program's file name beside plan.json: `ballbar.ngc` (LinuxCNC), `ballbar.nc` (grbl),
+    /// `O1000.nc` (Fanuc: program number O1000), `ballbar.gcode` (Marlin).
+    pub fn program_name(self) -> &'static str {
+        match self {
+            Dialect::Linuxcnc => "ballbar.ngc",
+            Dialect::Grbl => "ballbar.nc",
+            Dialect::Fanuc => "O1000.nc",
+            Dialect::Marlin => "ballbar.gcode",
+        }
+    }
+}
+
+/// What a plan is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Purpose {
+    /// Circles of the given radii and heights: the machine's errors.
+    MachineTest,
+    /// Spheres at several ball distances: the instrument's calibration.
+    CalibrationTest,
+}
+
+impl Purpose {
+    /// `machine-test` or `calibration-test`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Purpose::MachineTest => "machine-test",
+            Purpose::CalibrationTest => "calibration-test",
+        }
+    }
+}
+
+/// Direction of an arc, seen from the positive end of the plane's normal.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Sense {
+    /// Counter-clockwise: θ = atan2(j, i) grows (G3).
+    Ccw,
+    /// Clockwise: θ falls (G2).
+    Cw,
+}
+
+/// What a line is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LineRole {
+    /// From the feed-in start onto the circle.
+    FeedIn,
+    /// From the circle back to the feed-in start.
+    FeedOut,
+    /// Between two circles' feed-in starts.
+    Move,
+}
+
+/// What an arc is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ArcRole {
+    /// Before the data arc: the machine reaches steady motion.
+    LeadIn,
+    /// The 360° the diagnosis uses.
+    Data,
+    /// After the data arc, before the reversal or the feed-out.
+    Overshoot,
+}
+
+/// The instrument's range as a plan uses it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Instrument {
+    /// Bar 1 (table ball to joint), mm.
+    pub l1_mm: f64,
+    /// Bar 2 (joint to spindle ball), mm.
+    pub l2_mm: f64,
+    /// Each frame's range, ± degrees.
+    pub frame_range_deg: f64,
+    /// Margin kept inside the mechanical range at both ends, mm.
+    pub margin_mm: f64,
+    /// Smallest D any mounted segment reaches (margin included), mm.
+    pub d_min_mm: f64,
+    /// Largest D any mounted segment reaches (margin included), mm.
+    pub d_max_mm: f64,
+}
+
+/// The range of D for a calibration: D at the frames' limit ([`FRAME_RANGE_RAD`]) up to
+/// L1 + L2, each brought in by [`RANGE_MARGIN_MM`] and rounded inwards to the grid.
+pub fn instrument(cal: &Calibration) -> Result<Instrument> {
+    cal.validate().map_err(|e| {
+        Error::Usage(format!(
+            "the calibration is not usable ({e:?}): bar lengths must be finite, positive and below 10 m, encoders at least 4 counts per revolution"
+        ))
+    })?;
+    let (l1, l2) = (cal.l1_mm, cal.l2_mm);
+    let lo = distance_from_deflection_mm(l1, l2, FRAME_RANGE_RAD) + RANGE_MARGIN_MM;
+    let hi = distance_from_deflection_mm(l1, l2, 0.0) - RANGE_MARGIN_MM;
+    let d_min_mm = (lo * 1000.0).ceil() / 1000.0;
+    let d_max_mm = (hi * 1000.0).floor() / 1000.0;
+    if d_min_mm >= d_max_mm {
+        return Err(Error::Usage(format!(
+            "bars of {l1} mm and {l2} mm leave no usable range of D inside the frames' ±75° and the {RANGE_MARGIN_MM} mm margin"
+        )));
+    }
+    Ok(Instrument {
+        l1_mm: l1,
+        l2_mm: l2,
+        frame_range_deg: FRAME_RANGE_RAD.to_degrees(),
+        margin_mm: RANGE_MARGIN_MM,
+        d_min_mm,
+        d_max_mm,
+    })
+}
+
+impl Instrument {
+    /// Joint deflection φ (degrees) at ball distance `d_mm`, or `None` out of reach.
+    pub fn deflection_deg(&self, d_mm: f64) -> Option<f64> {
+        deflection_for_distance_rad(self.l1_mm, self.l2_mm, d_mm).map(f64::to_degrees)
+    }
+
+    /// Whether `d_mm` is inside the range (with 1 nm for rounding).
+    pub fn contains(&self, d_mm: f64) -> bool {
+        d_mm >= self.d_min_mm - 1e-6 && d_mm <= self.d_max_mm + 1e-6
+    }
+
+    /// The range as a message names it: `79.836..99.500 mm (L1 50 mm, L2 50 mm, frames ±75°,
+    /// 0.5 mm margin)`.
+    pub fn describe(&self) -> String {
+        format!(
+            "{:.3}..{:.3} mm (L1 {} mm, L2 {} mm, frames ±{}°, {} mm margin)",
+            self.d_min_mm,
+            self.d_max_mm,
+            self.l1_mm,
+            self.l2_mm,
+            self.frame_range_deg.round(),
+            self.margin_mm
+        )
+    }
+}
+
+/// Read a calibration from TOML: the fields of [`Calibration`] (`l1_mm`, `l2_mm`, `[enc1]`,
+/// `[enc2]` with `counts_per_rev`, `zero_count`, `direction = "Positive"`), by serde, so fields
+/// the struct gains with defaults are read as it defines them. Bad input names `file:line:col`.
+pub fn read_calibration(path: &Path) -> Result<Calibration> {
+    let text = crate::table::read_text(path)?;
+    toml::from_str::<Calibration>(&text).map_err(|e| {
+        let (line, col) = e.span().map_or((1, 0), |s| line_col(&text, s.start));
+        Error::input(
+            path,
+            line,
+            col,
+            format!(
+                "{}; a calibration file holds the fields of the instrument's calibration, e.g. l1_mm = 50.0, l2_mm = 50.0 and [enc1], [enc2] tables",
+                e.message()
+            ),
+        )
+    })
+}
+
+fn line_col(text: &str, byte: usize) -> (usize, usize) {
+    let before = &text[..byte.min(text.len())];
+    let line = before.matches('\n').count() + 1;
+    let col = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+    (line, col)
+}
+
+/// One circle of a plan.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Circle {
+    /// Position in `circles` (0-based), as segments refer to it.
+    pub index: usize,
+    pub radius_mm: f64,
+    /// Along the plane's normal, from the table ball.
+    pub height_mm: f64,
+    /// `centre_mm` of the plan + height along the normal.
+    pub centre_mm: [f64; 3],
+    /// Ball distance on the circle, √(R² + H²).
+    pub d_mm: f64,
+    pub plane: Plane,
+    pub feed_mm_min: f64,
+}
+
+/// One block of the program (see the module docs for the fields).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Segment {
+    /// G0 to the start point, before the instrument is mounted.
+    Rapid { from_mm: [f64; 3], to_mm: [f64; 3] },
+    /// M0: the operator mounts the instrument; unknown duration.
+    Stop,
+    /// G4.
+    Dwell { seconds: f64 },
+    /// G1.
+    Line {
+        from_mm: [f64; 3],
+        to_mm: [f64; 3],
+        feed_mm_min: f64,
+        role: LineRole,
+        circle: usize,
+    },
+    /// G2 (cw) or G3 (ccw), at most 180°.
+    Arc {
+        circle: usize,
+        centre_mm: [f64; 3],
+        radius_mm: f64,
+        plane: Plane,
+        sense: Sense,
+        start_deg: f64,
+        sweep_deg: f64,
+        feed_mm_min: f64,
+        role: ArcRole,
+        from_mm: [f64; 3],
+        to_mm: [f64; 3],
+    },
+}
+
+impl Segment {
+    /// Where a motion starts, `None` for a stop or a dwell.
+    pub fn from_mm(&self) -> Option<[f64; 3]> {
+        match self {
+            Segment::Rapid { from_mm, .. }
+            | Segment::Line { from_mm, .. }
+            | Segment::Arc { from_mm, .. } => Some(*from_mm),
+            Segment::Stop | Segment::Dwell { .. } => None,
+        }
+    }
+
+    /// Where a motion ends, `None` for a stop or a dwell.
+    pub fn to_mm(&self) -> Option<[f64; 3]> {
+        match self {
+            Segment::Rapid { to_mm, .. }
+            | Segment::Line { to_mm, .. }
+            | Segment::Arc { to_mm, .. } => Some(*to_mm),
+            Segment::Stop | Segment::Dwell { .. } => None,
+        }
+    }
+
+    /// Path length (mm): 0 for a stop or a dwell; an arc's R·|sweep|.
+    pub fn length_mm(&self) -> f64 {
+        match self {
+            Segment::Rapid { from_mm, to_mm } | Segment::Line { from_mm, to_mm, .. } => {
+                dist(from_mm, to_mm)
+            }
+            Segment::Arc {
+                radius_mm,
+                sweep_deg,
+                ..
+            } => radius_mm * sweep_deg.to_radians().abs(),
+            Segment::Stop | Segment::Dwell { .. } => 0.0,
+        }
+    }
+
+    /// Nominal duration (s) at the programmed feed: none for a rapid or a stop (the machine
+    /// decides them).
+    pub fn nominal_duration_s(&self) -> Option<f64> {
+        match self {
+            Segment::Line { feed_mm_min, .. } | Segment::Arc { feed_mm_min, .. } => {
+                Some(self.length_mm() / feed_mm_min * 60.0)
+            }
+            Segment::Dwell { seconds } => Some(*seconds),
+            Segment::Rapid { .. } | Segment::Stop => None,
+        }
+    }
+}
+
+/// Euclidean distance of two points (mm).
+pub fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+}
+
+/// Smallest and largest D (mm) on the straight segment a → b, the table ball at `c`.
+pub fn line_d_range(c: &[f64; 3], a: &[f64; 3], b: &[f64; 3]) -> (f64, f64) {
+    let ab: [f64; 3] = std::array::from_fn(|k| b[k] - a[k]);
+    let ac: [f64; 3] = std::array::from_fn(|k| c[k] - a[k]);
+    let len2 = ab.iter().map(|x| x * x).sum::<f64>();
+    let t = if len2 > 0.0 {
+        (ab.iter().zip(&ac).map(|(x, y)| x * y).sum::<f64>() / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let closest: [f64; 3] = std::array::from_fn(|k| a[k] + t * ab[k]);
+    let (da, db) = (dist(c, a), dist(c, b));
+    (dist(c, &closest), da.max(db))
+}
+
+/// A test's program as data: plan.json (see the module docs).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Plan {
+    /// Always [`FORMAT`].
+    pub format: String,
+    /// [`VERSION`].
+    pub version: u32,
+    pub purpose: Purpose,
+    /// The program's file name, beside plan.json.
+    pub program: String,
+    pub dialect: Dialect,
+    /// Always `mm`.
+    pub units: String,
+    pub plane: Plane,
+    /// The table ball's centre in program coordinates.
+    pub centre_mm: [f64; 3],
+    pub feed_mm_min: f64,
+    pub instrument: Instrument,
+    /// Where the operator mounts the instrument (the first feed-in start).
+    pub start_mm: [f64; 3],
+    pub circles: Vec<Circle>,
+    pub segments: Vec<Segment>,
+}
+
+impl Plan {
+    /// Read a plan.json. Malformed JSON, another format or version, or segments that do not
+    /// chain are bad input (exit 2) naming `file:line:col` where known.
+    pub fn read(path: &Path) -> Result<Plan> {
+        Plan::from_json(path, &crate::table::read_text(path)?)
+    }
+
+    /// Parse plan.json text; `path` names it in errors.
+    pub fn from_json(path: &Path, text: &str) -> Result<Plan> {
+        // The format and version first, so another file's shape is reported as what it is.
+        let head: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| json_error(path, &e))?;
+        if head.get("format").and_then(|f| f.as_str()) != Some(FORMAT) {
+            return Err(Error::input(
+                path,
+                1,
+                0,
+                format!("not a plan: `format` is not \"{FORMAT}\"; write one with `jdbb plan`"),
+            ));
+        }
+        if head.get("version").and_then(|v| v.as_u64()) != Some(VERSION as u64) {
+            return Err(Error::input(
+                path,
+                1,
+                0,
+                format!(
+                    "plan version {} is not {VERSION}, the version this jdbb reads; make the plan again with this jdbb",
+                    head.get("version").map_or("missing".into(), |v| v.to_string())
+                ),
+            ));
+        }
+        let plan: Plan = serde_json::from_str(text).map_err(|e| json_error(path, &e))?;
+        plan.check_chain().map_err(|m| {
+            Error::input(
+                path,
+                1,
+                0,
+                format!("{m}; make the plan again with `jdbb plan`"),
+            )
+        })?;
+        Ok(plan)
+    }
+
+    /// Pretty JSON (plan.json's text, with a final newline).
+    pub fn to_json(&self) -> String {
+        let mut s = serde_json::to_string_pretty(self).expect("a plan is plain data");
+        s.push('\n');
+        s
+    }
+
+    /// The structure [`Plan::position_at`] relies on: a program file name beside plan.json, a
+    /// rapid first, circles the segments refer to, finite numbers, and every motion starting
+    /// where the previous one ended.
+    fn check_chain(&self) -> std::result::Result<(), String> {
+        if self.program.is_empty() || self.program.contains(['/', '\\']) || self.program == ".." {
+            return Err(format!(
+                "`program` is \"{}\", not a file name beside plan.json",
+                self.program
+            ));
+        }
+        if !matches!(self.segments.first(), Some(Segment::Rapid { .. })) {
+            return Err("the first segment is not the rapid to the start point".into());
+        }
+        let mut at: Option<[f64; 3]> = None;
+        for (k, s) in self.segments.iter().enumerate() {
+            let circle = match s {
+                Segment::Line { circle, .. } | Segment::Arc { circle, .. } => Some(*circle),
+                _ => None,
+            };
+            if circle.is_some_and(|c| c >= self.circles.len()) {
+                return Err(format!(
+                    "segment {k} refers to a circle that is not in `circles`"
+                ));
+            }
+            if let (Some(end), Some(from)) = (at, s.from_mm()) {
+                if dist(&end, &from) > 1e-9 {
+                    return Err(format!(
+                        "segment {k} does not start where segment {} ended",
+                        k - 1
+                    ));
+                }
+            }
+            let finite = match s {
+                Segment::Dwell { seconds } => seconds.is_finite() && *seconds >= 0.0,
+                Segment::Arc { radius_mm, .. } => *radius_mm > 0.0 && s.length_mm().is_finite(),
+                Segment::Line { feed_mm_min, .. } => {
+                    *feed_mm_min > 0.0 && s.length_mm().is_finite()
+                }
+                _ => s.length_mm().is_finite(),
+            };
+            if !finite {
+                return Err(format!("segment {k} has a number out of range"));
+            }
+            if let Some(end) = s.to_mm() {
+                at = Some(end);
+            }
+        }
+        Ok(())
+    }
+
+    /// Path length of segment `seg` (mm; 0 for a stop or a dwell).
+    ///
+    /// # Panics
+    /// If `seg` is not an index of `segments`.
+    pub fn length_mm(&self, seg: usize) -> f64 {
+        self.segments[seg].length_mm()
+    }
+
+    /// The nominal position (program coordinates, mm) at path length `s_mm` along segment
+    /// `seg`, `s_mm` clamped to [0, length]. An arc's point is on its nominal circle (centre,
+    /// radius, angles), so where an arc end was rounded to the grid it differs from `from_mm` /
+    /// `to_mm` by at most 0.71 µm. A stop or a dwell is where the previous motion ended.
+    ///
+    /// # Panics
+    /// If `seg` is not an index of `segments`.
+    pub fn position_at(&self, seg: usize, s_mm: f64) -> [f64; 3] {
+        let segment = &self.segments[seg];
+        let s = s_mm.clamp(0.0, segment.length_mm());
+        match segment {
+            Segment::Rapid { from_mm, to_mm } | Segment::Line { from_mm, to_mm, .. } => {
+                let len = dist(from_mm, to_mm);
+                let t = if len > 0.0 { s / len } else { 0.0 };
+                std::array::from_fn(|k| from_mm[k] + t * (to_mm[k] - from_mm[k]))
+            }
+            Segment::Arc {
+                centre_mm,
+                radius_mm,
+                plane,
+                start_deg,
+                sweep_deg,
+                ..
+            } => {
+                let a = start_deg.to_radians() + sweep_deg.signum() * s / radius_mm;
+                let (i, j, _) = plane.axes();
+                let mut p = *centre_mm;
+                p[i] += radius_mm * a.cos();
+                p[j] += radius_mm * a.sin();
+                p
+            }
+            Segment::Stop | Segment::Dwell { .. } => self.segments[..seg]
+                .iter()
+                .rev()
+                .find_map(Segment::to_mm)
+                .unwrap_or(self.start_mm),
+        }
+    }
+
+    /// Smallest and largest D (mm) on segment `seg`, exact: a line's closest and farthest points
+    /// to the table ball, an arc's circle (D is constant on it) and its grid-rounded ends; `None`
+    /// for a stop or a dwell.
+    ///
+    /// # Panics
+    /// If `seg` is not an index of `segments`.
+    pub fn d_range_mm(&self, seg: usize) -> Option<(f64, f64)> {
+        let c = &self.centre_mm;
+        match &self.segments[seg] {
+            Segment::Rapid { from_mm, to_mm } | Segment::Line { from_mm, to_mm, .. } => {
+                Some(line_d_range(c, from_mm, to_mm))
+            }
+            Segment::Arc {
+                from_mm,
+                to_mm,
+                radius_mm,
+                centre_mm,
+                ..
+            } => {
+                let d = [dist(c, from_mm), dist(c, to_mm), {
+                    let h = dist(c, centre_mm);
+                    (radius_mm * radius_mm + h * h).sqrt()
+                }];
+                Some((
+                    d.iter().copied().fold(f64::INFINITY, f64::min),
+                    d.iter().copied().fold(0.0, f64::max),
+                ))
+            }
+            Segment::Stop | Segment::Dwell { .. } => None,
+        }
+    }
+
+    /// Smallest and largest D (mm) over every segment after the stop: what the mounted
+    /// instrument sees.
+    pub fn mounted_d_range_mm(&self) -> (f64, f64) {
+        (2..self.segments.len())
+            .filter_map(|k| self.d_range_mm(k))
+            .fold((f64::INFINITY, 0.0), |(lo, hi), (a, b)| {
+                (lo.min(a), hi.max(b))
+            })
+    }
+
+    /// The box the spindle ball's centre travels in (program coordinates, mm): smallest and
+    /// largest x, y, z over every segment, arcs sampled every 0.1 mm (within 0.1 µm of their
+    /// extremes at radii above 10 mm). For checking the machine's travel and clearances.
+    pub fn travel_mm(&self) -> ([f64; 3], [f64; 3]) {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for (k, s) in self.segments.iter().enumerate() {
+            if s.to_mm().is_none() {
+                continue;
+            }
+            let len = s.length_mm();
+            let n = if matches!(s, Segment::Arc { .. }) {
+                (len / 0.1).ceil().max(1.0) as usize
+            } else {
+                1
+            };
+            for m in 0..=n {
+                let p = self.position_at(k, len * m as f64 / n as f64);
+                for a in 0..3 {
+                    lo[a] = lo[a].min(p[a]);
+                    hi[a] = hi[a].max(p[a]);
+                }
+            }
+        }
+        (lo, hi)
+    }
+
+    /// Estimated run time (s) at the programmed feeds, without acceleration, the first rapid or
+    /// the operator's stop.
+    pub fn nominal_duration_s(&self) -> f64 {
+        self.segments
+            .iter()
+            .filter_map(Segment::nominal_duration_s)
+            .sum()
+    }
+}
+
+fn json_error(path: &Path, e: &serde_json::Error) -> Error {
+    // serde_json's message ends in " at line L column C": the location goes in front instead.
+    let text = e.to_string();
+    let message = text
+        .rsplit_once(" at line ")
+        .map_or(text.as_str(), |(m, _)| m);
+    Error::input(
+        path,
+        e.line().max(1),
+        e.column(),
+        format!("{message}; a plan.json is written by `jdbb plan`"),
+    )
+}

@@ -1,0 +1,1604 @@
+//! Lines a recording up with its plan from D alone: where the cycle started, where each circle is,
+//! how fast the machine really went, and which samples lie on the data arcs — so a real test needs
+//! no hand-entered offsets (`jdbb diagnose --record REC.csv --plan plan.json`).
+//!
+//! # What D shows
+//! The plan's circles are constant-D plateaus: on its arcs the ball distance changes only by the
+//! machine's errors (µm). Each circle is entered and left by a radial line, the feed-in and the
+//! feed-out, which move D by about the feed-in length (mm), and between motions the machine
+//! dwells. So D alone shows, per circle: a dwell at D_in (the feed-in start), a ramp to D_c (the
+//! circle), a long plateau at D_c (the arcs, both senses), a ramp back to D_in, a dwell.
+//!
+//! # How
+//! 1. **Find each circle, in plan order.** The feed-in is the first crossing of the midpoint
+//!    (D_in + D_c)/2 towards D_c after the previous circle that starts from a standstill at D_in
+//!    and arrives at D_c; the feed-out is the next crossing back. Levels match within
+//!    [`LEVEL_TOLERANCE_MM`] (set-up and instrument errors are µm). A circle that cannot be found
+//!    so — another radius, an aborted run, a missing circle — is an error that names the circle
+//!    and what the record does instead; nothing is guessed.
+//! 2. **Time the ramps.** D along a line is known geometry, so each ramp gives the path length
+//!    s(t) along its line (normalised to the plateaus next to it, which takes out set-up and
+//!    instrument offsets); a trapezoidal speed profile — accelerate at a, cruise at v, decelerate
+//!    at a — is fitted to it by least squares ([`Profile`]): start, speed and acceleration.
+//! 3. **Time the arcs.** Between the feed-in's end and the feed-out's start the machine runs the
+//!    circle's arcs: runs of tangent arcs of one sense, each from rest to rest (the corner after
+//!    the feed-in, the reversal, the corner before the feed-out), and the plan's dwells. With the
+//!    ramps' acceleration a, the one speed v that fills that time exactly solves
+//!    Σ_runs (S_r/v + v/a) + Σ dwells = T (a quadratic in v). Each data arc's samples then get
+//!    their nominal position from the run's trapezoidal profile.
+//! 4. **Report** the cycle start on the record's clock (the first feed-in's start minus the dwell
+//!    and the take-up line before it), the measured feed against the programmed one (%, on the record's clock: the
+//!    feed override, the controller's timing and the instrument clock's error together), the
+//!    clock scale where two circles give a measurable dwell (dwell durations do not follow the
+//!    feed override), the acceleration, and the data arcs used with their sample counts.
+//!
+//! Only the data arcs go to the diagnosis; the lead-in and overshoot arcs, the ramps and the
+//! dwells are left out. The axis reversals of the whole motion (including those in the lead-in,
+//! overshoot and at the sense reversal) are handed to the path, for the reversal spike.
+//!
+//! May use: [`super::plan`], [`super::path`], [`crate::numerics::lsq`], [`crate::table`].
+// Index loops over the axes (k in 0..3) and samples mirror the equations; keep them.
+#![allow(clippy::needless_range_loop)]
+use std::path::{Path as FsPath, PathBuf};
+
+use super::path::{Path, Reversal};
+use super::plan::{ArcRole, LineRole, Plan, Segment, Sense};
+use crate::numerics::lsq::{least_squares, LsqOptions, Problem};
+use crate::table::Table;
+use crate::{Error, Result};
+
+/// D on a plateau of the record matches a level of the plan within this (mm): set-up offsets and
+/// instrument errors are µm, another radius is mm.
+pub const LEVEL_TOLERANCE_MM: f64 = 0.1;
+
+/// Most data-arc samples handed to the diagnosis; a longer record is averaged over consecutive
+/// samples of one arc (bins of k samples, k as small as keeps it under this), which bounds memory
+/// and time whatever the record's length.
+pub const MAX_DATA_SAMPLES: usize = 2_000_000;
+
+/// Samples closer than this to an axis reversal of the nominal motion are left out of the data
+/// (s), at least 1.5 sample intervals: the step of a backlash (and the start of a reversal spike)
+/// happens at the reversal, which the synchronisation places to a fraction of a millisecond — a
+/// backlash of f µm at the ramps' ends shifts them by about f/(2v) — so the one or two samples
+/// straddling it cannot be told from a mistimed step.
+pub const REVERSAL_GUARD_S: f64 = 1e-3;
+
+/// Feed factors (measured over programmed) outside this range are not a machine running the
+/// plan: the record belongs to another program or the run was disturbed.
+pub const FEED_RANGE: (f64, f64) = (0.05, 3.0);
+
+/// A recording: time (s after its first sample) and D (mm).
+#[derive(Debug, Clone)]
+pub struct Record {
+    pub path: PathBuf,
+    /// The first sample's `t_us` (the origin of `t_s`).
+    pub t0_us: f64,
+    pub t_s: Vec<f64>,
+    pub d_mm: Vec<f64>,
+    /// Line number of each sample in the file (errors name it).
+    lines: Vec<u32>,
+}
+
+impl Record {
+    /// Read a `jdbb record` file (`seq,t_us,enc1,enc2,d_mm`; only `t_us` and `d_mm` are used,
+    /// extra columns ignored). Time must increase strictly (a record holds one run) and D be
+    /// positive.
+    pub fn read(path: &FsPath) -> Result<Record> {
+        let mut t = Table::open(path)?;
+        let cols = t.require(&["t_us", "d_mm"])?;
+        let mut rec = Record {
+            path: path.to_path_buf(),
+            t0_us: 0.0,
+            t_s: vec![],
+            d_mm: vec![],
+            lines: vec![],
+        };
+        let mut prev: Option<f64> = None;
+        while let Some(row) = t.next_row()? {
+            let t_us = row.number(&cols[0])?;
+            let d = row.number(&cols[1])?;
+            if let Some(p) = prev {
+                if t_us <= p {
+                    return Err(row.error(
+                        &cols[0],
+                        format!("time goes backwards or stands still ({t_us} µs after {p} µs); a record holds one run"),
+                    ));
+                }
+            } else {
+                rec.t0_us = t_us;
+            }
+            if d <= 0.0 {
+                return Err(row.error(
+                    &cols[1],
+                    format!("d_mm is {d}; a ball distance is positive"),
+                ));
+            }
+            prev = Some(t_us);
+            rec.t_s.push((t_us - rec.t0_us) * 1e-6);
+            rec.d_mm.push(d);
+            rec.lines.push(row.line().min(u32::MAX as usize) as u32);
+        }
+        if rec.t_s.len() < 10 {
+            return Err(Error::input(
+                path,
+                t.header_line(),
+                0,
+                format!("only {} samples: not a recording of a test", rec.t_s.len()),
+            ));
+        }
+        Ok(rec)
+    }
+
+    /// A record from times (s) and distances (mm) in memory; `path` names it in errors.
+    pub fn from_samples(path: &FsPath, t_s: Vec<f64>, d_mm: Vec<f64>) -> Record {
+        let lines = (0..t_s.len()).map(|i| (i + 2) as u32).collect();
+        Record {
+            path: path.to_path_buf(),
+            t0_us: 0.0,
+            t_s,
+            d_mm,
+            lines,
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.t_s.len()
+    }
+
+    /// Index of the first sample at or after `t`.
+    fn index_at(&self, t: f64) -> usize {
+        self.t_s.partition_point(|&x| x < t)
+    }
+
+    /// Median of D over samples with time in [a, b] (None if there are none).
+    fn median(&self, a: f64, b: f64) -> Option<f64> {
+        let (i, j) = (self.index_at(a), self.index_at(b.next_up()));
+        if j <= i {
+            return None;
+        }
+        let mut v: Vec<f64> = self.d_mm[i..j].to_vec();
+        let mid = v.len() / 2;
+        let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
+        Some(*m)
+    }
+
+    /// `file:line` of sample i, for errors.
+    fn location(&self, i: usize) -> String {
+        format!(
+            "{}:{}",
+            self.path.display(),
+            self.lines.get(i).copied().unwrap_or(0)
+        )
+    }
+}
+
+/// The machine's motion along one move from rest to rest: accelerate at `accel_mm_s2` up to
+/// `speed_mm_s`, cruise, decelerate at the same rate, over `length_mm`; triangular (never
+/// reaching the speed) when the move is too short.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Profile {
+    pub t0_s: f64,
+    pub length_mm: f64,
+    pub speed_mm_s: f64,
+    pub accel_mm_s2: f64,
+}
+
+impl Profile {
+    /// Peak speed and the duration of the acceleration phase.
+    fn phases(&self) -> (f64, f64) {
+        let (l, v, a) = (self.length_mm, self.speed_mm_s, self.accel_mm_s2);
+        if v * v / a >= l {
+            let vp = (a * l).sqrt();
+            (vp, vp / a)
+        } else {
+            (v, v / a)
+        }
+    }
+
+    /// Duration of the move (s).
+    pub fn duration_s(&self) -> f64 {
+        let (vp, ta) = self.phases();
+        let cruise = (self.length_mm - vp * ta).max(0.0) / vp;
+        2.0 * ta + cruise
+    }
+
+    /// When the move ends (s).
+    pub fn end_s(&self) -> f64 {
+        self.t0_s + self.duration_s()
+    }
+
+    /// Path length covered at time `t` (mm), 0 before the start and the length after the end.
+    pub fn s_at(&self, t: f64) -> f64 {
+        let (vp, ta) = self.phases();
+        let a = self.accel_mm_s2;
+        let l = self.length_mm;
+        let tau = t - self.t0_s;
+        let total = self.duration_s();
+        if tau <= 0.0 {
+            0.0
+        } else if tau >= total {
+            l
+        } else if tau < ta {
+            0.5 * a * tau * tau
+        } else if tau > total - ta {
+            let r = total - tau;
+            l - 0.5 * a * r * r
+        } else {
+            0.5 * vp * ta + vp * (tau - ta)
+        }
+    }
+
+    /// Time at which path length `s` is reached (the inverse of [`Profile::s_at`] on the move).
+    pub fn t_at(&self, s: f64) -> f64 {
+        let (vp, ta) = self.phases();
+        let a = self.accel_mm_s2;
+        let l = self.length_mm;
+        let s = s.clamp(0.0, l);
+        let total = self.duration_s();
+        let sa = 0.5 * vp * ta;
+        let tau = if s <= sa {
+            (2.0 * s / a).sqrt()
+        } else if s >= l - sa {
+            total - (2.0 * (l - s) / a).sqrt()
+        } else {
+            ta + (s - sa) / vp
+        };
+        self.t0_s + tau
+    }
+}
+
+/// A ramp of D fitted with a [`Profile`], and how well it fits.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ramp {
+    pub profile: Profile,
+    /// Standard error of the fitted speed (mm/s).
+    pub speed_sigma_mm_s: f64,
+    /// RMS of the fit (µm of path length).
+    pub rms_um: f64,
+    /// Samples used.
+    pub samples: usize,
+}
+
+/// One data arc as found in the record.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DataArc {
+    /// Index of the arc in the plan's segments.
+    pub segment: usize,
+    pub sense: Sense,
+    pub t_start_s: f64,
+    pub t_end_s: f64,
+    /// Record samples on it.
+    pub samples: usize,
+}
+
+/// A run of tangent arcs of one sense, from rest to rest, as timed in the record.
+#[derive(Debug, Clone, PartialEq)]
+struct Run {
+    profile: Profile,
+    /// (plan segment, path length where it starts in the run, its length).
+    arcs: Vec<(usize, f64, f64)>,
+}
+
+/// One circle as found in the record.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CircleSync {
+    /// Index into the plan's circles.
+    pub circle: usize,
+    pub feed_in: Ramp,
+    pub feed_out: Ramp,
+    /// Speed on the arcs (mm/s on the record's clock).
+    pub speed_mm_s: f64,
+    /// Acceleration at the arcs' starts and stops (mm/s²): the ramps' unless the data say
+    /// otherwise (see the module docs).
+    pub arc_accel_mm_s2: f64,
+    /// How far the data arcs' times may be off for the speed's standard error (s; see
+    /// `arc_motion`).
+    pub timing_sigma_s: f64,
+    /// D measured on the arcs' plateau (median, mm).
+    pub d_measured_mm: f64,
+    pub data: Vec<DataArc>,
+    runs: Vec<Run>,
+}
+
+/// The synchronisation of a record with its plan.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sync {
+    /// The cycle start (after the program stop) in s after the record's first sample.
+    pub cycle_start_s: f64,
+    /// The record's first `t_us` (so the cycle start on the device clock is
+    /// `t0_us + 1e6·cycle_start_s`).
+    pub t0_us: f64,
+    /// Programmed feed on the arcs (mm/min).
+    pub programmed_feed_mm_min: f64,
+    /// Measured over programmed feed on the arcs, %, and its spread over the circles (standard
+    /// deviation, %; 0 with one circle).
+    pub feed_percent: f64,
+    pub feed_spread_percent: f64,
+    /// Measured dwell over programmed dwell, where two circles give one (dwell times do not
+    /// follow the feed override: this is the controller's and the instrument's clocks).
+    pub clock_scale: Option<f64>,
+    /// Acceleration fitted on the ramps (mm/s², mean).
+    pub accel_mm_s2: f64,
+    pub circles: Vec<CircleSync>,
+}
+
+impl Sync {
+    /// Number of data-arc samples.
+    pub fn data_samples(&self) -> usize {
+        self.circles
+            .iter()
+            .flat_map(|c| &c.data)
+            .map(|a| a.samples)
+            .sum()
+    }
+}
+
+/// The plan's segments of one circle: its feed-in, feed-out and what lies between.
+struct CirclePlan {
+    circle: usize,
+    feed_in: usize,
+    feed_out: usize,
+    /// Dwells between the previous motion and the feed-in (seconds).
+    dwell_before_s: f64,
+}
+
+fn circle_plans(plan: &Plan) -> Result<Vec<CirclePlan>> {
+    let mut out: Vec<CirclePlan> = vec![];
+    let mut dwell = 0.0;
+    let mut open: Option<(usize, usize, f64)> = None;
+    for (i, s) in plan.segments.iter().enumerate() {
+        match s {
+            Segment::Dwell { seconds } => dwell += seconds,
+            Segment::Line {
+                role: LineRole::FeedIn,
+                circle,
+                ..
+            } => {
+                open = Some((*circle, i, dwell));
+                dwell = 0.0;
+            }
+            Segment::Line {
+                role: LineRole::FeedOut,
+                circle,
+                ..
+            } => {
+                let (c, fi, before) = open.take().filter(|o| o.0 == *circle).ok_or_else(|| {
+                    Error::Usage(format!(
+                        "the plan's feed-out of circle {circle} has no feed-in before it: not a plan `jdbb plan` wrote"
+                    ))
+                })?;
+                out.push(CirclePlan {
+                    circle: c,
+                    feed_in: fi,
+                    feed_out: i,
+                    dwell_before_s: before,
+                });
+                dwell = 0.0;
+            }
+            _ => dwell = 0.0,
+        }
+    }
+    if out.is_empty() {
+        return Err(Error::Usage(
+            "the plan has no circle with a feed-in and a feed-out to synchronise on".into(),
+        ));
+    }
+    Ok(out)
+}
+
+fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// Words for circle k of the plan in errors.
+fn describe_circle(plan: &Plan, k: usize) -> String {
+    let c = &plan.circles[k];
+    format!(
+        "circle {} (R {:.3} mm at height {:.3} mm, D {:.3} mm)",
+        k + 1,
+        c.radius_mm,
+        c.height_mm,
+        c.d_mm
+    )
+}
+
+/// The trapezoidal profile fitted to s(t) samples of one ramp: start, speed, acceleration and the
+/// length the data show (the plan's length give or take the µm that a backlash step or the
+/// set-up put between the plateaus).
+struct RampProblem<'a> {
+    t: &'a [f64],
+    s: &'a [f64],
+}
+
+impl RampProblem<'_> {
+    fn profile(p: &[f64]) -> Profile {
+        Profile {
+            t0_s: p[0],
+            length_mm: p[3].abs().max(1e-6),
+            speed_mm_s: p[1].abs().max(1e-6),
+            accel_mm_s2: p[2].abs().max(1e-3),
+        }
+    }
+}
+
+impl Problem for RampProblem<'_> {
+    fn n_params(&self) -> usize {
+        4
+    }
+    fn n_residuals(&self) -> usize {
+        self.t.len()
+    }
+    fn eval(&self, p: &[f64], visit: &mut dyn FnMut(usize, f64, &[f64])) {
+        // Central differences: the profile is piecewise quadratic in its parameters.
+        let steps = [
+            1e-5,
+            1e-6 * p[1].abs().max(1.0),
+            1e-6 * p[2].abs().max(1.0),
+            1e-7 * p[3].abs().max(1.0),
+        ];
+        let base = Self::profile(p);
+        let shifted: Vec<(Profile, Profile)> = (0..4)
+            .map(|k| {
+                let (mut up, mut down) = (p.to_vec(), p.to_vec());
+                up[k] += steps[k];
+                down[k] -= steps[k];
+                (Self::profile(&up), Self::profile(&down))
+            })
+            .collect();
+        let mut g = [0.0; 4];
+        for (i, (&t, &s)) in self.t.iter().zip(self.s).enumerate() {
+            for k in 0..4 {
+                let (u, d) = &shifted[k];
+                g[k] = 1e3 * (u.s_at(t) - d.s_at(t)) / (2.0 * steps[k]);
+            }
+            visit(i, 1e3 * (base.s_at(t) - s), &g);
+        }
+    }
+}
+
+/// Fit the ramp of a line crossing the midpoint at record index `cross`, the line running from
+/// `from` to `to` (relative to the table ball, mm); `d_from`/`d_to` are the plan's D at its ends.
+/// D is put on the line's path length with the line's geometry, offset to the plateau before
+/// the ramp (not scaled to the one after it). The fit takes `before_s` of standstill before the
+/// ramp and `after_s` after it: a dwell's worth on the side of a dwell, a few ms on the side of
+/// an arc, where the arc's first µm (a backlash step, a reversal spike, the set-up's
+/// once-per-revolution term) already show.
+#[allow(clippy::too_many_arguments)]
+fn fit_ramp(
+    rec: &Record,
+    cross: usize,
+    from: [f64; 3],
+    to: [f64; 3],
+    d_from: f64,
+    d_to: f64,
+    feed_mm_s: f64,
+    before_s: f64,
+    after_s: f64,
+) -> Option<Ramp> {
+    let len = dist(&from, &to);
+    let tol = LEVEL_TOLERANCE_MM.min(0.25 * (d_to - d_from).abs());
+    // Ramp extent: from the last sample near D_from before the crossing to the first sample near
+    // D_to after it.
+    let near = 0.02 * (d_to - d_from).abs();
+    let mut a = cross;
+    while a > 0 && (rec.d_mm[a] - d_from).abs() > near {
+        a -= 1;
+    }
+    let mut b = cross;
+    while b + 1 < rec.len() && (rec.d_mm[b] - d_to).abs() > near {
+        b += 1;
+    }
+    // The 2 % points lie up to LEAD_S inside the motion (at 100 mm/s², 28 ms after the start):
+    // the standstill before the ramp ends LEAD_S before the first one, and the one after it
+    // begins LEAD_S after the second. The plateaus' levels are taken there; the fit runs from
+    // `before_s` before the motion to `after_s` after it — on the side of an arc, from the 2 %
+    // point itself, so that none of the arc gets in.
+    const LEAD_S: f64 = 0.03;
+    let (ta, tb) = (rec.t_s[a], rec.t_s[b]);
+    let d0 = rec.median(ta - LEAD_S - before_s.max(0.005), ta - LEAD_S)?;
+    let d1 = rec.median(tb + LEAD_S, tb + LEAD_S + 0.25)?;
+    if (d0 - d_from).abs() > tol || (d1 - d_to).abs() > tol {
+        return None;
+    }
+    let fit_from = if before_s > 0.01 {
+        ta - LEAD_S - before_s
+    } else {
+        ta - before_s
+    };
+    let fit_to = if after_s > 0.01 {
+        tb + LEAD_S + after_s
+    } else {
+        tb + after_s
+    };
+    let (i, j) = (rec.index_at(fit_from), rec.index_at(fit_to));
+    // s from D: |from + s·e| = D on the line, D offset to the plateau before the ramp.
+    let e = [
+        (to[0] - from[0]) / len,
+        (to[1] - from[1]) / len,
+        (to[2] - from[2]) / len,
+    ];
+    let bb = e[0] * from[0] + e[1] * from[1] + e[2] * from[2];
+    let cc = from[0] * from[0] + from[1] * from[1] + from[2] * from[2];
+    let mut t = Vec::with_capacity(j - i);
+    let mut s = Vec::with_capacity(j - i);
+    for k in i..j {
+        let dn = d_from + (rec.d_mm[k] - d0);
+        let disc = (bb * bb - cc + dn * dn).max(0.0).sqrt();
+        let r1 = -bb + disc;
+        let r2 = -bb - disc;
+        let pick = if (r1 - len / 2.0).abs() < (r2 - len / 2.0).abs() {
+            r1
+        } else {
+            r2
+        };
+        t.push(rec.t_s[k]);
+        s.push(pick.clamp(-0.1 * len, 1.1 * len));
+    }
+    // Start: the speed through the midpoint (slope over ±5 ms) and the acceleration that reaches
+    // it between leaving D_from and the midpoint.
+    let slope = {
+        let (p, q) = (
+            rec.index_at(rec.t_s[cross] - 0.005),
+            rec.index_at(rec.t_s[cross] + 0.005),
+        );
+        let q = q.min(rec.len() - 1);
+        if q > p {
+            ((rec.d_mm[q] - rec.d_mm[p]) / (rec.t_s[q] - rec.t_s[p])).abs()
+        } else {
+            feed_mm_s
+        }
+    };
+    let v0 = if slope.is_finite() && slope > 0.0 {
+        slope.min(5.0 * feed_mm_s.max(1e-3))
+    } else {
+        feed_mm_s.max(1e-3)
+    };
+    let to_mid = (rec.t_s[cross] - ta).max(1e-3);
+    let a0 = (v0 / to_mid).max(1.0) * 2.0;
+    let prob = RampProblem { t: &t, s: &s };
+    let p0 = [ta - 0.5 * v0 / a0, v0, a0, len];
+    let fit = least_squares(
+        &prob,
+        &p0,
+        &LsqOptions {
+            max_iterations: 80,
+            tolerance: 1e-10,
+            initial_lambda: 1e-3,
+            ..Default::default()
+        },
+    )
+    .ok()?;
+    let profile = RampProblem::profile(&fit.params);
+    if (profile.length_mm - len).abs() > tol {
+        return None;
+    }
+    Some(Ramp {
+        profile,
+        speed_sigma_mm_s: fit.sigma[1].unwrap_or(f64::INFINITY),
+        rms_um: fit.rms,
+        samples: t.len(),
+    })
+}
+
+/// Find the first crossing of `mid` in direction `dir` (+1 up, −1 down) at or after index `from`.
+fn crossing(rec: &Record, from: usize, mid: f64, dir: f64) -> Option<usize> {
+    (from.max(1)..rec.len())
+        .find(|&i| (rec.d_mm[i - 1] - mid) * dir < 0.0 && (rec.d_mm[i] - mid) * dir >= 0.0)
+}
+
+/// Synchronise `rec` with `plan` (module docs).
+pub fn synchronise(plan: &Plan, rec: &Record) -> Result<Sync> {
+    let centre = plan.centre_mm;
+    let rel = |p: [f64; 3]| [p[0] - centre[0], p[1] - centre[1], p[2] - centre[2]];
+    let norm = |p: [f64; 3]| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+    let err = |i: usize, msg: String| Error::Input {
+        location: rec.location(i.min(rec.len().saturating_sub(1))),
+        message: msg,
+    };
+    let mut circles = vec![];
+    let mut cursor = 0usize;
+    let mut cycle_start = f64::NAN;
+    let mut dwell_ratios = vec![];
+    let mut last_feed_out_end: Option<(f64, f64)> = None; // (time, dwell after it)
+    for cp in circle_plans(plan)? {
+        let k = cp.circle;
+        let what = describe_circle(plan, k);
+        let (
+            Segment::Line {
+                from_mm: fi_from,
+                to_mm: fi_to,
+                feed_mm_min: fi_feed,
+                ..
+            },
+            Segment::Line {
+                from_mm: fo_from,
+                to_mm: fo_to,
+                feed_mm_min: fo_feed,
+                ..
+            },
+        ) = (&plan.segments[cp.feed_in], &plan.segments[cp.feed_out])
+        else {
+            unreachable!("circle_plans returns lines");
+        };
+        let (a_in, b_in) = (rel(*fi_from), rel(*fi_to));
+        let (d_in, d_c) = (norm(a_in), norm(b_in));
+        if (d_c - d_in).abs() < 0.05 {
+            return Err(Error::Usage(format!(
+                "{what}: its feed-in changes D by only {:.3} mm; the synchronisation needs a feed-in that moves D (plan with a longer --feed-in-mm)",
+                (d_c - d_in).abs()
+            )));
+        }
+        let dir = (d_c - d_in).signum();
+        let mid = 0.5 * (d_in + d_c);
+        let tol = LEVEL_TOLERANCE_MM.min(0.25 * (d_c - d_in).abs());
+        // 1. The feed-in: a crossing from a standstill at D_in to a plateau at D_c.
+        let mut search = cursor;
+        let (cross_in, ramp_in) = loop {
+            let Some(i) = crossing(rec, search, mid, dir) else {
+                let (lo, hi) = rec.d_mm[cursor.min(rec.len() - 1)..]
+                    .iter()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &d| {
+                        (l.min(d), h.max(d))
+                    });
+                return Err(err(
+                    rec.len() - 1,
+                    format!(
+                        "{what}: no feed-in from D = {d_in:.3} mm to {d_c:.3} mm (± {tol:.3} mm) after {:.3} s of the record; D there spans {lo:.3} to {hi:.3} mm (another radius, a missing circle, or a record of another plan?)",
+                        rec.t_s[cursor.min(rec.len() - 1)]
+                    ),
+                ));
+            };
+            let ramp = fit_ramp(
+                rec,
+                i,
+                a_in,
+                b_in,
+                d_in,
+                d_c,
+                fi_feed / 60.0,
+                cp.dwell_before_s.clamp(0.005, 0.25),
+                0.005,
+            );
+            match ramp {
+                Some(r) => break (i, r),
+                None => search = i + 1,
+            }
+        };
+        // 2. The feed-out: the next crossing back; D stays on the plateau in between.
+        let Some(cross_out) = crossing(rec, cross_in + 1, mid, -dir) else {
+            return Err(err(
+                rec.len() - 1,
+                format!(
+                    "{what}: the record ends {:.3} s after its feed-in, during its arcs (an aborted run?)",
+                    rec.t_s[rec.len() - 1] - rec.t_s[cross_in]
+                ),
+            ));
+        };
+        let ramp_out = fit_ramp(
+            rec,
+            cross_out,
+            rel(*fo_from),
+            rel(*fo_to),
+            d_c,
+            d_in,
+            fo_feed / 60.0,
+            0.005,
+            dwell_after(plan, cp.feed_out).clamp(0.005, 0.25),
+        )
+        .ok_or_else(|| {
+            err(
+                cross_out,
+                format!(
+                    "{what}: D leaves the circle's {d_c:.3} mm at {:.3} s but does not come back to the feed-in start's {d_in:.3} mm: not the plan's feed-out (an aborted run?)",
+                    rec.t_s[cross_out]
+                ),
+            )
+        })?;
+        let t_arcs = (ramp_in.profile.end_s(), ramp_out.profile.t0_s);
+        // The plateau: D within the tolerance of D_c.
+        let (pi, pj) = (rec.index_at(t_arcs.0), rec.index_at(t_arcs.1));
+        let d_measured = rec.median(t_arcs.0, t_arcs.1).unwrap_or(f64::NAN);
+        if let Some(off) = (pi..pj).find(|&i| (rec.d_mm[i] - d_c).abs() > tol) {
+            return Err(err(
+                off,
+                format!(
+                    "{what}: during its arcs D is {:.4} mm at {:.3} s, off the circle's {d_c:.3} mm by more than {tol:.3} mm (another radius, or the instrument moved?)",
+                    rec.d_mm[off], rec.t_s[off]
+                ),
+            ));
+        }
+        // 3. The arcs between the ramps: runs of one sense from rest to rest, and dwells.
+        let mut items: Vec<Item> = vec![];
+        for seg in cp.feed_in + 1..cp.feed_out {
+            match &plan.segments[seg] {
+                Segment::Dwell { seconds } => items.push(Item::Dwell(*seconds)),
+                Segment::Arc { sense, .. } => {
+                    let len = plan.length_mm(seg);
+                    match items.last_mut() {
+                        Some(Item::Run(s, arcs)) if *s == *sense => arcs.push((seg, len)),
+                        _ => items.push(Item::Run(*sense, vec![(seg, len)])),
+                    }
+                }
+                other => {
+                    return Err(Error::Usage(format!(
+                        "the plan has a {:?} between the feed-in and the feed-out of circle {}: not a plan `jdbb plan` wrote",
+                        kind(other),
+                        k + 1
+                    )))
+                }
+            }
+        }
+        let accel = 0.5 * (ramp_in.profile.accel_mm_s2 + ramp_out.profile.accel_mm_s2);
+        let lengths: Vec<f64> = items
+            .iter()
+            .filter_map(|it| match it {
+                Item::Run(_, arcs) => Some(arcs.iter().map(|a| a.1).sum::<f64>()),
+                Item::Dwell(_) => None,
+            })
+            .collect();
+        let dwells: f64 = items
+            .iter()
+            .map(|it| match it {
+                Item::Dwell(s) => *s,
+                Item::Run(..) => 0.0,
+            })
+            .sum();
+        let avail = t_arcs.1 - t_arcs.0 - dwells;
+        let speed0 = solve_speed(&lengths, accel, avail);
+        let programmed = arc_feed(plan, cp.feed_in, cp.feed_out) / 60.0;
+        let factor = speed0 / programmed;
+        if !(speed0.is_finite() && (FEED_RANGE.0..=FEED_RANGE.1).contains(&factor)) {
+            return Err(err(
+                pj,
+                format!(
+                    "{what}: its arcs took {:.3} s; at the programmed {:.1} mm/min they take {:.3} s — a feed of {:.0} % of the programmed one, outside {:.0}–{:.0} % (a record of another plan, or a disturbed run?)",
+                    t_arcs.1 - t_arcs.0,
+                    programmed * 60.0,
+                    lengths.iter().sum::<f64>() / programmed + dwells,
+                    100.0 * factor,
+                    100.0 * FEED_RANGE.0,
+                    100.0 * FEED_RANGE.1
+                ),
+            ));
+        }
+        // The timeline of the runs and the data arcs on it (see `arc_motion`).
+        let timing = arc_motion(
+            plan,
+            rec,
+            &items,
+            &lengths,
+            t_arcs.0,
+            avail,
+            line_speed(&ramp_in, &ramp_out),
+            accel,
+        );
+        let (runs, data) = timeline(
+            plan,
+            rec,
+            &items,
+            t_arcs.0,
+            timing.speed_mm_s,
+            timing.accel_mm_s2,
+        );
+        if circles.is_empty() {
+            // Cycle start: the end of the program stop; from there the dwells and lines (the
+            // take-up) before the feed-in ran, the lines at the feed-in's speed and acceleration.
+            let stop = plan.segments[..cp.feed_in]
+                .iter()
+                .rposition(|s| matches!(s, Segment::Stop))
+                .map_or(0, |i| i + 1);
+            let before: f64 = plan.segments[stop..cp.feed_in]
+                .iter()
+                .map(|s| match s {
+                    Segment::Dwell { seconds } => *seconds,
+                    Segment::Line { .. } => Profile {
+                        length_mm: s.length_mm(),
+                        ..ramp_in.profile
+                    }
+                    .duration_s(),
+                    _ => 0.0,
+                })
+                .sum();
+            cycle_start = ramp_in.profile.t0_s - before;
+        }
+        if let Some((t_end, dwell_after)) = last_feed_out_end {
+            // Between the previous feed-out and this feed-in: dwells and moves. Where D stands
+            // still over the whole gap (no visible move), it is all dwell.
+            let gap = ramp_in.profile.t0_s - t_end;
+            let planned = dwell_after + cp.dwell_before_s;
+            let still = rec
+                .median(t_end, ramp_in.profile.t0_s)
+                .is_some_and(|m| (m - d_in).abs() < tol)
+                && moves_between(plan, cp.feed_in).abs() < 1e-9;
+            if still && planned > 0.0 {
+                dwell_ratios.push(gap / planned);
+            }
+        }
+        last_feed_out_end = Some((ramp_out.profile.end_s(), dwell_after(plan, cp.feed_out)));
+        cursor = rec.index_at(ramp_out.profile.end_s());
+        circles.push(CircleSync {
+            circle: k,
+            feed_in: ramp_in,
+            feed_out: ramp_out,
+            speed_mm_s: timing.speed_mm_s,
+            arc_accel_mm_s2: timing.accel_mm_s2,
+            timing_sigma_s: timing.timing_sigma_s,
+            d_measured_mm: d_measured,
+            data,
+            runs,
+        });
+    }
+    let factors: Vec<f64> = circles
+        .iter()
+        .map(|c| {
+            let cp = &plan.circles[c.circle];
+            c.speed_mm_s / (cp.feed_mm_min / 60.0)
+        })
+        .collect();
+    let mean = factors.iter().sum::<f64>() / factors.len() as f64;
+    let spread = if factors.len() > 1 {
+        (factors.iter().map(|f| (f - mean).powi(2)).sum::<f64>() / (factors.len() - 1) as f64)
+            .sqrt()
+    } else {
+        0.0
+    };
+    let accel = circles
+        .iter()
+        .map(|c| 0.5 * (c.feed_in.profile.accel_mm_s2 + c.feed_out.profile.accel_mm_s2))
+        .sum::<f64>()
+        / circles.len() as f64;
+    let clock_scale = (!dwell_ratios.is_empty())
+        .then(|| dwell_ratios.iter().sum::<f64>() / dwell_ratios.len() as f64);
+    Ok(Sync {
+        cycle_start_s: cycle_start,
+        t0_us: rec.t0_us,
+        programmed_feed_mm_min: plan.feed_mm_min,
+        feed_percent: 100.0 * mean,
+        feed_spread_percent: 100.0 * spread,
+        clock_scale,
+        accel_mm_s2: accel,
+        circles,
+    })
+}
+
+/// A run of arcs of one sense (its arcs: plan segment, length), or a dwell (s).
+enum Item {
+    Run(Sense, Vec<(usize, f64)>),
+    Dwell(f64),
+}
+
+fn kind(s: &Segment) -> &'static str {
+    match s {
+        Segment::Rapid { .. } => "rapid",
+        Segment::Stop => "program stop",
+        Segment::Dwell { .. } => "dwell",
+        Segment::Line { .. } => "line",
+        Segment::Arc { .. } => "arc",
+    }
+}
+
+/// The feed of the arcs between two segments (mm/min): the first arc's.
+fn arc_feed(plan: &Plan, from: usize, to: usize) -> f64 {
+    plan.segments[from..to]
+        .iter()
+        .find_map(|s| match s {
+            Segment::Arc { feed_mm_min, .. } => Some(*feed_mm_min),
+            _ => None,
+        })
+        .unwrap_or(plan.feed_mm_min)
+}
+
+/// Dwell time right after segment `seg` (s).
+fn dwell_after(plan: &Plan, seg: usize) -> f64 {
+    plan.segments[seg + 1..]
+        .iter()
+        .map_while(|s| match s {
+            Segment::Dwell { seconds } => Some(*seconds),
+            _ => None,
+        })
+        .sum()
+}
+
+/// Total length of the moves right before the feed-in `seg` (back to the previous feed-out).
+fn moves_between(plan: &Plan, seg: usize) -> f64 {
+    plan.segments[..seg]
+        .iter()
+        .rev()
+        .take_while(|s| {
+            !matches!(
+                s,
+                Segment::Line {
+                    role: LineRole::FeedOut,
+                    ..
+                }
+            )
+        })
+        .filter(|s| {
+            matches!(
+                s,
+                Segment::Line {
+                    role: LineRole::Move,
+                    ..
+                }
+            )
+        })
+        .map(Segment::length_mm)
+        .sum()
+}
+
+/// The runs of one circle on the record's clock from `t0` (the feed-in's end) at `speed` with
+/// `accel` at every start and stop, and the data arcs on them.
+fn timeline(
+    plan: &Plan,
+    rec: &Record,
+    items: &[Item],
+    t0: f64,
+    speed: f64,
+    accel: f64,
+) -> (Vec<Run>, Vec<DataArc>) {
+    let mut runs = vec![];
+    let mut data = vec![];
+    let mut t = t0;
+    for it in items {
+        match it {
+            Item::Dwell(s) => t += s,
+            Item::Run(sense, arcs) => {
+                let total: f64 = arcs.iter().map(|a| a.1).sum();
+                let profile = Profile {
+                    t0_s: t,
+                    length_mm: total,
+                    speed_mm_s: speed,
+                    accel_mm_s2: accel,
+                };
+                let mut at = 0.0;
+                let mut placed = vec![];
+                for &(seg, len) in arcs {
+                    placed.push((seg, at, len));
+                    if let Segment::Arc {
+                        role: ArcRole::Data,
+                        ..
+                    } = plan.segments[seg]
+                    {
+                        let (t1, t2) = (profile.t_at(at), profile.t_at(at + len));
+                        let samples = rec.index_at(t2) - rec.index_at(t1);
+                        data.push(DataArc {
+                            segment: seg,
+                            sense: *sense,
+                            t_start_s: t1,
+                            t_end_s: t2,
+                            samples,
+                        });
+                    }
+                    at += len;
+                }
+                t = profile.end_s();
+                runs.push(Run {
+                    profile,
+                    arcs: placed,
+                });
+            }
+        }
+    }
+    (runs, data)
+}
+
+/// The lines' speed from a circle's ramps and its standard error (mm/s). The plan approaches
+/// each feed-in start along the feed-in's own direction, so the feed-in starts without a
+/// reversal and its trapezoid is the whole motion; the feed-out always starts with one, and
+/// carries that axis's backlash step and reversal spike, which bias its speed by far more than
+/// its σ says (a 4 µm spike of 25 ms moved it by 6·10⁻⁴). So the feed-in's speed is taken, and
+/// the feed-out's only when the feed-in's fit gave no standard error.
+fn line_speed(feed_in: &Ramp, feed_out: &Ramp) -> (f64, f64) {
+    let usable = |r: &Ramp| {
+        let s = r.speed_sigma_mm_s;
+        (s.is_finite() && s > 0.0).then_some((r.profile.speed_mm_s, s))
+    };
+    usable(feed_in).or_else(|| usable(feed_out)).unwrap_or((
+        0.5 * (feed_in.profile.speed_mm_s + feed_out.profile.speed_mm_s),
+        f64::INFINITY,
+    ))
+}
+
+/// At most this many data samples of a circle enter the search of the arcs' speed
+/// ([`speed_from_data`]); more are taken at an even stride.
+const TIMING_SAMPLES: usize = 30_000;
+
+/// How a circle's arcs ran: speed, the acceleration at their starts and stops, and how far the
+/// data arcs' times may be off for the speed's standard error.
+#[derive(Debug, Clone, PartialEq)]
+struct ArcTiming {
+    speed_mm_s: f64,
+    accel_mm_s2: f64,
+    timing_sigma_s: f64,
+}
+
+/// Speed and acceleration of a circle's arcs, and the timing's standard error.
+///
+/// The arcs run at the feed of the lines, and the feed-in measures that speed to a few parts in
+/// 10⁵ (its cruise over a millimetre or two; [`line_speed`]); what the ramps cannot tell is the
+/// acceleration at the arcs' starts and stops, which a controller may set apart from the lines'
+/// (it shares the acceleration between the tangential and the centripetal part). For the speed v
+/// the runs' total time fixes that acceleration: Σ_r (S_r/v + v/a) = T gives
+/// a = n·v/(T − ΣS/v). The speed's standard error then moves the data arcs' times by up to a
+/// millisecond or two by the end of a run; that is the timing's standard error, which the
+/// diagnosis adds to what depends on it (a reversal spike's height).
+///
+/// Fitting v and each run's start to the data instead was tried and is worse: it needs a model of
+/// everything in D that depends on the time, and where that model is not the machine (a backlash
+/// that is a dead zone rather than a step) it moves the timeline by milliseconds to hide the
+/// difference. When the lines' speed gives no acceleration within 1/10 … 10 of the lines' (the
+/// arcs ran at another speed), the speed is searched in the data over ±20 %
+/// ([`speed_from_data`]).
+#[allow(clippy::too_many_arguments)]
+fn arc_motion(
+    plan: &Plan,
+    rec: &Record,
+    items: &[Item],
+    lengths: &[f64],
+    t0: f64,
+    avail: f64,
+    line_speed: (f64, f64),
+    line_accel: f64,
+) -> ArcTiming {
+    let n = lengths.len();
+    let total: f64 = lengths.iter().sum();
+    let accel_for = |v: f64| {
+        let spare = avail - total / v;
+        (spare > 0.0)
+            .then(|| n as f64 * v / spare)
+            .filter(|a| a.is_finite() && *a > 0.0)
+    };
+    let plausible = |a: f64| (0.1 * line_accel..=10.0 * line_accel).contains(&a);
+    let (v_line, sigma_line) = line_speed;
+    let (v, sigma_v) = if accel_for(v_line).is_some_and(plausible) && sigma_line.is_finite() {
+        (v_line, sigma_line)
+    } else {
+        match speed_from_data(plan, rec, items, lengths, t0, avail, v_line, 0.2) {
+            Some(v) => (v, 1e-4 * v),
+            None => {
+                let v = solve_speed(lengths, line_accel, avail);
+                (v, 1e-3 * v)
+            }
+        }
+    };
+    let Some(a) = accel_for(v) else {
+        let v = solve_speed(lengths, line_accel, avail);
+        return ArcTiming {
+            speed_mm_s: v,
+            accel_mm_s2: line_accel,
+            timing_sigma_s: f64::INFINITY,
+        };
+    };
+    // The data arcs' ends at v + σ_v against v.
+    let (_, at_v) = timeline(plan, rec, items, t0, v, a);
+    let timing_sigma_s = match accel_for(v + sigma_v) {
+        Some(a1) => {
+            let (_, at_v1) = timeline(plan, rec, items, t0, v + sigma_v, a1);
+            at_v.iter()
+                .zip(&at_v1)
+                .map(|(x, y)| {
+                    (x.t_start_s - y.t_start_s)
+                        .abs()
+                        .max((x.t_end_s - y.t_end_s).abs())
+                })
+                .fold(0.0, f64::max)
+        }
+        None => f64::INFINITY,
+    };
+    ArcTiming {
+        speed_mm_s: v,
+        accel_mm_s2: a,
+        timing_sigma_s,
+    }
+}
+
+/// The data-arc samples of a circle on the timeline of `v0` with the runs unshifted, shrunk by
+/// 1 % of each arc's time at both ends (so that nearby timelines have them on their runs too),
+/// at most [`TIMING_SAMPLES`] of them at an even stride.
+fn timing_samples(rec: &Record, data: &[DataArc]) -> Vec<usize> {
+    let mut idx: Vec<usize> = vec![];
+    for a in data {
+        let m = 0.01 * (a.t_end_s - a.t_start_s);
+        let (i, j) = (rec.index_at(a.t_start_s + m), rec.index_at(a.t_end_s - m));
+        idx.extend(i..j);
+    }
+    let stride = idx.len().div_ceil(TIMING_SAMPLES).max(1);
+    idx.into_iter().step_by(stride).collect()
+}
+
+/// Positions (relative to the table ball, mm) and unit tangents of the samples `idx` on the
+/// timeline at speed `v`, acceleration `a`.
+#[allow(clippy::too_many_arguments)]
+fn nominal_on_runs(
+    plan: &Plan,
+    rec: &Record,
+    items: &[Item],
+    idx: &[usize],
+    t0: f64,
+    v: f64,
+    a: f64,
+) -> Vec<([f64; 3], [f64; 3])> {
+    let centre = plan.centre_mm;
+    let (runs, _) = timeline(plan, rec, items, t0, v, a);
+    idx.iter()
+        .map(|&i| {
+            let t = rec.t_s[i];
+            let run = runs
+                .iter()
+                .rev()
+                .find(|r| r.profile.t0_s <= t)
+                .unwrap_or(&runs[0]);
+            let s = run.profile.s_at(t);
+            let (seg, at, _) = run
+                .arcs
+                .iter()
+                .rev()
+                .find(|x| x.1 <= s)
+                .copied()
+                .unwrap_or(run.arcs[0]);
+            let q = plan.position_at(seg, s - at);
+            let (q1, q2) = (
+                plan.position_at(seg, s - at - 1e-3),
+                plan.position_at(seg, s - at + 1e-3),
+            );
+            let d = [q2[0] - q1[0], q2[1] - q1[1], q2[2] - q1[2]];
+            let n = dist(&q1, &q2).max(1e-12);
+            (
+                [q[0] - centre[0], q[1] - centre[1], q[2] - centre[2]],
+                [d[0] / n, d[1] / n, d[2] / n],
+            )
+        })
+        .collect()
+}
+
+/// The arcs' speed from the data of one circle alone, where the lines' speed does not fit the
+/// runs' time: the v within `v0`·(1 ± `window`) — each with the acceleration the runs' total
+/// time then implies — whose timeline leaves the least residual after [`timing_design`]'s fit
+/// (golden section). None where the data do not determine it (the least residual at the
+/// window's edge), or no acceleration is physical.
+#[allow(clippy::too_many_arguments)]
+fn speed_from_data(
+    plan: &Plan,
+    rec: &Record,
+    items: &[Item],
+    lengths: &[f64],
+    t0: f64,
+    avail: f64,
+    v0: f64,
+    window: f64,
+) -> Option<f64> {
+    let n_runs = lengths.len();
+    let total: f64 = lengths.iter().sum();
+    let accel_for = |v: f64| {
+        let spare = avail - total / v;
+        (spare > 0.0)
+            .then(|| n_runs as f64 * v / spare)
+            .filter(|a| a.is_finite() && *a > 0.0)
+    };
+    let a0 = accel_for(v0)?;
+    let (_, data0) = timeline(plan, rec, items, t0, v0, a0);
+    let idx = timing_samples(rec, &data0);
+    if idx.len() < 64 {
+        return None;
+    }
+    let ssr = |v: f64| -> f64 {
+        let Some(a) = accel_for(v) else {
+            return f64::INFINITY;
+        };
+        let nominal = nominal_on_runs(plan, rec, items, &idx, t0, v, a);
+        timing_residuals(&nominal, v, idx.iter().map(|&i| (rec.t_s[i], rec.d_mm[i])))
+            .iter()
+            .map(|x| x * x)
+            .sum()
+    };
+    let (lo0, hi0) = (v0 * (1.0 - window), v0 * (1.0 + window));
+    let (mut lo, mut hi) = (lo0, hi0);
+    let g = 0.5 * (5f64.sqrt() - 1.0);
+    let (mut x1, mut x2) = (hi - g * (hi - lo), lo + g * (hi - lo));
+    let (mut f1, mut f2) = (ssr(x1), ssr(x2));
+    for _ in 0..40 {
+        if f1 < f2 {
+            hi = x2;
+            (x2, f2) = (x1, f1);
+            x1 = hi - g * (hi - lo);
+            f1 = ssr(x1);
+        } else {
+            lo = x1;
+            (x1, f1) = (x2, f2);
+            x2 = lo + g * (hi - lo);
+            f2 = ssr(x2);
+        }
+    }
+    let (v, f) = if f1 < f2 { (x1, f1) } else { (x2, f2) };
+    let interior = (v - lo0).min(hi0 - v) >= 0.05 * (hi0 - lo0);
+    (f.is_finite() && interior).then_some(v)
+}
+
+/// Columns of [`timing_design`]: u (3), 1, backlash (3), reversal spike at two τ (6), drift,
+/// servo delay per axis (3), linear distortion p_i·p_j/|p| (6).
+const TIMING_COLUMNS: usize = 3 + 1 + 3 + 6 + 1 + 3 + 6;
+
+/// The residual (µm) of D − |p| after a linear least-squares fit of what ties D to the angle and
+/// the time of a sample, over samples in time order with nominal positions and tangents
+/// (`nominal`, relative to the table ball) at speed `v`, and (t, D): the set-up (u·c + e); every
+/// moving axis's backlash step (f_k/2)·dir_k·u_k and reversal spike −h_k·dir_k·u_k·e^(−Δt/τ)
+/// ([`Effect::ReversalSpike`], linear in h at τ 10 and 30 ms) from the axis's reversal (the
+/// vertex of a parabola through the samples around it, so that it moves smoothly with the
+/// timeline), its direction held through standstills and gaps; a drift (t); each axis's servo
+/// delay u_k·v_k; and the linear distortions (scale, squareness) p_i·p_j/|p|. A fit without one
+/// of these would move the timeline to hide it. Columns that do not move drop out (a small
+/// ridge).
+///
+/// [`Effect::ReversalSpike`]: crate::circular::model::Effect::ReversalSpike
+fn timing_residuals(
+    nominal: &[([f64; 3], [f64; 3])],
+    v: f64,
+    samples: impl Iterator<Item = (f64, f64)>,
+) -> Vec<f64> {
+    use nalgebra::{DMatrix, DVector};
+    const TAU_S: [f64; 2] = [0.010, 0.030];
+    const W: usize = TIMING_COLUMNS;
+    let mut rows: Vec<[f64; W]> = Vec::with_capacity(nominal.len());
+    let mut y: Vec<f64> = Vec::with_capacity(nominal.len());
+    let mut dir = [0.0f64; 3];
+    let mut t_rev = [f64::NEG_INFINITY; 3];
+    let mut hist: Vec<([f64; 3], f64)> = Vec::with_capacity(2);
+    for ((p, tangent), (t, d)) in nominal.iter().zip(samples) {
+        if let Some(&(q, tq)) = hist.last() {
+            for k in 0..3 {
+                let dp = p[k] - q[k];
+                if dp.abs() > 1e-9 {
+                    let new = dp.signum();
+                    if dir[k] != 0.0 && new != dir[k] {
+                        t_rev[k] = match hist.first() {
+                            Some(&(q0, t0)) if hist.len() == 2 => {
+                                vertex([t0, tq, t], [q0[k], q[k], p[k]]).unwrap_or(0.5 * (t + tq))
+                            }
+                            _ => 0.5 * (t + tq),
+                        };
+                    }
+                    dir[k] = new;
+                }
+            }
+        }
+        if hist.len() == 2 {
+            hist.remove(0);
+        }
+        hist.push((*p, t));
+        let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+        let u = [p[0] / r, p[1] / r, p[2] / r];
+        let mut row = [0.0f64; W];
+        row[..3].copy_from_slice(&u);
+        row[3] = 1.0;
+        for k in 0..3 {
+            row[4 + k] = 0.5 * dir[k] * u[k];
+            for (m, tau) in TAU_S.iter().enumerate() {
+                row[7 + 3 * m + k] = -dir[k] * u[k] * (-(t - t_rev[k]) / tau).exp();
+            }
+            row[14 + k] = u[k] * v * tangent[k];
+        }
+        row[13] = t;
+        let mut c = 17;
+        for i in 0..3 {
+            for j in i..3 {
+                row[c] = p[i] * p[j] / r;
+                c += 1;
+            }
+        }
+        rows.push(row);
+        y.push(1e3 * (d - r));
+    }
+    let mut g = DMatrix::<f64>::zeros(W, W);
+    let mut b = DVector::<f64>::zeros(W);
+    for (row, yi) in rows.iter().zip(&y) {
+        for i in 0..W {
+            b[i] += row[i] * yi;
+            for j in i..W {
+                g[(i, j)] += row[i] * row[j];
+            }
+        }
+    }
+    // Scale the columns to unit norm, then a ridge of 10⁻¹⁰ for the ones that do not move or
+    // repeat another (an axis at rest, a spike never seen, u_x·p_y = u_y·p_x).
+    let scale: Vec<f64> = (0..W)
+        .map(|i| {
+            let n = g[(i, i)].sqrt();
+            if n > 0.0 {
+                n
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let gs = DMatrix::from_fn(W, W, |i, j| {
+        let x = if i <= j { g[(i, j)] } else { g[(j, i)] };
+        x / (scale[i] * scale[j]) + if i == j { 1e-10 } else { 0.0 }
+    });
+    let bs = DVector::from_fn(W, |i, _| b[i] / scale[i]);
+    let beta = match gs.cholesky() {
+        Some(ch) => ch.solve(&bs),
+        None => DVector::zeros(W),
+    };
+    rows.iter()
+        .zip(&y)
+        .map(|(row, yi)| yi - (0..W).map(|i| row[i] * beta[i] / scale[i]).sum::<f64>())
+        .collect()
+}
+
+/// Time of the extremum of the parabola through three points (t, x), within their span.
+fn vertex(t: [f64; 3], x: [f64; 3]) -> Option<f64> {
+    let d1 = (x[1] - x[0]) / (t[1] - t[0]);
+    let d2 = (x[2] - x[1]) / (t[2] - t[1]);
+    let a = (d2 - d1) / (t[2] - t[0]);
+    if !(a.is_finite() && a != 0.0) {
+        return None;
+    }
+    let b = d1 - a * (t[0] + t[1]);
+    let tv = -b / (2.0 * a);
+    (tv.is_finite() && tv >= t[0] && tv <= t[2]).then_some(tv)
+}
+
+/// The speed v that runs of `lengths` (each from rest to rest with acceleration `accel`) take
+/// exactly `time` s to cover: Σ (S_r/v + v/a) = T, the smaller root of n·v²/a − T·v + ΣS = 0
+/// (the other is faster than the runs allow). Falls back to ΣS/T if no root exists.
+fn solve_speed(lengths: &[f64], accel: f64, time: f64) -> f64 {
+    let n = lengths.len() as f64;
+    let total: f64 = lengths.iter().sum();
+    let disc = time * time - 4.0 * n * total / accel;
+    if accel > 0.0 && disc >= 0.0 {
+        (time - disc.sqrt()) * accel / (2.0 * n)
+    } else {
+        total / time
+    }
+}
+
+/// The data arcs' samples with their nominal positions (relative to the table ball, mm): the
+/// path and D the diagnosis takes. A record with more than [`MAX_DATA_SAMPLES`] data samples is
+/// averaged in bins of consecutive samples of one arc. The axis reversals of the whole nominal
+/// motion (ramps, lead-in and overshoot arcs, sense reversals) are set on the path.
+pub fn data_path(
+    plan: &Plan,
+    rec: &Record,
+    sync: &Sync,
+    pitch_mm: [Option<f64>; 3],
+) -> Result<(Path, Vec<f64>)> {
+    let centre = plan.centre_mm;
+    let total = sync.data_samples();
+    let bin = total.div_ceil(MAX_DATA_SAMPLES).max(1);
+    let mut t = Vec::with_capacity(total / bin + 16);
+    let mut p = Vec::with_capacity(total / bin + 16);
+    let mut d = Vec::with_capacity(total / bin + 16);
+    let reversals = nominal_reversals(plan, sync);
+    let dt = median_interval(&rec.t_s);
+    let guard = REVERSAL_GUARD_S.max(1.5 * dt * bin as f64);
+    // Reversal times of the axes that move on the data arcs, sorted.
+    let mut marks: Vec<f64> = reversals.iter().flatten().map(|r| r.t_s).collect();
+    marks.sort_by(f64::total_cmp);
+    let near_reversal = |time: f64| {
+        let k = marks.partition_point(|&m| m < time - guard);
+        k < marks.len() && marks[k] <= time + guard
+    };
+    let position = |run: &Run, seg: usize, start: f64, time: f64| {
+        let s = run.profile.s_at(time) - start;
+        let q = plan.position_at(seg, s);
+        [q[0] - centre[0], q[1] - centre[1], q[2] - centre[2]]
+    };
+    for c in &sync.circles {
+        for run in &c.runs {
+            for &(seg, start, _) in &run.arcs {
+                let Some(arc) = c.data.iter().find(|a| a.segment == seg) else {
+                    continue;
+                };
+                let (i0, i1) = (rec.index_at(arc.t_start_s), rec.index_at(arc.t_end_s));
+                let mut i = i0;
+                while i < i1 {
+                    let j = (i + bin).min(i1);
+                    let n = (j - i) as f64;
+                    let tm = rec.t_s[i..j].iter().sum::<f64>() / n;
+                    let dm = rec.d_mm[i..j].iter().sum::<f64>() / n;
+                    if !near_reversal(tm) {
+                        t.push(tm);
+                        p.push(position(run, seg, start, tm));
+                        d.push(dm);
+                    }
+                    i = j;
+                }
+            }
+        }
+    }
+    if t.len() < 32 {
+        return Err(Error::Input {
+            location: rec.path.display().to_string(),
+            message: format!(
+                "only {} samples lie on the plan's data arcs; a diagnosis needs at least 32",
+                t.len()
+            ),
+        });
+    }
+    let mut path = Path::new(t, p, pitch_mm);
+    path.set_reversals(reversals);
+    path.timing_sigma_s = sync
+        .circles
+        .iter()
+        .map(|c| c.timing_sigma_s)
+        .fold(0.0, f64::max);
+    Ok((path, d))
+}
+
+/// Median time between samples (s).
+fn median_interval(t: &[f64]) -> f64 {
+    let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    if dts.is_empty() {
+        return 0.0;
+    }
+    let mid = dts.len() / 2;
+    *dts.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// The axis reversals of the nominal motion of every circle: its feed-in, arcs and feed-out, on
+/// the record's clock, found on a 1 ms grid (velocity zero crossings interpolated).
+fn nominal_reversals(plan: &Plan, sync: &Sync) -> [Vec<Reversal>; 3] {
+    let mut out: [Vec<Reversal>; 3] = Default::default();
+    for c in &sync.circles {
+        let (t_a, t_b) = (c.feed_in.profile.t0_s, c.feed_out.profile.end_s());
+        let n = ((t_b - t_a) / 1e-3).ceil().max(2.0) as usize;
+        let pos = |time: f64| -> [f64; 3] { nominal_position(plan, c, time) };
+        let mut prev_p = pos(t_a);
+        let mut prev_v = [0.0f64; 3];
+        let mut dir = [0i8; 3];
+        for step in 1..=n {
+            let time = t_a + (t_b - t_a) * step as f64 / n as f64;
+            let q = pos(time);
+            let dt = (t_b - t_a) / n as f64;
+            for k in 0..3 {
+                let v = (q[k] - prev_p[k]) / dt;
+                let s = if v > 1e-9 {
+                    1
+                } else if v < -1e-9 {
+                    -1
+                } else {
+                    0
+                };
+                if s != 0 && dir[k] != 0 && s != dir[k] {
+                    let f = if prev_v[k] != v {
+                        prev_v[k] / (prev_v[k] - v)
+                    } else {
+                        0.0
+                    };
+                    out[k].push(Reversal {
+                        t_s: time - dt + f.clamp(0.0, 1.0) * dt - 0.5 * dt,
+                        new_dir: s,
+                    });
+                }
+                if s != 0 {
+                    dir[k] = s;
+                }
+                prev_v[k] = v;
+            }
+            prev_p = q;
+        }
+    }
+    for r in &mut out {
+        r.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
+    }
+    out
+}
+
+/// The nominal position (program coordinates) of circle `c`'s motion at record time `t`.
+fn nominal_position(plan: &Plan, c: &CircleSync, t: f64) -> [f64; 3] {
+    let line = |seg: usize, prof: &Profile| plan.position_at(seg, prof.s_at(t));
+    let (fi_seg, fo_seg) = feed_segments(plan, c.circle);
+    if t <= c.feed_in.profile.end_s() {
+        return line(fi_seg, &c.feed_in.profile);
+    }
+    if t >= c.feed_out.profile.t0_s {
+        return line(fo_seg, &c.feed_out.profile);
+    }
+    // The run in force (or the last one that ended: a dwell holds its end).
+    let mut cur = &c.runs[0];
+    for run in &c.runs {
+        if run.profile.t0_s <= t {
+            cur = run;
+        }
+    }
+    let s = cur.profile.s_at(t);
+    let mut last = cur.arcs[0];
+    for &a in &cur.arcs {
+        if a.1 <= s {
+            last = a;
+        }
+    }
+    plan.position_at(last.0, s - last.1)
+}
+
+/// The feed-in and feed-out segments of circle `k`.
+fn feed_segments(plan: &Plan, k: usize) -> (usize, usize) {
+    let find = |role: LineRole| {
+        plan.segments
+            .iter()
+            .position(|s| matches!(s, Segment::Line { role: r, circle, .. } if *r == role && *circle == k))
+            .unwrap_or(0)
+    };
+    (find(LineRole::FeedIn), find(LineRole::FeedOut))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn profiles_are_trapezoids_and_invert() {
+        let p = Profile {
+            t0_s: 2.0,
+            length_mm: 10.0,
+            speed_mm_s: 20.0,
+            accel_mm_s2: 400.0,
+        };
+        // 0.05 s to 20 mm/s over 0.5 mm, 9 mm of cruise at 20 mm/s, 0.05 s down.
+        assert!((p.duration_s() - (0.1 + 9.0 / 20.0)).abs() < 1e-12);
+        assert!((p.s_at(2.05) - 0.5).abs() < 1e-12);
+        assert!((p.s_at(2.3) - (0.5 + 20.0 * 0.25)).abs() < 1e-12);
+        assert_eq!(p.s_at(1.0), 0.0);
+        assert_eq!(p.s_at(9.0), 10.0);
+        for s in [0.0, 0.1, 0.5, 3.0, 9.7, 10.0] {
+            assert!((p.s_at(p.t_at(s)) - s).abs() < 1e-9, "{s}");
+        }
+        // Too short to reach the speed: a triangle.
+        let tri = Profile {
+            length_mm: 0.4,
+            ..p
+        };
+        assert!((tri.duration_s() - 2.0 * (0.4f64 / 400.0).sqrt()).abs() < 1e-12);
+        assert!((tri.s_at(tri.t0_s + tri.duration_s() / 2.0) - 0.2).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_speed_that_fills_the_time() {
+        // Two runs of 500 mm at 16 mm/s with a = 800 mm/s²: each 500/16 + 16/800 s.
+        let (v, a) = (16.0, 800.0);
+        let time = 2.0 * (500.0 / v + v / a);
+        assert!((solve_speed(&[500.0, 500.0], a, time) - v).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_ramp_fit_recovers_start_speed_and_acceleration() {
+        // A feed-in of 2 mm from R 88 to 90 mm (xy, radial along x) at 16.667 mm/s, a = 500,
+        // sampled at 1 kHz with 0.3 µm noise, dwells either side.
+        let prof = Profile {
+            t0_s: 1.2345,
+            length_mm: 2.0,
+            speed_mm_s: 1000.0 / 60.0,
+            accel_mm_s2: 500.0,
+        };
+        let mut t = vec![];
+        let mut d = vec![];
+        let mut x: u64 = 7;
+        for i in 0..3000 {
+            let ti = i as f64 * 1e-3;
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let noise = ((x >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 1e-3;
+            t.push(ti);
+            d.push(88.0 + prof.s_at(ti) + noise);
+        }
+        let rec = Record::from_samples(FsPath::new("r.csv"), t, d);
+        let cross = crossing(&rec, 0, 89.0, 1.0).unwrap();
+        let r = fit_ramp(
+            &rec,
+            cross,
+            [88.0, 0.0, 0.0],
+            [90.0, 0.0, 0.0],
+            88.0,
+            90.0,
+            1000.0 / 60.0,
+            0.25,
+            0.25,
+        )
+        .unwrap();
+        assert!((r.profile.t0_s - prof.t0_s).abs() < 2e-4, "{:?}", r.profile);
+        assert!((r.profile.speed_mm_s / prof.speed_mm_s - 1.0).abs() < 2e-3);
+        assert!((r.profile.accel_mm_s2 / prof.accel_mm_s2 - 1.0).abs() < 0.1);
+        assert!((r.profile.end_s() - prof.end_s()).abs() < 2e-4);
+    }
+}

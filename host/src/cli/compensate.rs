@@ -1,0 +1,122 @@
+//! `jdbb compensate`: a diagnosis as the settings of a CNC controller; glue to
+//! [`crate::compensate`].
+use std::path::PathBuf;
+
+use super::output::{print, write_file};
+use crate::circular::document::DiagnosisDoc;
+use crate::compensate::{plan, render, Controller, Current, Options, Placement};
+use crate::{Error, Result};
+
+/// Arguments of `jdbb compensate`.
+#[derive(Debug, clap::Args)]
+pub struct CompensateArgs {
+    /// The diagnosis: diagnosis.json of `jdbb diagnose --report DIR`, or its `--json` output.
+    #[arg(long, value_name = "DIAG.json")]
+    pub diagnosis: PathBuf,
+    /// The controller: linuxcnc, grblhal, marlin or klipper.
+    #[arg(long)]
+    pub controller: String,
+    /// The values in force, in the controller's format (LinuxCNC INI lines, grblHAL `$n=v`
+    /// lines, Marlin M425/M852/M92 lines, Klipper printer.cfg sections); the output gives new
+    /// totals.
+    #[arg(long, value_name = "FILE")]
+    pub current: Option<PathBuf>,
+    /// Machine coordinates of the table ball during the test, e.g. `x=250,y=150,z=-300` (mm),
+    /// where a table over machine positions is written (LinuxCNC COMP_FILE).
+    #[arg(long, value_name = "x=..,y=..,z=..")]
+    pub table_ball: Option<String>,
+    /// Machine travel to cover with a position table, e.g. `x=0:500,y=0:400` (mm).
+    #[arg(long, value_name = "x=MIN:MAX,..")]
+    pub travel: Option<String>,
+    /// LinuxCNC COMP_FILE_TYPE to write: 1 (corrections) or 0 (actual positions).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(0..=1))]
+    pub comp_file_type: u8,
+    /// Write the files (LinuxCNC comp tables) into this directory instead of printing them.
+    #[arg(long, short)]
+    pub out: Option<PathBuf>,
+}
+
+/// `x=1,y=2` into per-axis values with `parse` for each value.
+fn per_axis<T>(
+    option: &str,
+    s: &str,
+    parse: impl Fn(&str) -> Option<T>,
+    form: &str,
+) -> Result<[Option<T>; 3]> {
+    let mut out: [Option<T>; 3] = [None, None, None];
+    for part in s.split(',').filter(|p| !p.trim().is_empty()) {
+        let (k, v) = part
+            .split_once('=')
+            .ok_or_else(|| Error::Usage(format!("{option}: `{part}` should look like {form}")))?;
+        let axis = match k.trim() {
+            "x" => 0,
+            "y" => 1,
+            "z" => 2,
+            other => {
+                return Err(Error::Usage(format!(
+                    "{option}: unknown axis `{other}`; use x, y or z"
+                )))
+            }
+        };
+        if out[axis].is_some() {
+            return Err(Error::Usage(format!(
+                "{option}: axis {} is given twice",
+                k.trim()
+            )));
+        }
+        out[axis] =
+            Some(parse(v.trim()).ok_or_else(|| {
+                Error::Usage(format!("{option}: `{part}` should look like {form}"))
+            })?);
+    }
+    Ok(out)
+}
+
+fn finite(s: &str) -> Option<f64> {
+    s.parse::<f64>().ok().filter(|x| x.is_finite())
+}
+
+/// Run `jdbb compensate`.
+pub fn run(args: &CompensateArgs) -> Result<()> {
+    let controller = Controller::parse(&args.controller)?;
+    let (doc, _) = DiagnosisDoc::read(&args.diagnosis)?;
+    let current = match &args.current {
+        Some(f) => Current::read(f, controller)?,
+        None => Current::none(),
+    };
+    let mut placement = Placement::default();
+    if let Some(s) = &args.table_ball {
+        placement.table_ball_mm = per_axis("--table-ball", s, finite, "x=250 (mm)")?;
+    }
+    if let Some(s) = &args.travel {
+        placement.travel_mm = per_axis(
+            "--travel",
+            s,
+            |v| {
+                let (a, b) = v.split_once(':')?;
+                let (a, b) = (finite(a.trim())?, finite(b.trim())?);
+                (a < b).then_some((a, b))
+            },
+            "x=MIN:MAX with MIN < MAX (mm)",
+        )?;
+    }
+    let opts = Options {
+        controller,
+        placement,
+        comp_file_type: args.comp_file_type,
+    };
+    let p = plan(&doc, &current, &opts)?;
+    if let Some(dir) = &args.out {
+        std::fs::create_dir_all(dir).map_err(|source| Error::File {
+            action: "cannot create",
+            path: dir.clone(),
+            source,
+        })?;
+        for (name, content) in &p.files {
+            write_file(&dir.join(name), content.as_bytes())?;
+        }
+    }
+    let mut text = format!("from {}\n", args.diagnosis.display());
+    text.push_str(&render(&p, args.out.as_deref()));
+    print(&text)
+}

@@ -1,0 +1,185 @@
+//! `jdbb diagnose`: arguments and glue to [`crate::circular`].
+use std::path::PathBuf;
+
+use super::output::{emit, json_text, print, write_file};
+use crate::circular::diagnose::{diagnose, Options};
+use crate::circular::document::DiagnosisDoc;
+use crate::circular::html::report_html;
+use crate::circular::input::{read_record_with_path, read_samples};
+use crate::circular::model::parse_pitch;
+use crate::circular::plan::Plan;
+use crate::circular::plot::write_report;
+use crate::circular::report::{plan_json, summary, sync_json, sync_summary, to_json};
+use crate::circular::sync::{data_path, synchronise, Record};
+use crate::{Error, Result};
+
+/// Arguments of `jdbb diagnose`.
+#[derive(Debug, clap::Args)]
+pub struct DiagnoseArgs {
+    /// CSV `t_s,x_mm,y_mm,z_mm,d_mm` (nominal path and measured D), e.g. from `jdbb simulate`.
+    #[arg(long, required_unless_present = "record", conflicts_with = "record")]
+    pub samples: Option<PathBuf>,
+    /// A `jdbb record` file (`seq,t_us,enc1,enc2,d_mm`), diagnosed together with `--plan` (or a
+    /// hand-made `--path`).
+    #[arg(long)]
+    pub record: Option<PathBuf>,
+    /// The plan.json that `jdbb plan` wrote for the program the machine ran: the record is
+    /// synchronised with it from D alone (cycle start, circles, feed) and only its data arcs are
+    /// diagnosed.
+    #[arg(long, requires = "record", conflicts_with_all = ["path", "path_offset_s"])]
+    pub plan: Option<PathBuf>,
+    /// The nominal path of a `--record` file: CSV `t_s,x_mm,y_mm,z_mm` (the commanded ball
+    /// centre relative to the table ball), interpolated linearly at the record's times.
+    #[arg(long, requires = "record")]
+    pub path: Option<PathBuf>,
+    /// With `--path`: time of the path's t_s = 0 on the record's clock, in s after the record's
+    /// first sample.
+    #[arg(long, allow_negative_numbers = true, value_parser = super::args::finite)]
+    pub path_offset_s: Option<f64>,
+    /// Ball-screw or scale pitch per axis in mm, e.g. `x=10,y=10,z=5`; enables cyclic_k and
+    /// interference_k for those axes.
+    #[arg(long)]
+    pub pitch: Option<String>,
+    /// Print the documented JSON instead of the human summary.
+    #[arg(long)]
+    pub json: bool,
+    /// Write polar plots (SVG and PNG), the JSON and report.html to this directory.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// The machine's name, for the report and the history (`jdbb history add`).
+    #[arg(long)]
+    pub machine: Option<String>,
+    /// Tolerance on the circular deviation G (µm): the run passes if every circle's G (each
+    /// direction, minimum-zone centre) is at most this.
+    #[arg(long, value_parser = super::args::positive)]
+    pub tolerance_um: Option<f64>,
+    /// Date of the test, YYYY-MM-DD or RFC 3339 (default: now), for the report and the history.
+    #[arg(long, value_parser = crate::dates::parse_date)]
+    pub date: Option<String>,
+    /// The instrument calibration in force (JSON: l1_mm, l2_mm, enc1 and enc2 with
+    /// counts_per_rev, zero_count, direction), for the report and the history.
+    #[arg(long, value_name = "FILE")]
+    pub calibration: Option<PathBuf>,
+}
+
+/// The calibration file of `--calibration` as JSON, checked against jdbb-core's Calibration.
+fn read_calibration(file: &std::path::Path) -> Result<serde_json::Value> {
+    let text = std::fs::read_to_string(file).map_err(|source| Error::InputFile {
+        path: file.to_path_buf(),
+        source,
+    })?;
+    let cal: jdbb_core::calib::Calibration = serde_json::from_str(&text).map_err(|e| {
+        Error::input(
+            file,
+            e.line(),
+            e.column(),
+            format!("not an instrument calibration ({e}); expected JSON with l1_mm, l2_mm, enc1 and enc2 ({{counts_per_rev, zero_count, direction: Positive|Negative}})"),
+        )
+    })?;
+    cal.validate().map_err(|e| Error::Input {
+        location: file.display().to_string(),
+        message: match e {
+            jdbb_core::calib::CalibrationError::BarLength => {
+                "a bar length is not a finite positive number below 10 m".into()
+            }
+            jdbb_core::calib::CalibrationError::Resolution => {
+                "an encoder has fewer than 4 counts per revolution".into()
+            }
+            other => format!("calibration rejected: {other:?}"),
+        },
+    })?;
+    Ok(serde_json::to_value(cal).expect("a calibration is plain data"))
+}
+
+/// The run's facts from the options (machine, date, tolerance and verdict, calibration) into
+/// the diagnosis JSON (documented in `circular::report`); returns the verdict line to print.
+fn add_run_facts(
+    json: &mut serde_json::Value,
+    args: &DiagnoseArgs,
+    diag: &crate::circular::diagnose::Diagnosis,
+) -> Result<Option<String>> {
+    use serde_json::json;
+    if let Some(m) = &args.machine {
+        json["machine"] = json!(m);
+    }
+    json["date_utc"] = json!(args.date.clone().unwrap_or_else(crate::dates::now_utc));
+    if let Some(file) = &args.calibration {
+        json["calibration"] = read_calibration(file)?;
+    }
+    let Some(tol) = args.tolerance_um else {
+        return Ok(None);
+    };
+    let g = diag
+        .circle_zones
+        .iter()
+        .map(|c| c.g_um())
+        .fold(f64::NAN, f64::max);
+    let pass = !diag.circle_zones.is_empty() && diag.circle_zones.iter().all(|c| c.g_um() <= tol);
+    json["tolerance"] = json!({"g_um": tol, "pass": pass});
+    Ok(Some(format!(
+        "{}: largest circular deviation G {:.3} µm (minimum zone, per circle and direction) {} tolerance {} µm",
+        if pass { "PASS" } else { "FAIL" },
+        g,
+        if pass { "<=" } else { ">" },
+        tol
+    )))
+}
+
+/// Run `jdbb diagnose`.
+pub fn run(args: &DiagnoseArgs) -> Result<()> {
+    let pitch = match &args.pitch {
+        Some(s) => parse_pitch(s)?,
+        None => [None; 3],
+    };
+    let mut synced = None;
+    let (path, d) = match (&args.samples, &args.record, &args.path, &args.plan) {
+        (Some(samples), _, _, _) => read_samples(samples, pitch)?,
+        (None, Some(record), None, Some(plan_file)) => {
+            let plan = Plan::read(plan_file)?;
+            let rec = Record::read(record)?;
+            let sync = synchronise(&plan, &rec)?;
+            let data = data_path(&plan, &rec, &sync, pitch)?;
+            synced = Some((plan_file, plan, sync));
+            data
+        }
+        (None, Some(record), Some(nominal), None) => {
+            read_record_with_path(record, nominal, args.path_offset_s.unwrap_or(0.0), pitch)?
+        }
+        _ => {
+            return Err(Error::Usage(
+                "give --samples FILE, or --record FILE with --plan plan.json (or with a hand-made --path FILE)".into(),
+            ))
+        }
+    };
+    let diag = diagnose(&path, &d, &Options::default())?;
+    let mut json = to_json(&diag);
+    if let Some((file, plan, sync)) = &synced {
+        json["plan"] = plan_json(file, plan);
+        json["sync"] = sync_json(plan, sync);
+    }
+    let verdict = add_run_facts(&mut json, args, &diag)?;
+    if args.json {
+        emit(&json_text(&json))?;
+    } else {
+        if let Some((_, plan, sync)) = &synced {
+            print(&sync_summary(plan, sync))?;
+        }
+        print(&summary(&diag))?;
+        if let Some(v) = &verdict {
+            emit(v)?;
+        }
+    }
+    if let Some(dir) = &args.report {
+        write_report(dir, &diag, &json)?;
+        let doc: DiagnosisDoc = serde_json::from_value(json.clone())
+            .expect("the diagnosis JSON reads back as a DiagnosisDoc");
+        write_file(
+            &dir.join("report.html"),
+            report_html(&diag, &doc)?.as_bytes(),
+        )?;
+        if !args.json {
+            emit(&format!("report written to {}", dir.display()))?;
+        }
+    }
+    Ok(())
+}

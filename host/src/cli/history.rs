@@ -1,0 +1,179 @@
+//! `jdbb history add|list|trend`: a machine's diagnoses over time; glue to [`crate::history`].
+use std::fmt::Write;
+use std::path::PathBuf;
+
+use super::output::print;
+use crate::circular::document::DiagnosisDoc;
+use crate::history::{default_path, trend, History};
+use crate::units::human;
+use crate::Result;
+
+/// Arguments of `jdbb history`.
+#[derive(Debug, clap::Args)]
+pub struct HistoryArgs {
+    /// The history database (default: history.sqlite in your data directory, e.g.
+    /// ~/.local/share/jdbb/).
+    #[arg(long, global = true, value_name = "PATH")]
+    pub db: Option<PathBuf>,
+    #[command(subcommand)]
+    pub command: HistoryCommand,
+}
+
+/// The history subcommands.
+#[derive(Debug, clap::Subcommand)]
+pub enum HistoryCommand {
+    /// File a diagnosis (diagnosis.json of `jdbb diagnose --report DIR`) under a machine.
+    Add {
+        #[arg(long)]
+        machine: String,
+        #[arg(long, value_name = "DIAG.json")]
+        diagnosis: PathBuf,
+        /// Date of the test (YYYY-MM-DD or RFC 3339), if not the one in the file.
+        #[arg(long, value_parser = crate::dates::parse_date)]
+        date: Option<String>,
+    },
+    /// The runs of a machine (or, without --machine, the machines).
+    List {
+        #[arg(long)]
+        machine: Option<String>,
+    },
+    /// Each effect of a machine with its σ over time; runs not comparable with the latest are
+    /// flagged with what differs (plane, circles, feed, plan, instrument calibration).
+    Trend {
+        #[arg(long)]
+        machine: String,
+        /// Only this effect, e.g. backlash_x.
+        #[arg(long)]
+        effect: Option<String>,
+        /// Also plot the trend to this SVG file.
+        #[arg(long, visible_alias = "out", short = 'o', value_name = "OUT.svg")]
+        plot: Option<PathBuf>,
+    },
+}
+
+/// Run `jdbb history`.
+pub fn run(args: &HistoryArgs) -> Result<()> {
+    let path = match &args.db {
+        Some(p) => p.clone(),
+        None => default_path()?,
+    };
+    match &args.command {
+        HistoryCommand::Add {
+            machine,
+            diagnosis,
+            date,
+        } => {
+            let (doc, text) = DiagnosisDoc::read(diagnosis)?;
+            if let Some(named) = doc.machine.as_deref().filter(|m| *m != machine.trim()) {
+                return Err(crate::Error::Usage(format!(
+                    "{} is of machine `{named}`, not `{machine}`: give --machine {named}, or diagnose again with --machine {machine}",
+                    diagnosis.display()
+                )));
+            }
+            let mut h = History::open(&path)?;
+            let added = h.add(
+                machine,
+                &doc,
+                &text,
+                &diagnosis.display().to_string(),
+                date.clone(),
+            )?;
+            let text = if added.new {
+                format!(
+                    "added run {} of {machine} ({}{}) to {}\n",
+                    added.run_id,
+                    added.date_utc,
+                    if added.date_from_file || date.is_some() {
+                        ""
+                    } else {
+                        ", the time of adding: the file has no date"
+                    },
+                    path.display()
+                )
+            } else {
+                format!(
+                    "already in {}: run {} of {machine} ({}); nothing added\n",
+                    path.display(),
+                    added.run_id,
+                    added.date_utc
+                )
+            };
+            print(&text)
+        }
+        HistoryCommand::List { machine: None } => {
+            let h = History::open(&path)?;
+            let mut s = String::new();
+            let machines = h.machines()?;
+            if machines.is_empty() {
+                let _ = writeln!(s, "{}: no machines yet", path.display());
+            }
+            for (name, n) in machines {
+                let _ = writeln!(s, "{name}: {n} runs");
+            }
+            print(&s)
+        }
+        HistoryCommand::List {
+            machine: Some(machine),
+        } => {
+            let h = History::open(&path)?;
+            let runs = h.runs(machine)?;
+            let mut s = String::new();
+            let _ = writeln!(s, "machine {machine}: {} runs", runs.len());
+            let _ = writeln!(
+                s,
+                "run  date                  G µm    H µm    RMS µm  verdict  effects"
+            );
+            let num = |x: Option<f64>| x.map_or("-".to_string(), |v| format!("{v:.2}"));
+            for r in &runs {
+                let verdict = match (r.pass, r.tolerance_um) {
+                    (Some(true), Some(t)) => format!("pass {t}"),
+                    (Some(false), Some(t)) => format!("FAIL {t}"),
+                    _ => "-".into(),
+                };
+                let effects: Vec<String> = r
+                    .effects
+                    .iter()
+                    .map(|e| {
+                        format!(
+                            "{} {} {}",
+                            e.name,
+                            e.value.map_or("-".into(), |v| format!("{v:.3}")),
+                            human(&e.unit)
+                        )
+                    })
+                    .collect();
+                let _ = writeln!(
+                    s,
+                    "{:<4} {:<21} {:<7} {:<7} {:<7} {:<8} {}",
+                    r.id,
+                    r.date_utc,
+                    num(r.g_um),
+                    num(r.h_um),
+                    r.final_rms_um.map_or("-".into(), |v| format!("{v:.3}")),
+                    verdict,
+                    if effects.is_empty() {
+                        "none".to_string()
+                    } else {
+                        effects.join(", ")
+                    }
+                );
+            }
+            print(&s)
+        }
+        HistoryCommand::Trend {
+            machine,
+            effect,
+            plot,
+        } => {
+            let h = History::open(&path)?;
+            let runs = h.runs(machine)?;
+            let trends = trend::trend(&runs, effect.as_deref())?;
+            let mut s = trend::render(machine, &runs, &trends);
+            if let Some(file) = plot {
+                trend::plot_svg(file, machine, &trends)?;
+                let _ = writeln!(s, "plot written to {}", file.display());
+            }
+            print(&s)
+        }
+    }
+}

@@ -1,0 +1,103 @@
+//! `jdbb live`: the latest D (mm, to 0.1 µm), the measured sample rate and the loss counters,
+//! redrawn on one terminal line a few times per second — or, when stdout is not a terminal (a
+//! log, a CI job), printed as one line per second.
+use std::io::{IsTerminal, Write};
+use std::sync::atomic::Ordering;
+use std::time::Instant;
+
+use super::output::emit;
+use super::stream_args::StreamArgs;
+use crate::link::live::{status_line, RateMeter, REDRAW};
+use crate::link::record::{port_lost, summary, End};
+use crate::link::stream::{describe_info, interrupt_flag, Poll, Stream};
+use crate::Result;
+
+/// Arguments of `jdbb live`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct LiveArgs {
+    #[command(flatten)]
+    pub stream: StreamArgs,
+}
+
+/// `jdbb live`: show the stream from `--port` until `--seconds`, Ctrl-C or the device goes away,
+/// then print a summary. Losing the device is an error (nonzero exit).
+pub fn run(args: &LiveArgs) -> Result<()> {
+    let a = &args.stream;
+    a.validate()?;
+    let mut stream = Stream::open(&a.port)?;
+    let interrupted = interrupt_flag();
+    a.start(&mut stream)?;
+    let tty = std::io::stdout().is_terminal();
+    let t0 = Instant::now();
+    let deadline = a.deadline(t0);
+    let mut rate = RateMeter::new(t0);
+    let mut last_draw = t0;
+    let mut info_shown = false;
+    let mut out = std::io::stdout().lock();
+    let end = loop {
+        if interrupted.load(Ordering::SeqCst) {
+            break End::Interrupted;
+        }
+        let now = Instant::now();
+        if deadline.is_some_and(|d| now >= d) {
+            break End::Time;
+        }
+        let polled = stream.poll(|_| {});
+        let now = Instant::now();
+        let window_closed = rate.update(now, stream.stats().samples);
+        if !info_shown {
+            if let Some(info) = stream.info() {
+                let _ = write!(out, "{}", if tty { "\r\x1b[2K" } else { "" });
+                let _ = writeln!(out, "device: {}", describe_info(info));
+                info_shown = true;
+            }
+        }
+        let draw = if tty {
+            now.duration_since(last_draw) >= REDRAW
+        } else {
+            window_closed
+        };
+        if draw {
+            last_draw = now;
+            let line = status_line(
+                stream.last_sample().map(|s| s.sample.d_mm),
+                rate.hz,
+                stream.stats(),
+            );
+            // Output errors (a closed pipe) must not stop the stream: ignore them.
+            let _ = if tty {
+                write!(out, "\r\x1b[2K{line}")
+            } else {
+                writeln!(out, "{line}")
+            };
+            let _ = out.flush();
+        }
+        match polled {
+            Ok(Poll::Closed) => break End::Lost(port_lost(&a.port)),
+            Err(e) => break End::Lost(e),
+            Ok(_) => {}
+        }
+    };
+    let seconds = t0.elapsed().as_secs_f64();
+    a.stop(&mut stream);
+    let last = status_line(
+        stream.last_sample().map(|s| s.sample.d_mm),
+        rate.hz,
+        stream.stats(),
+    );
+    let _ = if tty {
+        writeln!(out, "\r\x1b[2K{last}")
+    } else {
+        writeln!(out, "{last}")
+    };
+    drop(out);
+    emit(&format!(
+        "live ({}): {}",
+        end.describe(),
+        summary(stream.stats(), seconds)
+    ))?;
+    match end {
+        End::Lost(e) => Err(e),
+        _ => Ok(()),
+    }
+}

@@ -1,0 +1,82 @@
+//! Options shared by the commands that stream from a device (`live`, `record`), and what they
+//! send to it at the start and the end of a session.
+use std::io::{Read, Write};
+use std::time::{Duration, Instant};
+
+use jdbb_core::protocol::{self, Command};
+
+use crate::link::stream::Stream;
+use crate::{Error, Result};
+
+/// How long a session waits for the device to answer before it starts anyway.
+const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// Options shared by the commands that stream from a device (`live`, `record`).
+#[derive(Debug, Clone, clap::Args)]
+pub struct StreamArgs {
+    /// Serial port: a USB CDC device (e.g. /dev/ttyACM0) or QEMU's pty (/dev/pts/N).
+    #[arg(long, value_name = "PORT")]
+    pub port: String,
+    /// Stop after this many seconds, at most a year (default: until Ctrl-C or the device goes
+    /// away).
+    #[arg(long, value_name = "N", value_parser = super::args::seconds)]
+    pub seconds: Option<f64>,
+    /// Set the device's sample clock (Hz) before starting.
+    #[arg(long, value_name = "HZ")]
+    pub rate: Option<u32>,
+    /// Listen only: send no Start (and no Stop at the end) to a device that is already streaming.
+    #[arg(long)]
+    pub no_start: bool,
+}
+
+impl StreamArgs {
+    /// Check the values before anything is opened.
+    pub fn validate(&self) -> Result<()> {
+        if let Some(hz) = self.rate {
+            if !(1..=protocol::MAX_SAMPLE_RATE_HZ).contains(&hz) {
+                return Err(Error::Usage(format!(
+                    "--rate {hz}: the device samples at 1 to {} Hz",
+                    protocol::MAX_SAMPLE_RATE_HZ
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// The deadline given by `--seconds`, counted from `t0` (`--seconds` is at most a year, so
+    /// the sum cannot overflow; None also if it would).
+    pub fn deadline(&self, t0: Instant) -> Option<Instant> {
+        self.seconds
+            .and_then(|s| Duration::try_from_secs_f64(s).ok())
+            .and_then(|d| t0.checked_add(d))
+    }
+
+    /// Ask the device to describe itself, then configure and start it as asked (`--rate`,
+    /// unless `--no-start`).
+    pub fn start<P: Read + Write>(&self, stream: &mut Stream<P>) -> Result<()> {
+        if self.no_start {
+            // Listen only: every sample counts from the first byte, so no handshake.
+            return stream.send(&Command::GetInfo);
+        }
+        if !stream.handshake(HANDSHAKE_TIMEOUT)? {
+            eprintln!(
+                "warning: {} did not answer a ping within {} s; starting anyway",
+                stream.name(),
+                HANDSHAKE_TIMEOUT.as_secs()
+            );
+        }
+        stream.send(&Command::GetInfo)?;
+        if let Some(hz) = self.rate {
+            stream.send(&Command::SetSampleRate(hz))?;
+        }
+        stream.send(&Command::Start)
+    }
+
+    /// Stop the device at the end of a session (unless `--no-start`). Errors are ignored: the
+    /// device may be gone, which was reported already.
+    pub fn stop<P: Write>(&self, stream: &mut Stream<P>) {
+        if !self.no_start {
+            let _ = stream.send(&Command::Stop);
+        }
+    }
+}

@@ -1,0 +1,303 @@
+//! LinuxCNC 2.9 (trivkins): `[JOINT_n] BACKLASH` in the INI, a screw-compensation
+//! `COMP_FILE` where the error depends on position, `matrixkins` for squareness (2.10/master).
+//!
+//! Semantics (sources as in `shared/notes/controllers.md`; checked in LinuxCNC's
+//! `src/emc/motion/control.c`, `usrmotintf.cc`, `command.c`):
+//! - `BACKLASH` is the **full** lost motion in machine units; `compute_screw_comp()` sets
+//!   `backlash_corr = +0.5·backlash` while the joint's commanded velocity is > 0 and `−0.5·backlash`
+//!   while it is < 0, ramps it (`backlash_filt`) and adds it to the motor command
+//!   (`motor_pos_cmd = pos_cmd + backlash_filt + motor_offset`). No sign check: a negative value is
+//!   applied as it is.
+//! - `COMP_FILE` holds `nominal a b` triplets, one per line, nominal strictly increasing, at most
+//!   256 per joint, linearly interpolated, the end values held beyond the table; loading stops at
+//!   the first line that is not three numbers (so the file has no comments). `COMP_FILE_TYPE = 0`:
+//!   a, b are the *actual* positions reached moving + and −; the loader stores `nominal − a` and
+//!   `nominal − b`. Type 1: a, b are the trims themselves. The trim for the direction of motion
+//!   replaces `±0.5·BACKLASH`: **`BACKLASH` is ignored when `COMP_FILE` is set**, so the table
+//!   written here carries the backlash in its forward − reverse difference.
+//! - Squareness: trivkins has none. `matrixkins` (LinuxCNC 2.10 / master only, not 2.9) maps
+//!   `X_joint = C_xx·X + C_xy·Y + C_xz·Z` (and Y, Z alike) with HAL parameters
+//!   `matrixkins.C_ij`; δ_i = s·j is cancelled by C_ij = −s·10⁻⁶.
+//!
+//! Tables written here span `--travel`, else the tested circle round `--table-ball` (machine
+//! coordinates of the table ball; the diagnosis' positions are relative to it). Entries are
+//! every 1/16 of the pitch where there is a cyclic error (down to 1/8 to stay within 256), else
+//! 65 over the span; the cyclic part of each entry is divided by sinc²(step/pitch), the share of
+//! a sine at the pitch that linear interpolation between entries keeps, so the table LinuxCNC
+//! interpolates has the measured amplitude.
+//!
+//! Joints: X, Y, Z are joints 0, 1, 2 (trivkins `coordinates=XYZ`); a gantry's second joint of an
+//! axis takes the same values. Units: mm (`[TRAJ] LINEAR_UNITS = mm`).
+//!
+//! # `--current` format
+//! The INI sections and keys in force, and HAL `setp` lines, e.g.
+//! ```text
+//! [JOINT_0]
+//! BACKLASH = 0.004
+//! [JOINT_1]
+//! BACKLASH = 0.0
+//! setp matrixkins.C_xy 0.0
+//! ```
+//! `[AXIS_n]` (LinuxCNC 2.7) counts as `[JOINT_n]`; `COMP_FILE` in a section is noted; other
+//! sections, keys and lines are ignored.
+use std::path::Path;
+
+use super::current::{key_value, number, Current};
+use super::{change, defaults_note, Block, Change, MachineErrors, Options, Plan};
+use crate::circular::model::{Axis, Pair};
+use crate::{Error, Result};
+
+/// Largest number of triplets LinuxCNC takes per joint.
+pub const MAX_COMP_ENTRIES: usize = 256;
+
+/// Read the `--current` format (module docs).
+pub fn parse_current(path: &Path, text: &str) -> Result<Current> {
+    let mut c = Current::none();
+    let mut joint: Option<usize> = None;
+    for (n, line) in text.lines().enumerate() {
+        let t = line.trim();
+        if t.is_empty() || t.starts_with('#') || t.starts_with(';') {
+            continue;
+        }
+        if t.starts_with('[') {
+            let name = t.trim_start_matches('[').split(']').next().unwrap_or("");
+            joint = name
+                .strip_prefix("JOINT_")
+                .or_else(|| name.strip_prefix("AXIS_"))
+                .and_then(|k| k.trim().parse().ok());
+            continue;
+        }
+        if let Some(rest) = t.strip_prefix("setp") {
+            let parts: Vec<&str> = rest
+                .split(|ch: char| ch.is_whitespace() || ch == '=')
+                .filter(|p| !p.is_empty())
+                .collect();
+            if let [name, value] = parts[..] {
+                if name.starts_with("matrixkins.C_") {
+                    let col = line.find(value).map_or(0, |i| i + 1);
+                    c.set(name, number(path, n + 1, col, value, name)?);
+                }
+            }
+            continue;
+        }
+        let (Some(j), Some((key, value, col))) = (joint, key_value(line)) else {
+            continue;
+        };
+        match key.as_str() {
+            "BACKLASH" => {
+                let v = number(path, n + 1, col, &value, "BACKLASH")?;
+                c.set(format!("JOINT_{j}.BACKLASH"), v);
+            }
+            "COMP_FILE" => c.set_text(format!("JOINT_{j}.COMP_FILE"), value),
+            _ => {}
+        }
+    }
+    Ok(c)
+}
+
+/// One comp table row: (nominal machine position, forward trim, reverse trim), mm.
+type CompRow = (f64, f64, f64);
+
+/// The comp table of one axis and a note if the table had to be shortened.
+fn comp_table(
+    m: &MachineErrors,
+    axis: Axis,
+    backlash_mm: f64,
+    opts: &Options,
+) -> Result<(Vec<CompRow>, Option<String>)> {
+    let k = axis.index();
+    let k0 = opts.placement.table_ball_mm[k].unwrap_or(0.0);
+    let (mut lo, mut hi) = match (opts.placement.travel_mm[k], m.radius_mm) {
+        (Some(t), _) => t,
+        (None, Some(r)) => (k0 - r, k0 + r),
+        (None, None) => {
+            return Err(Error::Usage(format!(
+                "the diagnosis file does not say the circles' radius (written by an older jdbb): give --travel {}=MIN:MAX for the comp table",
+                axis.letter()
+            )))
+        }
+    };
+    // A table over a cyclic error needs several entries per pitch: 16 if they fit in 256, else
+    // as many as fit down to 8; beyond that the table is shortened round the table ball.
+    let (step, attenuation) = match &m.cyclic[k] {
+        Some(c) => {
+            let step = (c.pitch_mm / 16.0)
+                .max((hi - lo) / (MAX_COMP_ENTRIES - 1) as f64)
+                .min(c.pitch_mm / 8.0);
+            // LinuxCNC interpolates linearly between entries; that keeps only sinc²(step/pitch)
+            // of a sine at the pitch (the hat function's transform), so the cyclic part of each
+            // entry is divided by it and the interpolated table has the right amplitude.
+            let x = std::f64::consts::PI * step / c.pitch_mm;
+            (step, (x.sin() / x).powi(2))
+        }
+        None => ((hi - lo) / 64.0, 1.0),
+    };
+    let mut note = None;
+    let max_span = step * (MAX_COMP_ENTRIES - 1) as f64;
+    if hi - lo > max_span * (1.0 + 1e-9) {
+        let (want_lo, want_hi) = (lo, hi);
+        let centre = k0.clamp(lo + 0.5 * max_span, hi - 0.5 * max_span);
+        lo = centre - 0.5 * max_span;
+        hi = centre + 0.5 * max_span;
+        note = Some(format!(
+            "{}: a table of at most {MAX_COMP_ENTRIES} entries at {step:.4} mm (1/8 of the pitch) covers {lo:.3}..{hi:.3} mm, not all of {want_lo:.3}..{want_hi:.3} mm; LinuxCNC holds the end values beyond it",
+            axis.letter().to_ascii_uppercase()
+        ));
+    }
+    let n = (((hi - lo) / step).round() as usize).clamp(1, MAX_COMP_ENTRIES - 1);
+    let rows = (0..=n)
+        .map(|i| {
+            let nominal = lo + (hi - lo) * i as f64 / n as f64;
+            let kk = nominal - k0;
+            let cyclic = m.cyclic_error_mm(axis, kk);
+            let e = m.position_error_mm(axis, kk) - cyclic + cyclic / attenuation;
+            (nominal, -e + 0.5 * backlash_mm, -e - 0.5 * backlash_mm)
+        })
+        .collect();
+    Ok((rows, note))
+}
+
+/// What to change in LinuxCNC (module docs).
+pub fn plan(m: &MachineErrors, current: &Current, opts: &Options) -> Result<Plan> {
+    let mut p = Plan {
+        title: "LinuxCNC 2.9 (trivkins), joints X=0 Y=1 Z=2, machine units mm".into(),
+        ..Default::default()
+    };
+    p.notes.extend(defaults_note(current));
+    let mut ini: Vec<String> = vec![];
+    for axis in Axis::ALL {
+        let k = axis.index();
+        let key = format!("JOINT_{k}.BACKLASH");
+        let cur = current.get(&key);
+        let b0 = cur.unwrap_or(0.0);
+        let delta = m.backlash_um[k].as_ref().map_or(0.0, |b| -1e-3 * b.value);
+        let because_backlash = m.backlash_um[k].as_ref().map(|b| b.text());
+        if m.position_dependent(axis) {
+            let b_new = b0 + delta;
+            let (rows, note) = comp_table(m, axis, b_new, opts)?;
+            let name = format!("{}.comp", axis.letter());
+            let mut text = String::new();
+            for (nominal, fwd, rev) in &rows {
+                let line = match opts.comp_file_type {
+                    0 => format!("{nominal:.6} {:.7} {:.7}\n", nominal - fwd, nominal - rev),
+                    _ => format!("{nominal:.6} {fwd:.7} {rev:.7}\n"),
+                };
+                text.push_str(&line);
+            }
+            let mut sources: Vec<String> = vec![];
+            if let Some((_, s)) = &m.scale_um_per_m[k] {
+                sources.push(s.text());
+            }
+            if let Some(s) = &m.scale2_um_per_m2[k] {
+                sources.push(s.text());
+            }
+            if let Some(c) = &m.cyclic[k] {
+                sources.push(c.source.text());
+            }
+            sources.extend(because_backlash.clone());
+            p.changes.push(Change {
+                because: sources.join(", "),
+                setting: format!("[JOINT_{k}] COMP_FILE"),
+                unit: String::new(),
+                current: 0.0,
+                assumed: true,
+                new: 0.0,
+                decimals: 0,
+                text: Some(format!(
+                    "{name} ({} entries, COMP_FILE_TYPE = {})",
+                    rows.len(),
+                    opts.comp_file_type
+                )),
+            });
+            if let Some(because) = because_backlash.clone().or_else(|| {
+                (b0 != 0.0).then(|| "the BACKLASH in force, which COMP_FILE overrides".into())
+            }) {
+                p.changes.push(change(
+                    because,
+                    format!("[JOINT_{k}] backlash in {name} (forward − reverse trim)"),
+                    "mm",
+                    cur,
+                    0.0,
+                    delta,
+                    6,
+                ));
+            }
+            ini.push(format!("[JOINT_{k}]"));
+            ini.push(format!("COMP_FILE = {name}"));
+            ini.push(format!("COMP_FILE_TYPE = {}", opts.comp_file_type));
+            p.files.push((name.clone(), text));
+            p.notes.push(format!(
+                "joint {k}: BACKLASH is ignored while COMP_FILE is set, so {name}'s forward − reverse difference is the backlash compensation ({b_new:.6} mm; give a BACKLASH in force with --current to keep it); the file has no comments because LinuxCNC stops reading at the first line that is not three numbers"
+            ));
+            if opts.placement.table_ball_mm[k].is_none() {
+                p.notes.push(format!(
+                    "{name}: positions assume the table ball at machine {} = 0; give --table-ball {}=POSITION (its machine coordinate, G53) so the table sits where the errors were measured",
+                    axis.letter().to_ascii_uppercase(),
+                    axis.letter()
+                ));
+            }
+            if opts.placement.travel_mm[k].is_none() {
+                p.notes.push(format!(
+                    "{name} spans the tested circle only; a scale error is linear, so --travel {}=MIN:MAX extends it over the axis",
+                    axis.letter()
+                ));
+            }
+            if let Some(old) = current.text(&format!("JOINT_{k}.COMP_FILE")) {
+                p.notes.push(format!(
+                    "joint {k} already has COMP_FILE = {old}: what the test showed is what remains with it, so add these trims to its values at the same positions rather than replacing it"
+                ));
+            }
+            p.notes.extend(note);
+        } else if let Some(b) = &m.backlash_um[k] {
+            let c = change(
+                b.text(),
+                format!("[JOINT_{k}] BACKLASH"),
+                "mm",
+                cur,
+                0.0,
+                delta,
+                6,
+            );
+            if c.new < 0.0 {
+                p.notes.push(format!(
+                    "joint {k}: the total BACKLASH is negative: the axis runs ahead at reversal, so a compensation in force is too large; LinuxCNC applies the negative value as it is (±half), or lower the one in force to 0 and re-test"
+                ));
+            }
+            ini.push(format!("[JOINT_{k}]"));
+            ini.push(format!("BACKLASH = {:.6}", c.new));
+            p.changes.push(c);
+        }
+    }
+    if !ini.is_empty() {
+        p.blocks.push(Block {
+            label: "the INI file (LinuxCNC 2.9; [AXIS_n] on 2.7)".into(),
+            lines: ini,
+        });
+    }
+    let mut hal = vec![];
+    for pair in Pair::ALL {
+        if let Some(s) = m.squareness(pair) {
+            let (i, j) = pair.axes();
+            let key = format!("matrixkins.C_{}{}", i.letter(), j.letter());
+            let c = change(
+                s.text(),
+                format!("HAL {key} (LinuxCNC 2.10/master only)"),
+                "",
+                current.get(&key),
+                0.0,
+                -1e-6 * s.value,
+                10,
+            );
+            hal.push(format!("setp {key} {:.10}", c.new));
+            p.changes.push(c);
+        }
+    }
+    if !hal.is_empty() {
+        p.blocks.push(Block {
+            label: "a HAL file, LinuxCNC 2.10 (master) with [KINS] KINEMATICS = matrixkins".into(),
+            lines: hal,
+        });
+        p.notes.push("squareness: LinuxCNC 2.9 (trivkins) has no squareness compensation; the matrixkins lines need LinuxCNC 2.10/master (loadrt matrixkins, [KINS] KINEMATICS = matrixkins). On 2.9, square the axes mechanically".into());
+    }
+    Ok(p)
+}

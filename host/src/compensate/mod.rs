@@ -1,0 +1,692 @@
+//! A diagnosis as settings of a CNC controller: what to change, where, in the controller's own
+//! syntax and units, and what no setting can fix (with what to do instead).
+//!
+//! | effect (jdbb) | LinuxCNC 2.9 | grblHAL | Marlin | Klipper |
+//! |---|---|---|---|---|
+//! | `backlash_k` | `[JOINT_n] BACKLASH` (or in the `COMP_FILE`) | `$160`–`$162` | `M425` | no (not in mainline) |
+//! | `squareness_ij` | no (`matrixkins` on 2.10/master) | no | `M852 I J K` | `SET_SKEW` |
+//! | `scale_k`, `scale_mismatch_ij` | `COMP_FILE` | `$100`–`$102` steps/mm | `M92` steps/mm | `rotation_distance` |
+//! | `scale2_k`, `cyclic_k` | `COMP_FILE` | no | no | no |
+//! | `servo_mismatch_ij`, `interference_k`, `reversal_spike_k`, `drift` | tuning / repair / warm-up, not a setting | | | |
+//!
+//! Each controller's module quotes its semantics with the source named in the project's
+//! `shared/notes/controllers.md`; [`MachineErrors`] is the common model they all start from.
+//!
+//! # Conventions (from [`crate::circular::model`])
+//!
+//! The diagnosis reports errors δ added to the commanded position (the actual position is
+//! command + δ), with positions k in mm relative to the table ball:
+//! - `backlash_k` f (µm): δ_k = (f/2)·(direction of motion). **f < 0 is the usual lost motion**:
+//!   the axis lags behind the command after each reversal. f > 0 means it runs ahead (typically a
+//!   backlash compensation already in force that is too large).
+//! - `squareness_ij` s (µm/m): δ_i = s·j (i moves by s per metre of j).
+//! - `scale_k` a (µm/m): δ_k = a·k; `scale_mismatch_ij` a: δ_i = +(a/2)·i, δ_j = −(a/2)·j (one
+//!   radius cannot separate the common scale from the bar length; the split is the model's own).
+//! - `scale2_k` b (µm/m²): δ_k = b·k²; `cyclic_k`: δ_k = sin_um·sin(2πk/p) + cos_um·cos(2πk/p).
+//!
+//! A controller correction c added to the motor command cancels an error when c = −δ. Every
+//! controller here that compensates backlash adds, at each reversal, a motion of the full
+//! setting in the new direction (LinuxCNC as ±half about the centre, Marlin and grblHAL as the
+//! whole step); either way the correction is +(B/2)·direction up to a constant offset, so the
+//! setting that cancels δ_k = (f/2)·direction is **B = −f** (the full lost motion). A skew
+//! correction x' = x − xy·y (Marlin, Klipper) cancels δ_x = xy·y, so **xy = s·10⁻⁶**.
+//!
+//! The values in force during the test were already acting on the machine, so what the test shows
+//! is what remains: the new setting is the value in force plus the change (`--current FILE`;
+//! without it the controller's default, usually 0, is assumed and said).
+//!
+//! Effects are acted on only when at least 3 standard errors from zero; others are listed as left
+//! alone.
+use std::fmt::Write;
+
+use crate::circular::document::DiagnosisDoc;
+use crate::circular::model::{Axis, Effect, Pair};
+use crate::units::{format_estimate, human};
+use crate::{Error, Result};
+
+pub mod current;
+pub mod grblhal;
+pub mod klipper;
+pub mod linuxcnc;
+pub mod marlin;
+
+pub use current::Current;
+
+/// A controller `jdbb compensate` knows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Controller {
+    LinuxCnc,
+    GrblHal,
+    Marlin,
+    Klipper,
+}
+
+impl Controller {
+    pub const ALL: [Controller; 4] = [
+        Controller::LinuxCnc,
+        Controller::GrblHal,
+        Controller::Marlin,
+        Controller::Klipper,
+    ];
+
+    /// The name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Controller::LinuxCnc => "linuxcnc",
+            Controller::GrblHal => "grblhal",
+            Controller::Marlin => "marlin",
+            Controller::Klipper => "klipper",
+        }
+    }
+
+    /// The controller called `name`; the error lists the known ones.
+    pub fn parse(name: &str) -> Result<Controller> {
+        Controller::ALL
+            .into_iter()
+            .find(|c| c.name() == name.trim().to_ascii_lowercase())
+            .ok_or_else(|| {
+                Error::Usage(format!(
+                    "--controller `{name}`: use one of linuxcnc, grblhal, marlin, klipper"
+                ))
+            })
+    }
+}
+
+/// The standard-error multiple below which an effect is left alone.
+pub const SIGNIFICANT_SIGMAS: f64 = 3.0;
+
+/// One diagnosed effect as the source of a change: its name and value ± σ for people.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Measured {
+    pub effect: Effect,
+    pub value: f64,
+    pub sigma: f64,
+}
+
+impl Measured {
+    /// `backlash_x = -8.0012 ± 0.0046 µm`
+    pub fn text(&self) -> String {
+        format!(
+            "{} = {} {}",
+            self.effect.name(),
+            format_estimate(self.value, Some(self.sigma)),
+            human(self.effect.unit())
+        )
+    }
+}
+
+/// A periodic error of one axis: δ_k = sin_um·sin(2πk/p) + cos_um·cos(2πk/p).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Cyclic {
+    pub sin_um: f64,
+    pub cos_um: f64,
+    pub pitch_mm: f64,
+    pub source: Measured,
+}
+
+/// What the diagnosis says the machine does, in the diagnosis' conventions (module docs), per
+/// axis (index x, y, z) and pair (index xy, yz, zx): the input of every controller's plan.
+#[derive(Debug, Clone, Default)]
+pub struct MachineErrors {
+    /// backlash_k f (µm).
+    pub backlash_um: [Option<Measured>; 3],
+    /// Scale a (µm/m) per axis, with the effect it comes from (scale_k, or half a
+    /// scale_mismatch_ij with its sign).
+    pub scale_um_per_m: [Option<(f64, Measured)>; 3],
+    /// scale2_k b (µm/m²).
+    pub scale2_um_per_m2: [Option<Measured>; 3],
+    pub cyclic: [Option<Cyclic>; 3],
+    /// squareness_ij s (µm/m), by pair.
+    pub squareness_um_per_m: [Option<Measured>; 3],
+    /// Effects that are tuning, repair or warm-up, not a setting (servo_mismatch, interference,
+    /// reversal_spike, drift).
+    pub tuning: Vec<Measured>,
+    /// Effects left alone and why (not significant, undetermined).
+    pub left_alone: Vec<String>,
+    /// How effects were mapped (e.g. the scale mismatch split).
+    pub notes: Vec<String>,
+    /// The largest circle radius of the test (mm), the span a position table can rest on.
+    pub radius_mm: Option<f64>,
+}
+
+fn pair_index(p: Pair) -> usize {
+    match p {
+        Pair::Xy => 0,
+        Pair::Yz => 1,
+        Pair::Zx => 2,
+    }
+}
+
+impl MachineErrors {
+    /// The machine errors of a diagnosis file (module docs: only effects ≥ 3σ from zero).
+    pub fn from_doc(doc: &DiagnosisDoc) -> Result<MachineErrors> {
+        let mut m = MachineErrors {
+            radius_mm: doc.circles.iter().map(|c| c.radius_mm).reduce(f64::max),
+            ..Default::default()
+        };
+        for (e, effect) in doc.machine_effects() {
+            let (value, sigma) = match (e.value, e.sigma) {
+                (Some(v), Some(s)) if v.is_finite() && s.is_finite() => (v, s),
+                _ => {
+                    m.left_alone
+                        .push(format!("{}: undetermined by this test", effect.name()));
+                    continue;
+                }
+            };
+            let measured = Measured {
+                effect,
+                value,
+                sigma,
+            };
+            if !e.significant(SIGNIFICANT_SIGMAS) {
+                m.left_alone.push(format!(
+                    "{}: less than {SIGNIFICANT_SIGMAS}σ from zero",
+                    measured.text()
+                ));
+                continue;
+            }
+            let p = e.param_values(effect);
+            match effect {
+                Effect::Backlash(a) => m.backlash_um[a.index()] = Some(measured),
+                Effect::Scale(a) => m.scale_um_per_m[a.index()] = Some((p[0], measured)),
+                Effect::ScaleMismatch(pair) => {
+                    let (i, j) = pair.axes();
+                    m.scale_um_per_m[i.index()] = Some((0.5 * p[0], measured.clone()));
+                    m.scale_um_per_m[j.index()] = Some((-0.5 * p[0], measured.clone()));
+                    m.notes.push(format!(
+                        "{}: one radius shows only the difference of the two scales; it is split as +{:.3} µm/m on {} and {:.3} µm/m on {}, which removes the mismatch and leaves their common part (test a second radius, or use a calibrated bar length, to find it)",
+                        measured.text(),
+                        0.5 * p[0],
+                        i.letter().to_ascii_uppercase(),
+                        -0.5 * p[0],
+                        j.letter().to_ascii_uppercase()
+                    ));
+                }
+                Effect::Scale2(a) => m.scale2_um_per_m2[a.index()] = Some(measured),
+                Effect::Cyclic(a) => match doc.pitch_mm(a) {
+                    Some(pitch_mm) => {
+                        m.cyclic[a.index()] = Some(Cyclic {
+                            sin_um: p[0],
+                            cos_um: p[1],
+                            pitch_mm,
+                            source: measured,
+                        })
+                    }
+                    None => m.left_alone.push(format!(
+                        "{}: the diagnosis file does not say the pitch (rerun jdbb diagnose with --pitch)",
+                        measured.text()
+                    )),
+                },
+                Effect::Squareness(pair) => {
+                    m.squareness_um_per_m[pair_index(pair)] = Some(measured)
+                }
+                Effect::ServoMismatch(_)
+                | Effect::Interference(_)
+                | Effect::ReversalSpike(_)
+                | Effect::Drift => m.tuning.push(measured),
+                Effect::SetupOffset | Effect::LengthOffset => {}
+            }
+        }
+        Ok(m)
+    }
+
+    /// Whether axis `a` has an error that depends on position (scale, scale2, cyclic).
+    pub fn position_dependent(&self, a: Axis) -> bool {
+        let k = a.index();
+        self.scale_um_per_m[k].is_some()
+            || self.scale2_um_per_m2[k].is_some()
+            || self.cyclic[k].is_some()
+    }
+
+    /// The position-dependent error δ of axis `a` (mm) at `k_mm` from the table ball (scale,
+    /// scale2, cyclic; not backlash).
+    pub fn position_error_mm(&self, a: Axis, k_mm: f64) -> f64 {
+        let i = a.index();
+        let mut d = 0.0;
+        if let Some((s, _)) = &self.scale_um_per_m[i] {
+            d += 1e-6 * s * k_mm;
+        }
+        if let Some(b) = &self.scale2_um_per_m2[i] {
+            d += 1e-9 * b.value * k_mm * k_mm;
+        }
+        d + self.cyclic_error_mm(a, k_mm)
+    }
+
+    /// The cyclic part of [`MachineErrors::position_error_mm`] (mm).
+    pub fn cyclic_error_mm(&self, a: Axis, k_mm: f64) -> f64 {
+        match &self.cyclic[a.index()] {
+            Some(c) => {
+                let w = std::f64::consts::TAU * k_mm / c.pitch_mm;
+                1e-3 * (c.sin_um * w.sin() + c.cos_um * w.cos())
+            }
+            None => 0.0,
+        }
+    }
+
+    /// The squareness of `pair`.
+    pub fn squareness(&self, pair: Pair) -> Option<&Measured> {
+        self.squareness_um_per_m[pair_index(pair)].as_ref()
+    }
+}
+
+/// One setting to change.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Change {
+    /// The effect(s) it acts on, as people read them.
+    pub because: String,
+    /// Where: `[JOINT_0] BACKLASH`, `$160`, `M425 X`, `xy_skew`.
+    pub setting: String,
+    pub unit: String,
+    /// The value in force: from `--current`, or the controller's default (then `assumed`).
+    pub current: f64,
+    pub assumed: bool,
+    pub new: f64,
+    /// Decimals to print.
+    pub decimals: usize,
+    /// A setting that is not a number (a file to load): what it becomes, in words.
+    pub text: Option<String>,
+}
+
+/// An effect this controller cannot take as a setting.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Cannot {
+    pub effect: String,
+    pub why: String,
+    pub instead: String,
+}
+
+/// Lines to enter somewhere, verbatim.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Block {
+    /// Where they go, e.g. `the INI file` or `the console (then M500)`.
+    pub label: String,
+    pub lines: Vec<String>,
+}
+
+/// Everything `jdbb compensate` says for one controller.
+#[derive(Debug, Clone, Default)]
+pub struct Plan {
+    pub title: String,
+    pub changes: Vec<Change>,
+    pub cannot: Vec<Cannot>,
+    pub blocks: Vec<Block>,
+    /// Files to write: (name, content).
+    pub files: Vec<(String, String)>,
+    pub left_alone: Vec<String>,
+    pub notes: Vec<String>,
+}
+
+/// Where the machine is, for tables over machine positions (LinuxCNC's `COMP_FILE`).
+#[derive(Debug, Clone, Default)]
+pub struct Placement {
+    /// Machine coordinates of the table ball during the test, mm (None = 0, said in a note).
+    pub table_ball_mm: [Option<f64>; 3],
+    /// Machine travel per axis to cover with a table, mm (None = the tested span).
+    pub travel_mm: [Option<(f64, f64)>; 3],
+}
+
+/// Options of [`plan`].
+#[derive(Debug, Clone)]
+pub struct Options {
+    pub controller: Controller,
+    pub placement: Placement,
+    /// LinuxCNC `COMP_FILE_TYPE` to write: 0 (actual positions) or 1 (corrections).
+    pub comp_file_type: u8,
+}
+
+/// The plan for `opts.controller` from a diagnosis file and the values in force.
+pub fn plan(doc: &DiagnosisDoc, current: &Current, opts: &Options) -> Result<Plan> {
+    let m = MachineErrors::from_doc(doc)?;
+    let mut p = match opts.controller {
+        Controller::LinuxCnc => linuxcnc::plan(&m, current, opts)?,
+        Controller::GrblHal => grblhal::plan(&m, current),
+        Controller::Marlin => marlin::plan(&m, current),
+        Controller::Klipper => klipper::plan(&m, current),
+    };
+    for t in &m.tuning {
+        p.cannot.push(tuning_advice(t, opts.controller));
+    }
+    p.left_alone.extend(m.left_alone.iter().cloned());
+    let mut notes = m.notes.clone();
+    notes.append(&mut p.notes);
+    p.notes = notes;
+    Ok(p)
+}
+
+/// What to do about an effect that is tuning or repair.
+fn tuning_advice(t: &Measured, c: Controller) -> Cannot {
+    match t.effect {
+        Effect::ServoMismatch(pair) => {
+            let (i, j) = pair.axes();
+            let (lag, lead) = if t.value >= 0.0 { (i, j) } else { (j, i) };
+            let (lag, lead) = (
+                lag.letter().to_ascii_uppercase(),
+                lead.letter().to_ascii_uppercase(),
+            );
+            let how = match c {
+                Controller::LinuxCnc => format!(
+                    "match the position loops: raise FF1 (velocity feed-forward, towards 1) or P of the PID of the joint of {lag}, or lower {lead}'s, until a new test shows the mismatch within its standard error"
+                ),
+                _ => format!(
+                    "stepper drives without feedback have no position loop to tune: check the drives of {lag} and {lead} (closed-loop or servo drives: match their gains), and that their acceleration and jerk settings are equal"
+                ),
+            };
+            Cannot {
+                effect: t.text(),
+                why: format!(
+                    "{lag} lags {lead} by {:.3} ms: a servo time-constant mismatch is tuning, not a compensation setting",
+                    t.value.abs()
+                ),
+                instead: how,
+            }
+        }
+        Effect::ReversalSpike(a) => {
+            let axis = a.letter().to_ascii_uppercase();
+            Cannot {
+                effect: t.text(),
+                why: format!(
+                    "{axis} sticks at each reversal and catches up: friction (stick-slip) or a servo that takes up lost motion slowly; {} has no setting for it",
+                    c.name()
+                ),
+                instead: match c {
+                    Controller::LinuxCnc => format!(
+                        "check {axis}'s ways and gibs (lubrication, preload); on a servo axis raise the PID's I or add friction feed-forward (a bias of BIAS/FF0 by direction) until a new test no longer shows the spike"
+                    ),
+                    _ => format!(
+                        "check {axis}'s ways and gibs (lubrication, preload) and the drive's current at low speed; a stepper axis that stalls at reversal needs more torque or less acceleration"
+                    ),
+                },
+            }
+        }
+        Effect::Drift => Cannot {
+            effect: t.text(),
+            why: "D drifted during the test: the machine (or the instrument) was warming up; it is a state, not an error of an axis".into(),
+            instead: "warm the machine up (run the spindle and axes for 15–30 min) and the instrument mounted for a few minutes, then test again; if it persists, the machine's thermal compensation is the place for it".into(),
+        },
+        _ => Cannot {
+            effect: t.text(),
+            why: "a reading error that grows with speed is a fault of the scale or encoder signal, not of the axis position".into(),
+            instead: "check the scale or encoder read head (alignment, gap, cabling, interpolation settings); no controller setting compensates it".into(),
+        },
+    }
+}
+
+/// The text `jdbb compensate` prints.
+pub fn render(p: &Plan, files_written_to: Option<&std::path::Path>) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "{}", p.title);
+    if p.changes.is_empty() {
+        let _ = writeln!(s, "nothing to change in this controller's settings");
+    } else {
+        let _ = writeln!(s, "change:");
+        for c in &p.changes {
+            if let Some(t) = &c.text {
+                let _ = writeln!(s, "  {}: {t} for {}", c.setting, c.because);
+                continue;
+            }
+            let d = c.decimals;
+            let unit = if c.unit.is_empty() {
+                String::new()
+            } else {
+                format!(" {}", c.unit)
+            };
+            let _ = writeln!(
+                s,
+                "  {}: {:.d$}{} -> {:.d$}{unit} ({:+.d$}) for {}",
+                c.setting,
+                c.current,
+                if c.assumed { " (default)" } else { "" },
+                c.new,
+                c.new - c.current,
+                c.because
+            );
+        }
+    }
+    if !p.cannot.is_empty() {
+        let _ = writeln!(s, "cannot compensate here:");
+        for c in &p.cannot {
+            let _ = writeln!(s, "  {}: {}", c.effect, c.why);
+            let _ = writeln!(s, "    instead: {}", c.instead);
+        }
+    }
+    if !p.left_alone.is_empty() {
+        let _ = writeln!(s, "left alone:");
+        for l in &p.left_alone {
+            let _ = writeln!(s, "  {l}");
+        }
+    }
+    for b in &p.blocks {
+        let _ = writeln!(s, "enter in {}:", b.label);
+        for l in &b.lines {
+            let _ = writeln!(s, "{l}");
+        }
+    }
+    for (name, content) in &p.files {
+        match files_written_to {
+            Some(dir) => {
+                let _ = writeln!(
+                    s,
+                    "file {} written ({} lines)",
+                    dir.join(name).display(),
+                    content.lines().count()
+                );
+            }
+            None => {
+                let _ = writeln!(
+                    s,
+                    "file {name} ({} lines; --out DIR writes it):",
+                    content.lines().count()
+                );
+                s.push_str(content);
+            }
+        }
+    }
+    if !p.notes.is_empty() {
+        let _ = writeln!(s, "notes:");
+        for n in &p.notes {
+            let _ = writeln!(s, "  - {n}");
+        }
+    }
+    s
+}
+
+/// A change of a setting that is `current` (or the default `default` if not in force) by
+/// `delta`, with `decimals` printed.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn change(
+    because: String,
+    setting: String,
+    unit: &str,
+    current: Option<f64>,
+    default: f64,
+    delta: f64,
+    decimals: usize,
+) -> Change {
+    let (cur, assumed) = match current {
+        Some(v) => (v, false),
+        None => (default, true),
+    };
+    Change {
+        because,
+        setting,
+        unit: unit.into(),
+        current: cur,
+        assumed,
+        new: cur + delta,
+        decimals,
+        text: None,
+    }
+}
+
+/// The note said when `--current` was not given.
+pub(crate) fn defaults_note(current: &Current) -> Option<String> {
+    current.is_empty().then(|| {
+        "no --current FILE: the values in force are taken as the controller's defaults (0, no compensation); if anything was set during the test, give it with --current so the new values are totals".to_string()
+    })
+}
+
+/// Scale of an axis as a factor: the axis moves (1 + ε) times the command.
+pub(crate) fn scale_epsilon(m: &MachineErrors, a: Axis) -> Option<(f64, &Measured)> {
+    m.scale_um_per_m[a.index()]
+        .as_ref()
+        .map(|(s, src)| (1e-6 * s, src))
+}
+
+/// The Marlin/Klipper skew factor (tan of the deviation from 90°, x' = x − xy·y) of each of
+/// their planes xy, xz, yz from the diagnosis: xy from squareness_xy (δ_x = s·y), yz from
+/// squareness_yz (δ_y = s·z), xz from squareness_zx (δ_z = s·x, which differs from δ_x = s·z
+/// only by a rotation about y the ball bar cannot see and a part does not mind).
+pub(crate) fn skew_factors(m: &MachineErrors) -> [Option<(f64, &Measured)>; 3] {
+    let f = |p: Pair| m.squareness(p).map(|s| (1e-6 * s.value, s));
+    [f(Pair::Xy), f(Pair::Zx), f(Pair::Yz)]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    /// A test effect: name, value, σ, parameters.
+    type TestEffect<'a> = (&'a str, f64, f64, &'a [(&'a str, f64)]);
+
+    /// A diagnosis file with these machine effects.
+    fn doc(effects: &[TestEffect]) -> DiagnosisDoc {
+        let effects: Vec<serde_json::Value> = effects
+            .iter()
+            .map(|(n, v, s, p)| {
+                let params: serde_json::Map<String, serde_json::Value> = p
+                    .iter()
+                    .map(|(k, x)| (k.to_string(), serde_json::json!(x)))
+                    .collect();
+                serde_json::json!({"name": n, "value": v, "sigma": s, "unit": "um", "params": params})
+            })
+            .collect();
+        let text = serde_json::json!({"samples": 1000, "effects": effects,
+            "circles": [{"radius_mm": 50.0, "height_mm": 0.0, "feed_mm_min": 1000.0}]})
+        .to_string();
+        DiagnosisDoc::parse(Path::new("d.json"), &text).unwrap()
+    }
+
+    fn current(c: Controller, text: &str) -> Current {
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("cur");
+        std::fs::write(&f, text).unwrap();
+        Current::read(&f, c).unwrap()
+    }
+
+    fn opts(c: Controller) -> Options {
+        Options {
+            controller: c,
+            placement: Placement::default(),
+            comp_file_type: 1,
+        }
+    }
+
+    #[test]
+    fn an_axis_that_runs_ahead_lowers_the_setting_in_force_or_cannot() {
+        // f = +3 µm: the axis runs ahead by 1.5 µm each way (too much compensation in force).
+        let d = doc(&[("backlash_x", 3.0, 0.01, &[("f_um", 3.0)])]);
+        for c in [Controller::GrblHal, Controller::Marlin] {
+            let p = plan(&d, &Current::none(), &opts(c)).unwrap();
+            assert!(p.changes.is_empty() && p.cannot.len() == 1, "{c:?}: {p:?}");
+            assert!(p.cannot[0].why.contains("runs ahead"), "{:?}", p.cannot[0]);
+        }
+        let p = plan(
+            &d,
+            &current(Controller::GrblHal, "$160=0.010\n"),
+            &opts(Controller::GrblHal),
+        )
+        .unwrap();
+        assert!(
+            (p.changes[0].new - 0.007).abs() < 1e-12,
+            "{:?}",
+            p.changes[0]
+        );
+        let p = plan(
+            &d,
+            &current(Controller::Marlin, "M425 F0.5 X0.010\n"),
+            &opts(Controller::Marlin),
+        )
+        .unwrap();
+        // Effective 5 µm in force − 3 µm = 2 µm, at F0.5: X 0.004.
+        assert!(
+            (p.changes[0].new - 0.004).abs() < 1e-12,
+            "{:?}",
+            p.changes[0]
+        );
+        assert_eq!(p.blocks[0].lines[0], "M425 F0.5 X0.004000");
+        // LinuxCNC applies a negative BACKLASH as it is, and says what it means.
+        let p = plan(&d, &Current::none(), &opts(Controller::LinuxCnc)).unwrap();
+        assert!((p.changes[0].new + 0.003).abs() < 1e-12);
+        assert!(p.notes.iter().any(|n| n.contains("runs ahead")));
+    }
+
+    #[test]
+    fn effects_below_3_sigma_are_left_alone() {
+        let d = doc(&[
+            ("backlash_x", -0.02, 0.01, &[("f_um", -0.02)]),
+            ("squareness_xy", 12.0, 0.05, &[("s_um_per_m", 12.0)]),
+        ]);
+        let p = plan(&d, &Current::none(), &opts(Controller::Marlin)).unwrap();
+        assert_eq!(p.changes.len(), 1);
+        assert!(
+            p.left_alone[0].starts_with("backlash_x"),
+            "{:?}",
+            p.left_alone
+        );
+    }
+
+    #[test]
+    fn current_files_read_in_each_format_and_say_where_they_are_wrong() {
+        let c = current(
+            Controller::LinuxCnc,
+            "# mill\n[AXIS_1]\nBACKLASH = 0.004\n[JOINT_0]\nBACKLASH=0.002 ; x\nCOMP_FILE = x.comp\nsetp matrixkins.C_xy 0.0001\n",
+        );
+        assert_eq!(c.get("JOINT_1.BACKLASH"), Some(0.004));
+        assert_eq!(c.get("JOINT_0.BACKLASH"), Some(0.002));
+        assert_eq!(c.text("JOINT_0.COMP_FILE"), Some("x.comp"));
+        assert_eq!(c.get("matrixkins.C_xy"), Some(0.0001));
+        let c = current(Controller::GrblHal, "$100=800.000\nok\n$160=0.004\n");
+        assert_eq!((c.get("$100"), c.get("$160")), (Some(800.0), Some(0.004)));
+        let c = current(
+            Controller::Klipper,
+            "[stepper_x]\nrotation_distance: 40\n#*# [skew_correction jdbb]\n#*# xy_skew = 0.0002\n",
+        );
+        assert_eq!(c.get("stepper_x.rotation_distance"), Some(40.0));
+        assert_eq!(c.get("xy_skew"), Some(0.0002));
+        let c = current(Controller::Marlin, "M852 S0.0003\n");
+        assert_eq!(c.get("M852.I"), Some(0.0003));
+
+        let dir = tempfile::tempdir().unwrap();
+        for (ctl, text, want) in [
+            (
+                Controller::LinuxCnc,
+                "[JOINT_0]\nBACKLASH = 0,004\n",
+                ":2:12: BACKLASH",
+            ),
+            (Controller::GrblHal, "$160=0.0o4\n", ":1:6: $160"),
+            (
+                Controller::Klipper,
+                "#*# [skew_correction a]\n#*# xy_skew = x\n",
+                ":2:15: xy_skew",
+            ),
+        ] {
+            let f = dir.path().join("bad");
+            std::fs::write(&f, text).unwrap();
+            let e = Current::read(&f, ctl).unwrap_err();
+            assert!(e.to_string().contains(want), "{ctl:?}: {e}");
+            assert_eq!(e.exit_code(), 2);
+        }
+    }
+
+    #[test]
+    fn controller_names_parse() {
+        for c in Controller::ALL {
+            assert_eq!(Controller::parse(c.name()).unwrap(), c);
+        }
+        assert_eq!(Controller::parse("LinuxCNC").unwrap(), Controller::LinuxCnc);
+        let e = Controller::parse("fanuc").unwrap_err();
+        assert!(e.to_string().contains("linuxcnc, grblhal, marlin, klipper"));
+        assert_eq!(e.exit_code(), 2);
+    }
+}

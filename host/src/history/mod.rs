@@ -1,0 +1,605 @@
+//! A machine's history: its diagnoses over time in one SQLite file, and the trend of each effect.
+//!
+//! - One file (default `history.sqlite` in the user's data directory, e.g.
+//!   `~/.local/share/jdbb/` on Linux; `--db PATH` chooses another), schema versioned by
+//!   `PRAGMA user_version` with migrations in [`schema`].
+//! - Safe with two writers at once: write-ahead logging (`journal_mode = WAL`), a busy timeout
+//!   (a writer waits up to [`BUSY_TIMEOUT`] for the other), and every write in one
+//!   `BEGIN IMMEDIATE` transaction (the write lock is taken up front, so two writers never
+//!   deadlock upgrading read locks).
+//! - A run is one diagnosis file, kept whole, with its effects and conditions in columns. Adding
+//!   the same file twice adds nothing (a 64-bit FNV-1a digest of its text per machine).
+//! - Runs are comparable when their conditions match: plane, circles (radius and height within
+//!   0.5 mm), feed (within 2 %), test plan and instrument calibration (equal as JSON). The trend
+//!   ([`trend`]) compares every run with the latest and says what differs.
+//!
+//! May use: [`crate::circular::document`] (the diagnosis file), rusqlite, plotters.
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use rusqlite::{params, Connection, OptionalExtension, TransactionBehavior};
+use serde::{Deserialize, Serialize};
+
+use crate::circular::document::DiagnosisDoc;
+use crate::{Error, Result};
+
+pub mod schema;
+pub mod trend;
+
+/// How long a writer waits for another one before giving up.
+pub const BUSY_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// The default history file: `history.sqlite` in the user's data directory.
+pub fn default_path() -> Result<PathBuf> {
+    dirs::data_dir()
+        .map(|d| d.join("jdbb").join("history.sqlite"))
+        .ok_or_else(|| {
+            Error::Usage(
+                "no user data directory is known here (HOME unset?): give --db PATH".into(),
+            )
+        })
+}
+
+/// The conditions of a run, which decide whether two runs can be compared.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+pub struct Conditions {
+    pub plane: Option<String>,
+    /// (radius, height, feed) per circle, mm and mm/min.
+    pub circles: Vec<(f64, f64, Option<f64>)>,
+    pub plan: Option<serde_json::Value>,
+    pub calibration: Option<serde_json::Value>,
+}
+
+impl Conditions {
+    /// The conditions of a diagnosis file.
+    pub fn of(doc: &DiagnosisDoc) -> Conditions {
+        Conditions {
+            plane: doc.plane.clone(),
+            circles: doc
+                .circles
+                .iter()
+                .map(|c| (c.radius_mm, c.height_mm, c.feed_mm_min))
+                .collect(),
+            plan: doc.plan.clone(),
+            calibration: doc.calibration.clone(),
+        }
+    }
+
+    /// What differs from `reference`, in words (empty: comparable).
+    pub fn differences(&self, reference: &Conditions) -> Vec<String> {
+        let mut out = vec![];
+        if self.plane != reference.plane {
+            out.push(format!(
+                "plane {} (latest {})",
+                self.plane.as_deref().unwrap_or("?"),
+                reference.plane.as_deref().unwrap_or("?")
+            ));
+        }
+        let radii = |c: &Conditions| {
+            c.circles
+                .iter()
+                .map(|(r, h, _)| format!("r {r:.1} mm at {h:.1} mm"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let same_circles = self.circles.len() == reference.circles.len()
+            && self
+                .circles
+                .iter()
+                .zip(&reference.circles)
+                .all(|(a, b)| (a.0 - b.0).abs() <= 0.5 && (a.1 - b.1).abs() <= 0.5);
+        if !same_circles {
+            out.push(format!(
+                "circles {} (latest {})",
+                radii(self),
+                radii(reference)
+            ));
+        } else {
+            for (a, b) in self.circles.iter().zip(&reference.circles) {
+                if let (Some(fa), Some(fb)) = (a.2, b.2) {
+                    if (fa - fb).abs() > 0.02 * fb.abs() {
+                        out.push(format!("feed {fa:.0} mm/min (latest {fb:.0})"));
+                        break;
+                    }
+                }
+            }
+        }
+        if self.plan != reference.plan {
+            out.push(
+                match (&self.plan, &reference.plan) {
+                    (None, _) => "no plan recorded (the latest has one)",
+                    (_, None) => "a plan recorded (the latest has none)",
+                    _ => "another test plan",
+                }
+                .into(),
+            );
+        }
+        if self.calibration != reference.calibration {
+            out.push(
+                match (&self.calibration, &reference.calibration) {
+                    (None, _) => "no instrument calibration recorded (the latest has one)",
+                    (_, None) => "an instrument calibration recorded (the latest has none)",
+                    _ => "another instrument calibration",
+                }
+                .into(),
+            );
+        }
+        out
+    }
+}
+
+/// One effect of a run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EffectRow {
+    pub name: String,
+    pub value: Option<f64>,
+    pub sigma: Option<f64>,
+    pub unit: String,
+}
+
+/// One run of a machine as the history holds it.
+#[derive(Debug, Clone)]
+pub struct Run {
+    pub id: i64,
+    pub date_utc: String,
+    pub added_utc: String,
+    pub source: String,
+    pub samples: i64,
+    pub conditions: Conditions,
+    pub g_um: Option<f64>,
+    pub h_um: Option<f64>,
+    pub final_rms_um: Option<f64>,
+    pub tolerance_um: Option<f64>,
+    pub pass: Option<bool>,
+    /// Machine effects (not the set-up), in the diagnosis' order.
+    pub effects: Vec<EffectRow>,
+}
+
+/// The outcome of [`History::add`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Added {
+    pub run_id: i64,
+    /// False if this diagnosis was already in the history (nothing was added).
+    pub new: bool,
+    /// The date the run is filed under.
+    pub date_utc: String,
+    /// Whether that date came from the file (false: the time of adding, or `--date`).
+    pub date_from_file: bool,
+}
+
+/// An open history file.
+pub struct History {
+    conn: Connection,
+    path: PathBuf,
+}
+
+/// 64-bit FNV-1a of `bytes`, as 16 hex digits: the identity of a diagnosis file's text.
+pub fn digest(bytes: &[u8]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in bytes {
+        h ^= u64::from(*b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
+impl History {
+    /// Open (or create) the history at `path`, creating its directory, and bring its schema up
+    /// to date (see the module docs).
+    pub fn open(path: &Path) -> Result<History> {
+        Self::open_at(path, schema::latest())
+    }
+
+    /// [`History::open`] migrating only to version `target` (for the migration tests).
+    pub fn open_at(path: &Path, target: i64) -> Result<History> {
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(|source| Error::File {
+                action: "cannot create the directory of",
+                path: path.to_path_buf(),
+                source,
+            })?;
+        }
+        let db = |source| Error::Database {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut conn = Connection::open(path).map_err(db)?;
+        conn.busy_timeout(BUSY_TIMEOUT).map_err(db)?;
+        // journal_mode returns the mode in force; anything but wal means the file system
+        // cannot share memory between processes (then SQLite's default locking still serialises).
+        let _mode: String = conn
+            .query_row("PRAGMA journal_mode = WAL", [], |r| r.get(0))
+            .map_err(db)?;
+        conn.pragma_update(None, "foreign_keys", true).map_err(db)?;
+        match schema::migrate_to(&mut conn, target) {
+            Ok(_) => {}
+            Err(schema::MigrateError::Sql(e)) => return Err(db(e)),
+            Err(schema::MigrateError::Newer(v)) => {
+                return Err(Error::Usage(format!(
+                    "history database {}: schema version {v} was written by a newer jdbb (this one knows {}); update jdbb",
+                    path.display(),
+                    schema::latest()
+                )))
+            }
+        }
+        Ok(History {
+            conn,
+            path: path.to_path_buf(),
+        })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    fn db(&self) -> impl Fn(rusqlite::Error) -> Error + '_ {
+        move |source| Error::Database {
+            path: self.path.clone(),
+            source,
+        }
+    }
+
+    /// The schema version of the open file.
+    pub fn version(&self) -> Result<i64> {
+        self.conn
+            .query_row("PRAGMA user_version", [], |r| r.get(0))
+            .map_err(self.db())
+    }
+
+    /// File the diagnosis `doc` (whose file text is `text`, read from `source`) under `machine`,
+    /// dated `date_utc` if given, else by the file's date, else now.
+    pub fn add(
+        &mut self,
+        machine: &str,
+        doc: &DiagnosisDoc,
+        text: &str,
+        source: &str,
+        date_utc: Option<String>,
+    ) -> Result<Added> {
+        let machine = machine.trim();
+        if machine.is_empty() {
+            return Err(Error::Usage("--machine: give the machine a name".into()));
+        }
+        let path = self.path.clone();
+        let db = move |source| Error::Database {
+            path: path.clone(),
+            source,
+        };
+        let (date, from_file) = match (date_utc, &doc.date_utc) {
+            (Some(d), _) => (d, false),
+            (None, Some(d)) => (
+                crate::dates::parse_date(d).map_err(|e| Error::Input {
+                    location: source.to_string(),
+                    message: format!("date_utc: {e}"),
+                })?,
+                true,
+            ),
+            (None, None) => (crate::dates::now_utc(), false),
+        };
+        let dig = digest(text.as_bytes());
+        let conditions =
+            serde_json::to_string(&Conditions::of(doc)).expect("conditions are plain data");
+        let now = crate::dates::now_utc();
+        let tx = self
+            .conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .map_err(&db)?;
+        tx.execute(
+            "INSERT OR IGNORE INTO machines (name, created_utc) VALUES (?1, ?2)",
+            params![machine, now],
+        )
+        .map_err(&db)?;
+        let machine_id: i64 = tx
+            .query_row(
+                "SELECT id FROM machines WHERE name = ?1",
+                params![machine],
+                |r| r.get(0),
+            )
+            .map_err(&db)?;
+        if let Some((id, d)) = tx
+            .query_row(
+                "SELECT id, date_utc FROM runs WHERE machine_id = ?1 AND digest = ?2",
+                params![machine_id, dig],
+                |r| Ok((r.get::<_, i64>(0)?, r.get::<_, String>(1)?)),
+            )
+            .optional()
+            .map_err(&db)?
+        {
+            return Ok(Added {
+                run_id: id,
+                new: false,
+                date_utc: d,
+                date_from_file: from_file,
+            });
+        }
+        tx.execute(
+            "INSERT INTO runs (machine_id, date_utc, added_utc, source, digest, samples, conditions,
+                 g_um, h_um, final_rms_um, tolerance_um, pass, diagnosis, jdbb_version)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14)",
+            params![
+                machine_id,
+                date,
+                now,
+                source,
+                dig,
+                doc.samples as i64,
+                conditions,
+                doc.g_um(),
+                doc.h_um(),
+                doc.final_fit.rms_um,
+                doc.tolerance.as_ref().map(|t| t.g_um),
+                doc.tolerance.as_ref().map(|t| t.pass),
+                text,
+                env!("CARGO_PKG_VERSION"),
+            ],
+        )
+        .map_err(&db)?;
+        let run_id = tx.last_insert_rowid();
+        for (e, _) in doc.machine_effects() {
+            tx.execute(
+                "INSERT INTO effects (run_id, name, value, sigma, unit) VALUES (?1, ?2, ?3, ?4, ?5)",
+                params![run_id, e.name, e.value, e.sigma, e.unit],
+            )
+            .map_err(&db)?;
+        }
+        tx.commit().map_err(&db)?;
+        Ok(Added {
+            run_id,
+            new: true,
+            date_utc: date,
+            date_from_file: from_file,
+        })
+    }
+
+    /// The machines and their number of runs, by name.
+    pub fn machines(&self) -> Result<Vec<(String, i64)>> {
+        let mut st = self
+            .conn
+            .prepare(
+                "SELECT m.name, COUNT(r.id) FROM machines m LEFT JOIN runs r ON r.machine_id = m.id
+                 GROUP BY m.id ORDER BY m.name",
+            )
+            .map_err(self.db())?;
+        let rows = st
+            .query_map([], |r| Ok((r.get(0)?, r.get(1)?)))
+            .map_err(self.db())?;
+        rows.collect::<rusqlite::Result<Vec<_>>>()
+            .map_err(self.db())
+    }
+
+    /// The runs of `machine`, oldest first; an unknown machine is a usage error naming the
+    /// known ones.
+    pub fn runs(&self, machine: &str) -> Result<Vec<Run>> {
+        let id: Option<i64> = self
+            .conn
+            .query_row(
+                "SELECT id FROM machines WHERE name = ?1",
+                params![machine],
+                |r| r.get(0),
+            )
+            .optional()
+            .map_err(self.db())?;
+        let Some(machine_id) = id else {
+            let known: Vec<String> = self.machines()?.into_iter().map(|(n, _)| n).collect();
+            return Err(Error::Usage(format!(
+                "no machine `{machine}` in the history {}; {}",
+                self.path.display(),
+                if known.is_empty() {
+                    "it is empty: add a diagnosis with `jdbb history add --machine NAME --diagnosis DIAG.json`".to_string()
+                } else {
+                    format!("known: {}", known.join(", "))
+                }
+            )));
+        };
+        let mut st = self
+            .conn
+            .prepare(
+                "SELECT id, date_utc, added_utc, source, samples, conditions, g_um, h_um,
+                        final_rms_um, tolerance_um, pass
+                 FROM runs WHERE machine_id = ?1 ORDER BY date_utc, id",
+            )
+            .map_err(self.db())?;
+        let rows = st
+            .query_map(params![machine_id], |r| {
+                let conditions: String = r.get(5)?;
+                Ok(Run {
+                    id: r.get(0)?,
+                    date_utc: r.get(1)?,
+                    added_utc: r.get(2)?,
+                    source: r.get(3)?,
+                    samples: r.get(4)?,
+                    conditions: serde_json::from_str(&conditions).unwrap_or_default(),
+                    g_um: r.get(6)?,
+                    h_um: r.get(7)?,
+                    final_rms_um: r.get(8)?,
+                    tolerance_um: r.get(9)?,
+                    pass: r.get(10)?,
+                    effects: vec![],
+                })
+            })
+            .map_err(self.db())?;
+        let mut runs = rows
+            .collect::<rusqlite::Result<Vec<_>>>()
+            .map_err(self.db())?;
+        let mut st = self
+            .conn
+            .prepare(
+                "SELECT name, value, sigma, unit FROM effects WHERE run_id = ?1 ORDER BY rowid",
+            )
+            .map_err(self.db())?;
+        for run in &mut runs {
+            let rows = st
+                .query_map(params![run.id], |r| {
+                    Ok(EffectRow {
+                        name: r.get(0)?,
+                        value: r.get(1)?,
+                        sigma: r.get(2)?,
+                        unit: r.get(3)?,
+                    })
+                })
+                .map_err(self.db())?;
+            run.effects = rows
+                .collect::<rusqlite::Result<Vec<_>>>()
+                .map_err(self.db())?;
+        }
+        Ok(runs)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn doc(
+        effect_value: f64,
+        radius: f64,
+        feed: f64,
+        date: Option<&str>,
+    ) -> (DiagnosisDoc, String) {
+        let text = serde_json::json!({
+            "samples": 1000,
+            "effects": [
+                {"name": "setup_offset", "value": 1.0, "unit": "um", "sigma": 0.1, "setup": true,
+                 "params": {"x_um": 1.0, "y_um": 0.0, "z_um": 0.0}},
+                {"name": "backlash_x", "value": effect_value, "unit": "um", "sigma": 0.01,
+                 "params": {"f_um": effect_value}}
+            ],
+            "final": {"rms_um": 0.3},
+            "plane": "xy",
+            "circles": [{"radius_mm": radius, "height_mm": 0.0, "feed_mm_min": feed, "samples": 500,
+                          "g_um": 5.0, "h_um": 3.0}],
+            "date_utc": date,
+        })
+        .to_string();
+        (
+            DiagnosisDoc::parse(Path::new("t.json"), &text).unwrap(),
+            text,
+        )
+    }
+
+    #[test]
+    fn add_list_dedupe_and_unknown_machine() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("sub/h.sqlite");
+        let mut h = History::open(&path).unwrap();
+        assert_eq!(h.version().unwrap(), schema::latest());
+        let (d1, t1) = doc(-8.0, 50.0, 1000.0, Some("2026-09-01"));
+        let a = h.add("mill", &d1, &t1, "a.json", None).unwrap();
+        assert!(a.new && a.date_from_file && a.date_utc == "2026-09-01T00:00:00Z");
+        let again = h.add("mill", &d1, &t1, "a.json", None).unwrap();
+        assert_eq!((again.run_id, again.new), (a.run_id, false));
+        let (d2, t2) = doc(-9.0, 50.0, 1000.0, None);
+        let b = h
+            .add(
+                "mill",
+                &d2,
+                &t2,
+                "b.json",
+                Some("2026-10-01T00:00:00Z".into()),
+            )
+            .unwrap();
+        assert!(b.new && !b.date_from_file);
+        let runs = h.runs("mill").unwrap();
+        assert_eq!(runs.len(), 2);
+        assert_eq!(runs[1].effects[0].name, "backlash_x");
+        assert_eq!(runs[1].effects[0].value, Some(-9.0));
+        assert_eq!(runs[0].conditions.circles, vec![(50.0, 0.0, Some(1000.0))]);
+        let e = h.runs("lathe").unwrap_err();
+        assert!(e.to_string().contains("known: mill"), "{e}");
+        assert_eq!(e.exit_code(), 2);
+        assert_eq!(h.machines().unwrap(), vec![("mill".to_string(), 2)]);
+    }
+
+    #[test]
+    fn an_old_schema_is_migrated_and_a_newer_one_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("h.sqlite");
+        {
+            let h = History::open_at(&path, 1).unwrap();
+            assert_eq!(h.version().unwrap(), 1);
+            // A version-1 file holds runs without jdbb_version: add one by hand.
+            let (d, t) = doc(-8.0, 50.0, 1000.0, Some("2026-09-01"));
+            h.conn
+                .execute(
+                    "INSERT INTO machines (name, created_utc) VALUES ('m', 'x')",
+                    [],
+                )
+                .unwrap();
+            h.conn
+                .execute(
+                    "INSERT INTO runs (machine_id, date_utc, added_utc, source, digest, samples, conditions, diagnosis)
+                     VALUES (1, '2026-09-01T00:00:00Z', 'x', 's', 'd', 1000, ?1, ?2)",
+                    params![serde_json::to_string(&Conditions::of(&d)).unwrap(), t],
+                )
+                .unwrap();
+        }
+        let h = History::open(&path).unwrap();
+        assert_eq!(h.version().unwrap(), 2);
+        assert_eq!(
+            h.runs("m").unwrap().len(),
+            1,
+            "the run survives the migration"
+        );
+        let idx: i64 = h
+            .conn
+            .query_row(
+                "SELECT COUNT(*) FROM sqlite_master WHERE name = 'runs_by_machine_date'",
+                [],
+                |r| r.get(0),
+            )
+            .unwrap();
+        assert_eq!(idx, 1);
+        drop(h);
+        let conn = Connection::open(&path).unwrap();
+        conn.pragma_update(None, "user_version", 99).unwrap();
+        drop(conn);
+        let e = History::open(&path).err().unwrap();
+        assert!(e.to_string().contains("newer jdbb"), "{e}");
+    }
+
+    #[test]
+    fn two_writers_at_once_lose_nothing() {
+        // Two threads, each with its own connection, add 40 runs each at the same time.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("h.sqlite");
+        History::open(&path).unwrap();
+        let handles: Vec<_> = (0..2)
+            .map(|w| {
+                let path = path.clone();
+                std::thread::spawn(move || {
+                    let mut h = History::open(&path).unwrap();
+                    for k in 0..40 {
+                        let (d, t) = doc(-(w * 100 + k) as f64, 50.0, 1000.0, Some("2026-09-01"));
+                        h.add("mill", &d, &t, "x.json", None).unwrap();
+                    }
+                })
+            })
+            .collect();
+        for j in handles {
+            j.join().unwrap();
+        }
+        let h = History::open(&path).unwrap();
+        assert_eq!(h.runs("mill").unwrap().len(), 80);
+    }
+
+    #[test]
+    fn conditions_name_what_differs() {
+        let (a, _) = doc(-8.0, 50.0, 1000.0, None);
+        let (b, _) = doc(-8.0, 90.0, 1000.0, None);
+        let (c, _) = doc(-8.0, 50.3, 1500.0, None);
+        let ca = Conditions::of(&a);
+        assert!(ca.differences(&ca).is_empty());
+        let d = Conditions::of(&b).differences(&ca);
+        assert!(d[0].starts_with("circles r 90.0 mm"), "{d:?}");
+        let d = Conditions::of(&c).differences(&ca);
+        assert_eq!(d, vec!["feed 1500 mm/min (latest 1000)".to_string()]);
+        let mut cal = Conditions::of(&a);
+        cal.calibration = Some(serde_json::json!({"l1_mm": 50}));
+        assert_eq!(
+            cal.differences(&ca),
+            vec!["an instrument calibration recorded (the latest has none)".to_string()]
+        );
+        assert_eq!(digest(b""), "cbf29ce484222325");
+        assert_eq!(digest(b"a"), "af63dc4c8601ec8c");
+    }
+}

@@ -1,0 +1,119 @@
+//! The README's examples are tests, as RTIC's examples are: every ```` ```sh ```` block runs as
+//! written, in order, from the repository root, with the `jdbb` under test first on PATH; a
+//! ```` ```text expected-output ```` block right after one is exactly what that block prints.
+//! A block a test cannot run (the two top-level commands themselves, flashing a real board) is
+//! marked ```` ```sh no-run ````; every such block must say why in a comment.
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// One fenced block: the line its fence opens on, its info string, its text.
+struct Block {
+    line: usize,
+    info: String,
+    text: String,
+}
+
+fn blocks(readme: &str) -> Vec<Block> {
+    let mut out = vec![];
+    let mut open: Option<Block> = None;
+    for (i, line) in readme.lines().enumerate() {
+        if let Some(rest) = line.strip_prefix("```") {
+            match open.take() {
+                Some(b) => out.push(b),
+                None => {
+                    open = Some(Block {
+                        line: i + 1,
+                        info: rest.trim().to_string(),
+                        text: String::new(),
+                    })
+                }
+            }
+        } else if let Some(b) = open.as_mut() {
+            b.text.push_str(line);
+            b.text.push('\n');
+        }
+    }
+    assert!(open.is_none(), "README.md: a code block is not closed");
+    out
+}
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+#[test]
+fn readme_blocks_are_well_formed() {
+    let readme = std::fs::read_to_string(root().join("README.md")).unwrap();
+    for b in blocks(&readme) {
+        if !b.info.starts_with("sh") {
+            continue;
+        }
+        for (k, l) in b.text.lines().enumerate() {
+            let code = l.split(" #").next().unwrap_or("");
+            assert!(
+                !code.contains(" [-") && !code.contains("...") && !code.contains(" … "),
+                "README.md:{}: `{l}` has a placeholder or a bracketed option; a command in the README must run as pasted (options go in prose or tables)",
+                b.line + 1 + k
+            );
+        }
+        if b.info == "sh no-run" {
+            assert!(
+                b.text.contains('#'),
+                "README.md:{}: a `sh no-run` block must say in a comment why it cannot run in a test",
+                b.line
+            );
+        } else {
+            assert_eq!(
+                b.info, "sh",
+                "README.md:{}: shell blocks are `sh` or `sh no-run`",
+                b.line
+            );
+        }
+    }
+}
+
+#[test]
+fn readme_commands_run_as_written() {
+    let root = root();
+    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+    let bin = PathBuf::from(env!("CARGO_BIN_EXE_jdbb"));
+    let path = format!(
+        "{}:{}",
+        bin.parent().unwrap().display(),
+        std::env::var("PATH").unwrap_or_default()
+    );
+    let all = blocks(&readme);
+    let mut ran = 0;
+    for (k, b) in all.iter().enumerate() {
+        if b.info != "sh" {
+            continue;
+        }
+        let o = Command::new("bash")
+            .args(["-euo", "pipefail", "-c", &b.text])
+            .current_dir(&root)
+            .env("PATH", &path)
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        assert!(
+            o.status.success(),
+            "README.md:{}: this block failed ({}):\n{}\nstdout:\n{}\nstderr:\n{}",
+            b.line,
+            o.status,
+            b.text,
+            stdout,
+            String::from_utf8_lossy(&o.stderr)
+        );
+        if let Some(next) = all.get(k + 1) {
+            if next.info == "text expected-output" {
+                assert_eq!(
+                    stdout, next.text,
+                    "README.md:{}: the output shown is not what the block above it prints today",
+                    next.line
+                );
+            }
+        }
+        ran += 1;
+    }
+    assert!(ran >= 5, "only {ran} README blocks ran");
+}

@@ -1,0 +1,312 @@
+//! Machine errors: where the spindle ball and the table ball really are, given the commanded
+//! trajectory. The models and their signs are the contract written in the [module docs](super);
+//! every parameter zero is a perfect machine.
+
+use super::planner::Trajectory;
+
+/// A machine axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Axis {
+    /// x.
+    X,
+    /// y.
+    Y,
+    /// z.
+    Z,
+}
+
+impl Axis {
+    /// 0, 1, 2.
+    pub fn index(self) -> usize {
+        self as usize
+    }
+}
+
+/// Periodic (pitch) error of one axis: δ = A·sin(2π·p/P + φ).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Cyclic {
+    /// Amplitude A (µm).
+    pub amplitude_um: f64,
+    /// Pitch P (mm); 0 = none.
+    pub pitch_mm: f64,
+    /// Phase φ (rad).
+    pub phase_rad: f64,
+}
+
+/// Stick at reversal of one axis: the axis lags its command by h right after it reverses and
+/// catches up with time constant τ.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ReversalSpike {
+    /// Height h (µm).
+    pub height_um: f64,
+    /// Decay time constant τ (ms); 0 = none.
+    pub tau_ms: f64,
+}
+
+/// Out-of-squareness: axis `axis` is displaced in proportion to the position of axis `by`
+/// relative to the table ball: δ_axis = s·(p_by − ball_by).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Squareness {
+    /// The axis displaced (i).
+    pub axis: Axis,
+    /// The axis whose position causes it (j ≠ i).
+    pub by: Axis,
+    /// s (µm per m).
+    pub um_per_m: f64,
+}
+
+/// All machine errors; [`Default`] is a perfect machine.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct MachineErrors {
+    /// Set-up offset c (µm): the table ball sits at the nominal position + c.
+    pub setup_offset_um: [f64; 3],
+    /// Length offset e (µm) added to D (the instrument's length calibration error).
+    pub length_offset_um: f64,
+    /// Backlash f per axis (µm, the full lost motion): δ = +f/2 after moving +, −f/2 after −.
+    pub backlash_um: [f64; 3],
+    /// Scale error a per axis (µm/m): δ = a·p (p from the program origin).
+    pub scale_um_per_m: [f64; 3],
+    /// Squareness terms.
+    pub squareness: Vec<Squareness>,
+    /// Periodic errors per axis.
+    pub cyclic: [Cyclic; 3],
+    /// Servo delay τ per axis (ms): the axis is where its command was τ earlier.
+    pub servo_delay_ms: [f64; 3],
+    /// Reversal spikes per axis.
+    pub reversal_spike: [ReversalSpike; 3],
+    /// Drift of D (µm/min) from cycle start on (warm-up).
+    pub drift_um_per_min: f64,
+}
+
+impl MachineErrors {
+    /// Check the parameters are usable (finite, pitches and time constants non-negative, no
+    /// squareness of an axis with itself).
+    pub fn validate(&self) -> Result<(), String> {
+        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        let mut all = vec![self.length_offset_um, self.drift_um_per_min];
+        all.extend(self.setup_offset_um);
+        all.extend(self.backlash_um);
+        all.extend(self.scale_um_per_m);
+        all.extend(self.servo_delay_ms);
+        for c in &self.cyclic {
+            all.extend([c.amplitude_um, c.pitch_mm, c.phase_rad]);
+        }
+        for s in &self.reversal_spike {
+            all.extend([s.height_um, s.tau_ms]);
+        }
+        for s in &self.squareness {
+            all.push(s.um_per_m);
+        }
+        if !finite(&all) {
+            return Err("machine errors must be finite numbers".into());
+        }
+        if self.cyclic.iter().any(|c| c.pitch_mm < 0.0) {
+            return Err("cyclic pitch_mm must be ≥ 0 (0 = no cyclic error)".into());
+        }
+        if self.reversal_spike.iter().any(|s| s.tau_ms < 0.0) {
+            return Err("reversal spike tau_ms must be ≥ 0 (0 = no spike)".into());
+        }
+        if self.servo_delay_ms.iter().any(|d| *d < 0.0) {
+            return Err("servo_delay_ms must be ≥ 0".into());
+        }
+        if self.squareness.iter().any(|s| s.axis == s.by) {
+            return Err("squareness needs two different axes".into());
+        }
+        Ok(())
+    }
+
+    /// Error δ_k (µm) of axis `k` alone (scale, cyclic, backlash, reversal spike) at its own
+    /// commanded coordinate `p_k` (mm), for the direction state of the axis at program time `t`.
+    fn axis_error_um(&self, k: usize, p_k: f64, traj: &Trajectory, t: f64) -> f64 {
+        let mut d = self.scale_um_per_m[k] * p_k * 1e-3;
+        let c = &self.cyclic[k];
+        if c.pitch_mm > 0.0 && c.amplitude_um != 0.0 {
+            d += c.amplitude_um * (std::f64::consts::TAU * p_k / c.pitch_mm + c.phase_rad).sin();
+        }
+        let sp = &self.reversal_spike[k];
+        if self.backlash_um[k] != 0.0 || (sp.height_um != 0.0 && sp.tau_ms > 0.0) {
+            let (dir, last) = traj.direction_at(k, t);
+            let s = dir as f64;
+            d += 0.5 * self.backlash_um[k] * s;
+            if let Some(t_rev) = last {
+                if sp.tau_ms > 0.0 && sp.height_um != 0.0 {
+                    d -= sp.height_um * s * (-(t - t_rev) * 1e3 / sp.tau_ms).exp();
+                }
+            }
+        }
+        d
+    }
+
+    /// The machine's state at program time `t`: commanded and actual spindle-ball position.
+    /// `ball_mm` is the nominal table-ball position (for squareness).
+    pub fn actual(&self, traj: &Trajectory, t: f64, ball_mm: [f64; 3]) -> Pose {
+        let command = traj.position_at(t);
+        // Each axis lags by its own delay; its position-dependent errors go with it.
+        let mut lagged = command;
+        let mut t_axis = [t; 3];
+        for k in 0..3 {
+            if self.servo_delay_ms[k] != 0.0 {
+                t_axis[k] = t - self.servo_delay_ms[k] * 1e-3;
+                lagged[k] = traj.position_at(t_axis[k])[k];
+            }
+        }
+        let mut delta_um = [0.0; 3];
+        for k in 0..3 {
+            delta_um[k] = self.axis_error_um(k, lagged[k], traj, t_axis[k]);
+        }
+        for s in &self.squareness {
+            let (i, j) = (s.axis.index(), s.by.index());
+            delta_um[i] += s.um_per_m * (lagged[j] - ball_mm[j]) * 1e-3;
+        }
+        Pose {
+            command_mm: command,
+            actual_mm: [0, 1, 2].map(|k| lagged[k] + delta_um[k] * 1e-3),
+        }
+    }
+
+    /// Where the table ball really is (mm).
+    pub fn table_ball_mm(&self, nominal_mm: [f64; 3]) -> [f64; 3] {
+        [0, 1, 2].map(|k| nominal_mm[k] + self.setup_offset_um[k] * 1e-3)
+    }
+
+    /// True ball distance D (mm) for a spindle ball at `actual_mm`, at program time `t` with
+    /// cycle start at `cycle_start_s` (drift runs from there).
+    pub fn distance_mm(
+        &self,
+        actual_mm: [f64; 3],
+        ball_nominal_mm: [f64; 3],
+        t: f64,
+        cycle_start_s: f64,
+    ) -> f64 {
+        let b = self.table_ball_mm(ball_nominal_mm);
+        let d = [0, 1, 2].map(|k| actual_mm[k] - b[k]);
+        let drift_um = self.drift_um_per_min * ((t - cycle_start_s).max(0.0) / 60.0);
+        (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() + (self.length_offset_um + drift_um) * 1e-3
+    }
+}
+
+/// Commanded and actual spindle-ball position at one instant.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    /// Where the program puts it (mm).
+    pub command_mm: [f64; 3],
+    /// Where it is (mm): command (per-axis delayed) + δ.
+    pub actual_mm: [f64; 3],
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::planner::{plan, MachineConfig};
+    use super::super::program::{parse_program, Dialect, ProgramOptions};
+    use super::*;
+
+    fn traj(text: &str) -> Trajectory {
+        let m = MachineConfig::default();
+        let p = parse_program(text, ProgramOptions::new(Dialect::LinuxCnc), [0.0; 3]).unwrap();
+        plan(&p, &m, 1.0).unwrap()
+    }
+
+    #[test]
+    fn backlash_sign_follows_the_last_motion() {
+        // +x, dwell, −x, dwell.
+        let t = traj("G21 G90 G1 X10 F600\nG4 P1\nX5\nG4 P1\n");
+        let e = MachineErrors {
+            backlash_um: [8.0, 0.0, 0.0],
+            ..Default::default()
+        };
+        let b = [0.0; 3];
+        let mid_plus = 0.5 * t.segments[0].t_end_s();
+        let dwell1 = t.segments[1].t_start_s + 0.5;
+        let mid_minus = 0.5 * (t.segments[2].t_start_s + t.segments[2].t_end_s());
+        let dwell2 = t.segments[3].t_start_s + 0.5;
+        let dx = |tt: f64| {
+            let p = e.actual(&t, tt, b);
+            (p.actual_mm[0] - p.command_mm[0]) * 1e3
+        };
+        assert!((dx(mid_plus) - 4.0).abs() < 1e-9);
+        assert!((dx(dwell1) - 4.0).abs() < 1e-9, "holds through standstill");
+        assert!((dx(mid_minus) + 4.0).abs() < 1e-9);
+        assert!((dx(dwell2) + 4.0).abs() < 1e-9);
+        // y did not move: keeps its initial direction (+), so +f/2 if it had backlash.
+        let e = MachineErrors {
+            backlash_um: [0.0, 6.0, 0.0],
+            ..Default::default()
+        };
+        let p = e.actual(&t, dwell2, b);
+        assert!(((p.actual_mm[1] - p.command_mm[1]) * 1e3 - 3.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn scale_cyclic_and_squareness_values() {
+        let t = traj("G21 G90 G0 X100 Y-50 Z20\n");
+        let e = MachineErrors {
+            scale_um_per_m: [10.0, 0.0, 0.0],
+            cyclic: [
+                Cyclic::default(),
+                Cyclic {
+                    amplitude_um: 2.0,
+                    pitch_mm: 20.0,
+                    phase_rad: 0.5,
+                },
+                Cyclic::default(),
+            ],
+            squareness: vec![Squareness {
+                axis: Axis::Z,
+                by: Axis::X,
+                um_per_m: 30.0,
+            }],
+            ..Default::default()
+        };
+        let ball = [40.0, 0.0, 0.0];
+        let p = e.actual(&t, t.end_s + 1.0, ball);
+        let d = [0, 1, 2].map(|k| (p.actual_mm[k] - p.command_mm[k]) * 1e3);
+        assert!((d[0] - 1.0).abs() < 1e-9, "scale: 10 µm/m · 0.1 m");
+        let cyc = 2.0 * (std::f64::consts::TAU * -50.0 / 20.0 + 0.5).sin();
+        assert!((d[1] - cyc).abs() < 1e-9);
+        assert!(
+            (d[2] - 30.0 * 60.0e-3).abs() < 1e-9,
+            "squareness from the ball's x"
+        );
+    }
+
+    #[test]
+    fn servo_delay_is_a_true_delay() {
+        let t = traj("G21 G90 G1 X100 F600\n");
+        let e = MachineErrors {
+            servo_delay_ms: [20.0, 0.0, 0.0],
+            ..Default::default()
+        };
+        for tt in [0.01, 0.5, 3.0, 10.0, 10.05] {
+            let p = e.actual(&t, tt, [0.0; 3]);
+            assert_eq!(p.actual_mm[0], t.position_at(tt - 0.02)[0]);
+        }
+    }
+
+    #[test]
+    fn reversal_spike_decays() {
+        let t = traj("G21 G90 G1 X10 F600\nX0\n");
+        let e = MachineErrors {
+            reversal_spike: [
+                ReversalSpike {
+                    height_um: 5.0,
+                    tau_ms: 30.0,
+                },
+                ReversalSpike::default(),
+                ReversalSpike::default(),
+            ],
+            ..Default::default()
+        };
+        let t_rev = t.segments[1].t_start_s;
+        assert_eq!(t.events[0].last().map(|e| e.t_s), Some(t_rev));
+        for dt_ms in [0.0, 10.0, 30.0, 90.0] {
+            let p = e.actual(&t, t_rev + dt_ms * 1e-3, [0.0; 3]);
+            let d = (p.actual_mm[0] - p.command_mm[0]) * 1e3;
+            // New direction −x: δ = −h·(−1)·e^{−Δt/τ} = +h·e^{−Δt/τ}.
+            let expect = 5.0 * (-dt_ms / 30.0).exp();
+            assert!((d - expect).abs() < 1e-9, "{dt_ms} ms: {d} vs {expect}");
+        }
+        // Before the reversal: the move from the initial + state to +x is no reversal.
+        let p = e.actual(&t, 0.5 * t_rev, [0.0; 3]);
+        assert_eq!(p.actual_mm[0], p.command_mm[0]);
+    }
+}

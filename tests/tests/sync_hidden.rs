@@ -1,0 +1,212 @@
+//! Hidden effects in records made by running the emitted G-code (issue 8 §6): `jdbb plan` writes
+//! the program, the independent G-code machine simulator (`jdbb_tests::gmachine`: its own parser,
+//! planner with acceleration limits and tangent blending, feed override, unknown start, device
+//! clock off by tens of ppm, its own error models) runs it with one hidden effect, and
+//! `jdbb diagnose --record --plan`'s library path — synchronisation from D alone, then the
+//! diagnosis of the data arcs — must name exactly that effect, within 5 % or 3σ, and nothing on
+//! a perfect machine.
+use std::path::Path;
+
+use jdbb::circular::diagnose::{diagnose, Diagnosis, Options};
+use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
+use jdbb::circular::sync::{data_path, synchronise, Record};
+use jdbb_core::Calibration;
+use jdbb_tests::gmachine::{
+    Axis, Cyclic, Dialect, MachineErrors, Recording, ReversalSpike, SimConfig, Simulation,
+    Squareness,
+};
+
+const CENTRE: [f64; 3] = [100.0, 50.0, -20.0];
+
+/// A plan of circles of `radii` at 1000 mm/min in xy.
+fn make_plan(radii: &[f64], dialect: PlanDialect) -> Plan {
+    let spec = PlanSpec::machine_test(radii, &[0.0], Plane::Xy, 1000.0, CENTRE, dialect);
+    plan(&spec, &Calibration::DEFAULT).unwrap()
+}
+
+/// Run the plan's program on a machine with `errors`, with a feed override, an unknown start,
+/// a clock off by `ppm`, noise, and the lean azimuth wandering.
+fn record(plan: &Plan, dialect: PlanDialect, errors: MachineErrors, seed: u64) -> Recording {
+    let text = write_program(plan, dialect);
+    let d = match dialect {
+        PlanDialect::Linuxcnc => Dialect::LinuxCnc,
+        PlanDialect::Grbl => Dialect::Grbl,
+        PlanDialect::Fanuc => Dialect::Fanuc,
+        PlanDialect::Marlin => Dialect::Marlin,
+    };
+    let mut cfg = SimConfig::new(d, CENTRE);
+    cfg.errors = errors;
+    cfg.machine.feed_override_pct = 96.0 + (seed % 9) as f64;
+    cfg.machine.accel_mm_s2 = [400.0 + 100.0 * (seed % 3) as f64, 600.0, 300.0];
+    cfg.instrument.clock_ppm = if seed.is_multiple_of(2) { 37.0 } else { -52.0 };
+    cfg.instrument.start_delay_s = 2.0 + (seed % 5) as f64;
+    cfg.instrument.t0_us = 1_000_000 * seed;
+    cfg.instrument.noise_um = 0.2;
+    cfg.instrument.seed = seed;
+    Simulation::new(&text, cfg).unwrap().run().unwrap()
+}
+
+/// The diagnosis of a recording through a CSV file, as `jdbb diagnose --record --plan` does.
+fn diagnose_record(plan: &Plan, rec: &Recording, pitch: [Option<f64>; 3]) -> Diagnosis {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("rec.csv");
+    let mut f = std::io::BufWriter::new(std::fs::File::create(&file).unwrap());
+    rec.write_csv(&mut f).unwrap();
+    drop(f);
+    let r = Record::read(Path::new(&file)).unwrap();
+    let sync = synchronise(plan, &r).unwrap();
+    // The feed the machine ran, on the record's clock, within 0.05 % of the programmed feed;
+    // the cycle start within 10 ms.
+    let t = &rec.truth;
+    let feed = 100.0 * t.feed_factor * (1.0 + 1e-6 * t.clock_ppm);
+    assert!(
+        (sync.feed_percent - feed).abs() < 0.05,
+        "feed {} % vs {feed} %",
+        sync.feed_percent
+    );
+    let start_us = sync.t0_us + 1e6 * sync.cycle_start_s;
+    assert!(
+        (start_us - t.cycle_start_us).abs() < 10_000.0,
+        "cycle start {start_us} µs vs {} µs",
+        t.cycle_start_us
+    );
+    let (path, d) = data_path(plan, &r, &sync, pitch).unwrap();
+    diagnose(&path, &d, &Options::default()).unwrap()
+}
+
+fn machine_names(d: &Diagnosis) -> Vec<String> {
+    d.effects
+        .iter()
+        .filter(|f| !f.effect.is_setup())
+        .map(|f| f.effect.name())
+        .collect()
+}
+
+/// Exactly `name` was found, with `value` within 5 % or 3σ of `truth`.
+fn assert_only(d: &Diagnosis, name: &str, truth: f64) -> f64 {
+    assert_eq!(
+        machine_names(d),
+        vec![name.to_string()],
+        "{}",
+        jdbb::circular::report::summary(d)
+    );
+    let f = d.effects.iter().find(|f| f.effect.name() == name).unwrap();
+    let sigma = f.sigma.unwrap();
+    let err = (f.value - truth).abs();
+    assert!(
+        err <= 0.05 * truth.abs() || err <= 3.0 * sigma,
+        "{name}: {} ± {sigma} vs {truth}\n{}",
+        f.value,
+        jdbb::circular::report::summary(d)
+    );
+    f.value
+}
+
+#[test]
+fn a_perfect_machine_shows_nothing() {
+    for (seed, dialect) in [(1, PlanDialect::Linuxcnc), (2, PlanDialect::Fanuc)] {
+        let p = make_plan(&[90.0], dialect);
+        let errors = MachineErrors {
+            setup_offset_um: [35.0, -20.0, 0.0],
+            length_offset_um: 12.0,
+            ..MachineErrors::default()
+        };
+        let d = diagnose_record(&p, &record(&p, dialect, errors, seed), [None; 3]);
+        assert!(
+            machine_names(&d).is_empty(),
+            "{}",
+            jdbb::circular::report::summary(&d)
+        );
+    }
+}
+
+#[test]
+fn backlash_and_squareness_are_named_alone() {
+    let p = make_plan(&[90.0], PlanDialect::Grbl);
+    let mut errors = MachineErrors {
+        setup_offset_um: [-25.0, 40.0, 0.0],
+        ..MachineErrors::default()
+    };
+    errors.backlash_um[0] = 6.0;
+    let d = diagnose_record(&p, &record(&p, PlanDialect::Grbl, errors, 3), [None; 3]);
+    assert_only(&d, "backlash_x", 6.0);
+
+    let errors = MachineErrors {
+        squareness: vec![Squareness {
+            axis: Axis::X,
+            by: Axis::Y,
+            um_per_m: 30.0,
+        }],
+        ..MachineErrors::default()
+    };
+    let d = diagnose_record(&p, &record(&p, PlanDialect::Grbl, errors, 4), [None; 3]);
+    assert_only(&d, "squareness_xy", 30.0);
+}
+
+#[test]
+fn a_servo_delay_is_a_mismatch_and_no_scale() {
+    // τ_x 3.0 ms, τ_y 4.2 ms: Δτ = −1.2 ms (x leads y), and the second-order part must not turn
+    // into a scale mismatch.
+    let p = make_plan(&[90.0], PlanDialect::Linuxcnc);
+    let errors = MachineErrors {
+        servo_delay_ms: [3.0, 4.2, 0.0],
+        ..MachineErrors::default()
+    };
+    let d = diagnose_record(&p, &record(&p, PlanDialect::Linuxcnc, errors, 5), [None; 3]);
+    assert_only(&d, "servo_mismatch_xy", -1.2);
+}
+
+#[test]
+fn cyclic_error_at_its_pitch() {
+    let p = make_plan(&[90.0], PlanDialect::Marlin);
+    let mut errors = MachineErrors::default();
+    errors.cyclic[1] = Cyclic {
+        amplitude_um: 2.5,
+        pitch_mm: 10.0,
+        phase_rad: 0.4,
+    };
+    let d = diagnose_record(
+        &p,
+        &record(&p, PlanDialect::Marlin, errors, 6),
+        [Some(10.0), Some(10.0), None],
+    );
+    assert_only(&d, "cyclic_y", 2.5);
+}
+
+#[test]
+fn two_radii_separate_the_scale() {
+    let p = make_plan(&[95.0, 85.0], PlanDialect::Linuxcnc);
+    let mut errors = MachineErrors::default();
+    errors.scale_um_per_m[0] = 40.0;
+    let d = diagnose_record(&p, &record(&p, PlanDialect::Linuxcnc, errors, 7), [None; 3]);
+    assert_only(&d, "scale_x", 40.0);
+}
+
+#[test]
+fn reversal_spikes_and_drift() {
+    let p = make_plan(&[90.0], PlanDialect::Linuxcnc);
+    let mut errors = MachineErrors::default();
+    errors.reversal_spike[0] = ReversalSpike {
+        height_um: 4.0,
+        tau_ms: 25.0,
+    };
+    let d = diagnose_record(&p, &record(&p, PlanDialect::Linuxcnc, errors, 8), [None; 3]);
+    assert_only(&d, "reversal_spike_x", 4.0);
+    let f = d
+        .effects
+        .iter()
+        .find(|f| f.effect.name() == "reversal_spike_x")
+        .unwrap();
+    let (tau, s) = (f.params[1], f.param_sigma[1].unwrap());
+    assert!(
+        (tau - 25.0).abs() <= (0.05 * 25.0f64).max(3.0 * s),
+        "tau {tau} ± {s}"
+    );
+
+    let errors = MachineErrors {
+        drift_um_per_min: 0.8,
+        ..MachineErrors::default()
+    };
+    let d = diagnose_record(&p, &record(&p, PlanDialect::Linuxcnc, errors, 9), [None; 3]);
+    assert_only(&d, "drift", 0.8);
+}
