@@ -6,6 +6,9 @@
 //!   period, then by exactly the new one — the sample clock is not restarted mid-period.
 //! - `DeviceInfo` (protocol 2) reports the index state, overruns and reset cause, and `ArmIndex`
 //!   re-arms both encoders' index.
+mod common;
+
+use common::collect_run;
 use std::time::{Duration, Instant};
 
 use jdbb::link::stream::{Poll, Stream};
@@ -27,9 +30,7 @@ fn rate_change_while_sampling_keeps_time_continuous_and_arm_index_rearms() {
     );
     stream.send(&Command::SetSampleRate(1_000)).unwrap();
     stream.send(&Command::Start).unwrap();
-    let mut got = stream
-        .collect(1_000, Duration::from_secs(60))
-        .expect("read from the QEMU pty");
+    let mut got = collect_run(&mut stream, 1_000, Duration::from_secs(60));
     // Now 2 kHz, without a Start: the running sample clock must carry on seamlessly.
     stream.send(&Command::SetSampleRate(2_000)).unwrap();
     got.extend(

@@ -2,6 +2,9 @@
 //! real board) streams over USART2 → QEMU pty → the host's `jdbb::link::stream` decoder. At least 10 000
 //! consecutive samples must arrive with zero loss and no corrupt frame, and every D computed on the
 //! chip must agree with the host's f64 reference for the same counts within the on-chip budget.
+mod common;
+
+use common::collect_run;
 use std::time::Duration;
 
 use jdbb::link::stream::Stream;
@@ -27,9 +30,7 @@ fn qemu_firmware_streams_10000_samples_without_loss_and_chip_d_matches_host() {
     // takes about two seconds of emulated time.
     stream.send(&Command::SetSampleRate(5_000)).unwrap();
     stream.send(&Command::Start).unwrap();
-    let got = stream
-        .collect(N, Duration::from_secs(120))
-        .expect("read from the QEMU pty");
+    let got = collect_run(&mut stream, N, Duration::from_secs(120));
     let stats = *stream.stats();
     println!("end to end: {stats}");
     assert!(
