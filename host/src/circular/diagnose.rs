@@ -95,6 +95,19 @@ pub struct Found {
     pub share: f64,
 }
 
+/// An effect the selection chose but whose value its σ does not tell from zero.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NotSignificant {
+    /// Effect name, as in [`Found`].
+    pub name: String,
+    /// Unit of `value`.
+    pub unit: &'static str,
+    /// Its value in the exact refit.
+    pub value: f64,
+    /// Its standard uncertainty, timing included.
+    pub sigma_value: f64,
+}
+
 /// The result of [`diagnose`].
 #[derive(Debug, Clone)]
 pub struct Diagnosis {
@@ -118,6 +131,10 @@ pub struct Diagnosis {
     pub below_floor: Vec<(String, f64)>,
     /// The floor applied (µm).
     pub floor_um: f64,
+    /// Effects the selection chose whose final value is within 2σ of zero, once σ counts the
+    /// uncertainty of the timing (a reversal spike's height against the synchronisation's
+    /// timing σ); not named, and the rest refitted without them.
+    pub not_significant: Vec<NotSignificant>,
     /// Per sample: angle (rad) in the main plane; measured deviation with the least-squares
     /// set-up removed, D − (|p + c| + e) with c, e from [`Diagnosis::lsq_setup_um`] (µm); and the
     /// extended model's deviation after the same removal, i.e. its machine effects (µm).
@@ -443,36 +460,107 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     // 6. Exact refit of set-up + chosen effects, from the linear solution (set-up from its exact
     // fit plus its linear correction). A search column dropped as confounded holds its exact
     // parameter (the servo delay's lag) at zero.
-    let mut final_effects = setup.to_vec();
-    let mut start = setup_theta.clone();
-    for (k, &col) in current.iter().enumerate() {
-        if col < 4 {
-            start[col] += sel.coef[k];
-        }
-    }
-    let mut free = free_setup.clone();
-    for st in &sel.steps {
-        let c = candidates[st.group];
-        let cand = design.cands[c];
-        let coef: Vec<f64> = design.cols_of(c).into_iter().map(coef_of).collect();
-        let first = start.len();
-        final_effects.push(cand.effect);
-        start.extend(cand.start(&coef));
-        let held_lag = matches!(cand.effect, Effect::ServoMismatch(_)) && st.cols.len() < 2;
-        for k in 0..cand.effect.n_params() {
-            if !(held_lag && k == 1) {
-                free.push(first + k);
+    // An effect whose value its own σ does not tell from zero (|value| < 2σ, possible only
+    // where σ counts more than the fit's noise: a spike's height with the timing uncertainty) is
+    // dropped and the rest refitted.
+    let mut kept: Vec<usize> = (0..sel.steps.len()).collect();
+    let mut not_significant: Vec<NotSignificant> = vec![];
+    let (final_set, theta, final_ssr, mut found) = loop {
+        let mut final_effects = setup.to_vec();
+        let mut start = setup_theta.clone();
+        for (k, &col) in current.iter().enumerate() {
+            if col < 4 {
+                start[col] += sel.coef[k];
             }
         }
-    }
-    let final_set = EffectSet::new(final_effects.clone());
-    let (theta, sig, cov, final_ssr) = fit_exact(path, d_mm, &final_set, &free, &start, 1e-6)?;
+        let mut free = free_setup.clone();
+        for st in kept.iter().map(|&k| &sel.steps[k]) {
+            let c = candidates[st.group];
+            let cand = design.cands[c];
+            let coef: Vec<f64> = design.cols_of(c).into_iter().map(coef_of).collect();
+            let first = start.len();
+            final_effects.push(cand.effect);
+            start.extend(cand.start(&coef));
+            let held_lag = matches!(cand.effect, Effect::ServoMismatch(_)) && st.cols.len() < 2;
+            for k in 0..cand.effect.n_params() {
+                if !(held_lag && k == 1) {
+                    free.push(first + k);
+                }
+            }
+        }
+        let final_set = EffectSet::new(final_effects.clone());
+        let (theta, sig, cov, final_ssr) = fit_exact(path, d_mm, &final_set, &free, &start, 1e-6)?;
+        let chosen: Vec<(f64, f64, f64)> = kept
+            .iter()
+            .map(|&k| &sel.steps[k])
+            .map(|st| (st.rms_after, st.rms_ratio, st.delta_bic))
+            .collect();
+        // Report.
+        let mut found = vec![];
+        for (ei, eff) in final_effects.iter().enumerate() {
+            let o = final_set.offsets[ei];
+            let n = eff.n_params();
+            let params = theta[o..o + n].to_vec();
+            let mut psig: Vec<Option<f64>> = sig[o..o + n].to_vec();
+            let block: Vec<Vec<f64>> = (0..n)
+                .map(|i| (0..n).map(|j| cov[(o + i, o + j)]).collect())
+                .collect();
+            let (value, mut sigma) = eff.value(&params, &block);
+            if psig.iter().all(|s| s.is_none()) {
+                sigma = None;
+            }
+            // A spike's height h·e^(−δt/τ) moves by h·δt/τ when the reversal's time is off by δt.
+            if let (Effect::ReversalSpike(_), true) = (eff, path.timing_sigma_s > 0.0) {
+                let extra = params[0] * 1e3 * path.timing_sigma_s / params[1].max(MIN_TAU_MS);
+                let add = |s: Option<f64>| s.map(|s| s.hypot(extra));
+                psig[0] = add(psig[0]);
+                sigma = add(sigma);
+            }
+            let (rms_after_um, rms_ratio, delta_bic) = if ei < 2 {
+                (setup_rms, baseline_rms_um / setup_rms.max(1e-300), f64::NAN)
+            } else {
+                chosen[ei - 2]
+            };
+            found.push(Found {
+                effect: *eff,
+                params,
+                param_sigma: psig,
+                value,
+                sigma,
+                rms_after_um,
+                rms_ratio,
+                delta_bic,
+                contribution_rms_um: f64::NAN,
+                share: f64::NAN,
+            });
+        }
+        let weak = found
+            .iter()
+            .enumerate()
+            .skip(2)
+            .filter(|(_, f)| f.sigma.is_some_and(|s| f.value.abs() < 2.0 * s))
+            .min_by(|a, b| {
+                let z = |f: &Found| f.value.abs() / f.sigma.unwrap_or(f64::INFINITY);
+                z(a.1).total_cmp(&z(b.1))
+            })
+            .map(|(ei, f)| {
+                let weak = NotSignificant {
+                    name: f.effect.name(),
+                    unit: f.effect.unit(),
+                    value: f.value,
+                    sigma_value: f.sigma.unwrap_or(f64::NAN),
+                };
+                (ei, weak)
+            });
+        match weak {
+            Some((ei, weak)) => {
+                not_significant.push(weak);
+                kept.remove(ei - 2);
+            }
+            None => break (final_set, theta, final_ssr, found),
+        }
+    };
     let final_rms_um = (final_ssr / m as f64).sqrt();
-    let chosen: Vec<(f64, f64, f64)> = sel
-        .steps
-        .iter()
-        .map(|st| (st.rms_after, st.rms_ratio, st.delta_bic))
-        .collect();
     let candidates_tried: Vec<String> = {
         let mut names: Vec<String> = candidates
             .iter()
@@ -481,46 +569,6 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         names.dedup();
         names
     };
-
-    // Report.
-    let mut found = vec![];
-    for (ei, eff) in final_effects.iter().enumerate() {
-        let o = final_set.offsets[ei];
-        let n = eff.n_params();
-        let params = theta[o..o + n].to_vec();
-        let mut psig: Vec<Option<f64>> = sig[o..o + n].to_vec();
-        let block: Vec<Vec<f64>> = (0..n)
-            .map(|i| (0..n).map(|j| cov[(o + i, o + j)]).collect())
-            .collect();
-        let (value, mut sigma) = eff.value(&params, &block);
-        if psig.iter().all(|s| s.is_none()) {
-            sigma = None;
-        }
-        // A spike's height h·e^(−δt/τ) moves by h·δt/τ when the reversal's time is off by δt.
-        if let (Effect::ReversalSpike(_), true) = (eff, path.timing_sigma_s > 0.0) {
-            let extra = params[0] * 1e3 * path.timing_sigma_s / params[1].max(MIN_TAU_MS);
-            let add = |s: Option<f64>| s.map(|s| s.hypot(extra));
-            psig[0] = add(psig[0]);
-            sigma = add(sigma);
-        }
-        let (rms_after_um, rms_ratio, delta_bic) = if ei < 2 {
-            (setup_rms, baseline_rms_um / setup_rms.max(1e-300), f64::NAN)
-        } else {
-            chosen[ei - 2]
-        };
-        found.push(Found {
-            effect: *eff,
-            params,
-            param_sigma: psig,
-            value,
-            sigma,
-            rms_after_um,
-            rms_ratio,
-            delta_bic,
-            contribution_rms_um: f64::NAN,
-            share: f64::NAN,
-        });
-    }
 
     // Residual structure, G and H. The plotted deviations have the least-squares set-up of step 3
     // removed (the ballbar convention: centring and bar length are set-up, not machine); the
@@ -589,6 +637,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         candidates: candidates_tried,
         below_floor,
         floor_um: opts.select.min_peak,
+        not_significant,
         angle_rad: angle,
         measured_dev_um: meas,
         model_dev_um: model,

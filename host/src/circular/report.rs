@@ -34,6 +34,8 @@
 //!                          anywhere is not named (µm)
 //! below_floor[]            {name, peak_um}: effects the data support but that stay under the
 //!                          floor (peak_um bounds their largest contribution to D)
+//! not_significant[]        {name, value, sigma, unit}: effects the selection chose whose value
+//!                          is within 2σ of zero once σ counts the timing uncertainty (not named)
 //! final.rms_um             RMS of the residual of the exact refit, µm
 //! gain                     baseline.rms_um / final.rms_um
 //! harmonics_um[]           amplitude of residual harmonics 1..8 against the angle in the plane
@@ -158,6 +160,16 @@ pub fn summary(d: &Diagnosis) -> String {
             d.floor_um
         );
     }
+    for w in &d.not_significant {
+        let _ = writeln!(
+            s,
+            "not significant (|value| < 2σ, σ with the timing uncertainty): {} = {:.3} ± {:.3} {} — not named",
+            w.name,
+            w.value,
+            w.sigma_value,
+            crate::units::human(w.unit)
+        );
+    }
     let _ = writeln!(
         s,
         "final: RMS {:.3} µm, gain ×{:.2} over the ideal machine",
@@ -220,6 +232,9 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
         "confounded": d.confounded,
         "floor_um": num(d.floor_um),
         "below_floor": d.below_floor.iter().map(|(n, p)| json!({"name": n, "peak_um": num(*p)})).collect::<Vec<_>>(),
+        "not_significant": d.not_significant.iter().map(|w| json!({
+            "name": w.name, "value": num(w.value), "sigma": num(w.sigma_value), "unit": w.unit,
+        })).collect::<Vec<_>>(),
         "final": {"rms_um": num(d.final_rms_um)},
         "gain": num(d.gain),
         "harmonics_um": d.harmonics_um,
