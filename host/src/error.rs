@@ -99,11 +99,15 @@ pub enum Error {
 
 impl Error {
     /// Process exit code: 2 for bad input (a file missing, unreadable or malformed, a history
-    /// file that is not a database) or usage, 1 for everything else (a device, an output, a
+    /// file that is not a database) or usage (an `--out` that exists or is not a file), 1 for everything else (a device, an output, a
     /// computation that failed).
     pub fn exit_code(&self) -> u8 {
         match self {
-            Error::Input { .. } | Error::InputFile { .. } | Error::Usage(_) => 2,
+            Error::Input { .. }
+            | Error::InputFile { .. }
+            | Error::Usage(_)
+            | Error::OutputExists { .. }
+            | Error::OutputNotAFile { .. } => 2,
             // A --db that is not a database is bad input too.
             Error::Database {
                 source: rusqlite::Error::SqliteFailure(e, _),
