@@ -30,6 +30,8 @@ fn stderr(o: &Output) -> String {
 struct Pty {
     master: File,
     slave_path: String,
+    /// Answer commands other than Ping (as the firmware does); false plays a device that does not.
+    answers: bool,
 }
 
 impl Pty {
@@ -55,6 +57,7 @@ impl Pty {
             Pty {
                 master: File::from_raw_fd(fd),
                 slave_path,
+                answers: true,
             }
         }
     }
@@ -89,11 +92,11 @@ impl Pty {
                 if c == Ok(want) {
                     self.send(before_answer);
                 }
-                let answer = match c {
-                    Ok(Command::Ping(token)) => DeviceMsg::Pong(token),
-                    _ => DeviceMsg::Info(info()),
-                };
-                self.send(&encode(&answer));
+                match c {
+                    Ok(Command::Ping(token)) => self.send(&encode(&DeviceMsg::Pong(token))),
+                    _ if self.answers => self.send(&encode(&DeviceMsg::Info(info()))),
+                    _ => {}
+                }
                 seen.push(c);
             }
             if seen.contains(&Ok(want)) {
@@ -626,4 +629,30 @@ fn live_reports_a_device_restart() {
         "{stdout}"
     );
     assert!(stdout.contains("resets 1"), "{stdout}");
+}
+
+#[test]
+fn an_unacknowledged_start_records_nothing_and_leaves_the_output_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("precious.csv");
+    std::fs::write(&out, "precious data\n").unwrap();
+    let mut pty = Pty::new();
+    pty.answers = false;
+    let child = spawn(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+        "--force",
+    ]);
+    pty.expect_command(Command::Start, Duration::from_secs(10));
+    // Batches without the answer to Start: another run's, never recorded.
+    pty.send(&batch_frame(0));
+    let o = child.wait_with_output().unwrap();
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(e.contains("did not acknowledge Start"), "{e}");
+    assert_eq!(std::fs::read_to_string(&out).unwrap(), "precious data\n");
+    assert!(!partial(&out).exists());
 }

@@ -72,7 +72,17 @@ pub fn run(args: &RecordArgs) -> Result<()> {
         source,
     });
     drop(out.file);
-    let placed = finish_output(&partial, &args.out, args.force);
+    let placed = if matches!(end, End::NotStarted(_)) {
+        // No run began, so nothing was recorded: remove the header-only work file this record
+        // created, and leave --out as it was.
+        std::fs::remove_file(&partial).map_err(|source| Error::File {
+            action: "cannot remove",
+            path: partial.clone(),
+            source,
+        })
+    } else {
+        finish_output(&partial, &args.out, args.force)
+    };
     emit(&format!(
         "recorded {} ({}): {}",
         args.out.display(),
