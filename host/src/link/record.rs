@@ -2,7 +2,7 @@
 //!
 //! **One run per file.** A record holds exactly the run the recorder started: the stream
 //! delivers nothing from before the device acknowledged the Start
-//! ([`Stream`](super::stream::Stream) module docs), so `seq` begins at 0 and `t_us` increases
+//! ([`stream`](super::stream) module docs), so `seq` begins at 0 and `t_us` increases
 //! strictly; a device restart during the record ends it with what it has ([`End::Restarted`]),
 //! never stitching the next run on. Listening without Start (`--no-start`) records what comes,
 //! one run too.
