@@ -382,13 +382,10 @@ impl Tracker {
             return;
         }
         let first_seq = match self.next_seq {
-            // Joined a running stream: what came before is not counted as lost. A session seen
-            // from its first sample is the restart we may have asked for; otherwise these are the
-            // last samples of the session before our `Start`, and its restart is still to come.
+            // The first batch: of a run joined while it was going on (listening without Start:
+            // what came before is not counted as lost), or of the run our Start began (its
+            // missing first batches were counted above).
             None => {
-                if b.seq == 0 {
-                    self.restart_expected = false;
-                }
                 self.dropped_now = b.dropped;
                 u64::from(b.seq)
             }
