@@ -28,8 +28,8 @@ echo "    USART2 of the emulated board is $PTY"
 echo "==> jdbb live --port $PTY --seconds $SECS"
 "$JDBB" live --port "$PTY" --seconds "$SECS"
 
-echo "==> jdbb record --port $PTY --out out/demo.csv --seconds $SECS"
-"$JDBB" record --port "$PTY" --out out/demo.csv --seconds "$SECS"
+echo "==> jdbb record --port $PTY --out out/demo.csv --seconds $SECS --force"
+"$JDBB" record --port "$PTY" --out out/demo.csv --seconds "$SECS" --force  # the demo replaces its own file
 
 echo "==> out/demo.csv: $(($(wc -l <out/demo.csv) - 1)) samples; first lines:"
 head -n 4 out/demo.csv

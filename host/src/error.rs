@@ -26,6 +26,38 @@ pub enum Error {
         #[source]
         source: std::io::Error,
     },
+    /// The device did not answer `Start`.
+    #[error("{port} did not acknowledge Start within {seconds} s, so no sample could be told apart from the run before it; nothing was recorded. Check that the device is a J-DBB with this protocol (`jdbb live --port {port}` shows it) and try again")]
+    StartNotAcknowledged { port: String, seconds: u64 },
+    /// The device refused `Start`.
+    #[error("{port} refused Start ({reason}); nothing was recorded. Try again; if it persists, reset the device")]
+    StartRefused { port: String, reason: String },
+    /// The device restarted during a recording: the file holds the run up to the restart.
+    #[error("{restart}. {path} holds the run up to there and nothing after (no run is stitched to another). Check the device's power and cable, then record again")]
+    DeviceRestarted {
+        restart: crate::link::stream::Restart,
+        path: PathBuf,
+    },
+    /// Writing the recording failed (e.g. a full disk); the file was cut back to whole lines.
+    #[error("cannot write {path}: {source}. The file ends with whole lines ({position}); free some space or choose another --out, then record again")]
+    RecordWrite {
+        path: PathBuf,
+        position: String,
+        #[source]
+        source: std::io::Error,
+    },
+    /// `record --out` names a file that exists.
+    #[error("{path} exists; choose another --out, or add --force to replace it")]
+    OutputExists { path: PathBuf },
+    /// `record --out` names something that is not a regular file.
+    #[error("{path} is {what}, not a regular file; jdbb record writes regular files only (and never through a link): choose another --out")]
+    OutputNotAFile { path: PathBuf, what: &'static str },
+    /// The recording's work file exists already.
+    #[error("{path} exists, left by a record that did not finish: it is a valid CSV of what that record got; rename or remove it, then record again")]
+    PartialExists { path: PathBuf },
+    /// The finished recording could not be put in place because `--out` appeared meanwhile.
+    #[error("{out} appeared while recording, so it was left alone; the recording is in {partial}: rename it yourself")]
+    OutputAppeared { out: PathBuf, partial: PathBuf },
     /// An input file could not be read (missing, unreadable, a directory): bad input, exit 2.
     #[error("cannot read {path}: {source}")]
     InputFile {
@@ -67,11 +99,15 @@ pub enum Error {
 
 impl Error {
     /// Process exit code: 2 for bad input (a file missing, unreadable or malformed, a history
-    /// file that is not a database) or usage, 1 for everything else (a device, an output, a
+    /// file that is not a database) or usage (an `--out` that exists or is not a file), 1 for everything else (a device, an output, a
     /// computation that failed).
     pub fn exit_code(&self) -> u8 {
         match self {
-            Error::Input { .. } | Error::InputFile { .. } | Error::Usage(_) => 2,
+            Error::Input { .. }
+            | Error::InputFile { .. }
+            | Error::Usage(_)
+            | Error::OutputExists { .. }
+            | Error::OutputNotAFile { .. } => 2,
             // A --db that is not a database is bad input too.
             Error::Database {
                 source: rusqlite::Error::SqliteFailure(e, _),

@@ -11,7 +11,8 @@ use std::process::{Child, Command as Proc, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use jdbb_core::protocol::{
-    self, Command, Decoder, DeviceMsg, Sample, SampleBatch, Status, BATCH_LEN, MAX_FRAME_LEN,
+    self, Board, Command, Decoder, DeviceInfo, DeviceMsg, IndexStatus, Reference, ResetCause,
+    Sample, SampleBatch, Status, BATCH_LEN, MAX_FRAME_LEN,
 };
 
 const JDBB: &str = env!("CARGO_BIN_EXE_jdbb");
@@ -29,6 +30,8 @@ fn stderr(o: &Output) -> String {
 struct Pty {
     master: File,
     slave_path: String,
+    /// Answer commands other than Ping (as the firmware does); false plays a device that does not.
+    answers: bool,
 }
 
 impl Pty {
@@ -54,12 +57,20 @@ impl Pty {
             Pty {
                 master: File::from_raw_fd(fd),
                 slave_path,
+                answers: true,
             }
         }
     }
 
-    /// Read what jdbb sent until `want` arrives, or panic after `timeout`.
+    /// Read what jdbb sent until `want` arrives, answering each command as the firmware does
+    /// (Pong to a Ping, Info to the rest); panic after `timeout`.
     fn expect_command(&mut self, want: Command, timeout: Duration) {
+        self.expect_command_after(want, timeout, &[]);
+    }
+
+    /// [`Pty::expect_command`], sending `before_answer` (batches of the run going on) just
+    /// before the answer to `want`.
+    fn expect_command_after(&mut self, want: Command, timeout: Duration, before_answer: &[u8]) {
         let t0 = Instant::now();
         let mut dec = Decoder::<MAX_FRAME_LEN>::new();
         let mut seen = Vec::new();
@@ -75,7 +86,19 @@ impl Pty {
             }
             let mut buf = [0u8; 256];
             let n = self.master.read(&mut buf).expect("read pty master");
-            dec.feed::<Command>(&buf[..n], |c| seen.push(c));
+            let mut new = Vec::new();
+            dec.feed::<Command>(&buf[..n], |c| new.push(c));
+            for c in new {
+                if c == Ok(want) {
+                    self.send(before_answer);
+                }
+                match c {
+                    Ok(Command::Ping(token)) => self.send(&encode(&DeviceMsg::Pong(token))),
+                    _ if self.answers => self.send(&encode(&DeviceMsg::Info(info()))),
+                    _ => {}
+                }
+                seen.push(c);
+            }
             if seen.contains(&Ok(want)) {
                 return;
             }
@@ -97,6 +120,38 @@ fn sample(seq: u64) -> Sample {
         d_mm: 99.9 + 1e-6 * seq as f64 + 1.234_567e-8,
         status: Status(Status::SIMULATED),
     }
+}
+
+fn info() -> DeviceInfo {
+    DeviceInfo {
+        protocol_version: protocol::PROTOCOL_VERSION,
+        firmware_version: [0, 1, 0],
+        board: Board::QemuNetduinoPlus2,
+        sample_rate_hz: 10_000,
+        sampling: true,
+        calibration: jdbb_core::Calibration::DEFAULT,
+        chip_id: [0; 12],
+        reset_cause: ResetCause(ResetCause::POWER),
+        index: [IndexStatus {
+            reference: Reference::None,
+            armed: true,
+            passes: 0,
+            last_pass_count: 0,
+        }; 2],
+        overruns: 0,
+    }
+}
+
+fn encode(msg: &DeviceMsg) -> Vec<u8> {
+    let mut buf = [0u8; MAX_FRAME_LEN];
+    protocol::encode(msg, &mut buf).unwrap().to_vec()
+}
+
+/// The work file of a recording to `out`, where the samples are while it runs.
+fn partial(out: &Path) -> std::path::PathBuf {
+    let mut s = out.as_os_str().to_owned();
+    s.push(".partial");
+    s.into()
 }
 
 fn batch_frame(seq: u32) -> Vec<u8> {
@@ -216,23 +271,77 @@ fn unwritable_output_is_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let pty = Pty::new();
     let missing = dir.path().join("no/such/dir/x.csv");
-    for out in [missing.as_path(), dir.path()] {
+    let dir_s = dir.path().to_str().unwrap().to_string();
+    for (out, want) in [
+        (missing.to_str().unwrap(), "cannot create"),
+        (dir_s.as_str(), "is a directory, not a regular file"),
+    ] {
         let o = jdbb(&[
             "record",
             "--port",
             &pty.slave_path,
             "--out",
-            out.to_str().unwrap(),
+            out,
             "--seconds",
             "1",
         ]);
         assert!(!o.status.success());
         let e = stderr(&o);
-        assert!(
-            e.contains("cannot create") && e.contains(out.to_str().unwrap()),
-            "{e}"
-        );
+        assert!(e.contains(want) && e.contains(out), "{e}");
     }
+}
+
+#[test]
+fn a_bad_port_leaves_an_existing_file_untouched() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("precious.csv");
+    std::fs::write(&out, "precious data\n").unwrap();
+    let port = "/dev/ttyJDBB-mistyped";
+    for force in [false, true] {
+        let mut args = vec!["record", "--port", port, "--out", out.to_str().unwrap()];
+        if force {
+            args.push("--force");
+        }
+        let o = jdbb(&args);
+        assert!(!o.status.success(), "{args:?}");
+        let e = stderr(&o);
+        if force {
+            // The port is opened before anything is written.
+            assert!(e.contains(port) && e.contains("no such port"), "{e}");
+        } else {
+            assert!(e.contains("exists") && e.contains("--force"), "{e}");
+            assert_eq!(o.status.code(), Some(2));
+        }
+        assert_eq!(
+            std::fs::read_to_string(&out).unwrap(),
+            "precious data\n",
+            "{args:?}"
+        );
+        assert!(!partial(&out).exists(), "no work file left");
+    }
+}
+
+#[test]
+fn links_and_devices_are_never_written_through() {
+    let dir = tempfile::tempdir().unwrap();
+    let target = dir.path().join("target.csv");
+    std::fs::write(&target, "theirs\n").unwrap();
+    let link = dir.path().join("link.csv");
+    std::os::unix::fs::symlink(&target, &link).unwrap();
+    let pty = Pty::new();
+    for (out, want) in [
+        (link.to_str().unwrap(), "symbolic link"),
+        ("/dev/null", "not a regular file"),
+    ] {
+        for port in ["/dev/ttyJDBB-mistyped", pty.slave_path.as_str()] {
+            let o = jdbb(&["record", "--port", port, "--out", out, "--force"]);
+            assert!(!o.status.success());
+            let e = stderr(&o);
+            assert!(e.contains(want) && e.contains(out), "{e}");
+        }
+    }
+    assert!(link.symlink_metadata().unwrap().file_type().is_symlink());
+    assert_eq!(std::fs::read_to_string(&target).unwrap(), "theirs\n");
 }
 
 #[test]
@@ -264,14 +373,16 @@ fn record_survives_sigkill_with_every_flushed_sample() {
         pty.send(chunk);
     }
     // Every sample reaches the file while the recorder is still running (flushed as it goes)...
-    wait_for_lines(&out, 320);
+    wait_for_lines(&partial(&out), 320);
     // ...and half a frame more is on the wire when the process is killed.
     let next = batch_frame(320);
     pty.send(&next[..next.len() / 2]);
     std::thread::sleep(Duration::from_millis(200));
     child.kill().unwrap(); // SIGKILL
     child.wait().unwrap();
-    check_csv(&out, &(0..320).collect::<Vec<_>>());
+    // Killed, it could not rename: the work file holds everything, in whole lines.
+    check_csv(&partial(&out), &(0..320).collect::<Vec<_>>());
+    assert!(!out.exists());
 }
 
 #[test]
@@ -296,7 +407,7 @@ fn record_ctrl_c_flushes_and_summarises() {
     bytes.extend(batch_frame(48));
     bytes.extend(batch_frame(64));
     pty.send(&bytes);
-    wait_for_lines(&out, 64);
+    wait_for_lines(&partial(&out), 64);
     // SAFETY: signalling our own child.
     assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
     // The recorder tells the device to stop before it exits.
@@ -309,6 +420,7 @@ fn record_ctrl_c_flushes_and_summarises() {
     assert!(stdout.contains("corrupt frames 1"), "{stdout}");
     let want: Vec<u64> = (0..32).chain(48..80).collect();
     check_csv(&out, &want);
+    assert!(!partial(&out).exists(), "renamed into place");
 }
 
 #[test]
@@ -328,7 +440,7 @@ fn record_reports_unplug_and_keeps_the_data() {
     pty.expect_command(Command::Start, Duration::from_secs(10));
     let bytes: Vec<u8> = (0..3).flat_map(|k| batch_frame(16 * k)).collect();
     pty.send(&bytes);
-    wait_for_lines(&out, 48);
+    wait_for_lines(&partial(&out), 48);
     drop(pty); // the device goes away: the master side closes
     let t0 = Instant::now();
     let o = child.wait_with_output().unwrap();
@@ -396,4 +508,151 @@ fn record_stops_by_itself_after_seconds() {
     );
     pty.expect_command(Command::Stop, Duration::from_secs(5));
     check_csv(&out, &(0..32).collect::<Vec<_>>());
+}
+
+#[test]
+fn sigterm_and_sighup_end_a_record_like_ctrl_c() {
+    for signal in [libc::SIGTERM, libc::SIGHUP] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("rec.csv");
+        let mut pty = Pty::new();
+        let child = spawn(&[
+            "record",
+            "--port",
+            &pty.slave_path,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        pty.expect_command(Command::Start, Duration::from_secs(10));
+        let bytes: Vec<u8> = (0..3).flat_map(|k| batch_frame(16 * k)).collect();
+        pty.send(&bytes);
+        wait_for_lines(&partial(&out), 48);
+        // SAFETY: signalling our own child.
+        assert_eq!(unsafe { libc::kill(child.id() as i32, signal) }, 0);
+        pty.expect_command(Command::Stop, Duration::from_secs(10));
+        let o = child.wait_with_output().unwrap();
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        assert!(
+            o.status.success(),
+            "signal {signal}: {stdout}{}",
+            stderr(&o)
+        );
+        assert!(
+            stdout.contains("interrupted") && stdout.contains("samples 48"),
+            "{stdout}"
+        );
+        check_csv(&out, &(0..48).collect::<Vec<_>>());
+    }
+}
+
+#[test]
+fn record_discards_the_run_before_its_start_and_stops_at_a_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rec.csv");
+    let mut pty = Pty::new();
+    let child = spawn(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+        "--seconds",
+        "30",
+    ]);
+    // The device was running (and had just restarted: small sequence numbers) when Start came.
+    let old_run: Vec<u8> = [5000, 5016, 0, 16]
+        .into_iter()
+        .flat_map(batch_frame)
+        .collect();
+    pty.expect_command_after(Command::Start, Duration::from_secs(10), &old_run);
+    let run: Vec<u8> = (0..4).flat_map(|k| batch_frame(16 * k)).collect();
+    pty.send(&run);
+    wait_for_lines(&partial(&out), 64);
+    // The device restarts by itself: the record ends with the run it had.
+    let again: Vec<u8> = (0..2).flat_map(|k| batch_frame(16 * k)).collect();
+    pty.send(&again);
+    pty.expect_command(Command::Stop, Duration::from_secs(10));
+    let o = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{stdout}{e}");
+    assert!(
+        e.contains("restarted") && e.contains("after seq 63, t_us 6300"),
+        "{e}"
+    );
+    assert!(e.contains("rec.csv holds the run up to there"), "{e}");
+    assert!(
+        stdout.contains("samples 64, lost 0") && stdout.contains("discarded before start 64"),
+        "{stdout}"
+    );
+    check_csv(&out, &(0..64).collect::<Vec<_>>());
+}
+
+#[test]
+fn force_replaces_an_existing_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rec.csv");
+    std::fs::write(&out, "old\n").unwrap();
+    let mut pty = Pty::new();
+    let child = spawn(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+        "--seconds",
+        "1",
+        "--force",
+    ]);
+    pty.expect_command(Command::Start, Duration::from_secs(10));
+    pty.send(&batch_frame(0));
+    let o = child.wait_with_output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    check_csv(&out, &(0..16).collect::<Vec<_>>());
+}
+
+#[test]
+fn live_reports_a_device_restart() {
+    let mut pty = Pty::new();
+    let child = spawn(&["live", "--port", &pty.slave_path, "--seconds", "1.5"]);
+    pty.expect_command(Command::Start, Duration::from_secs(10));
+    let mut bytes: Vec<u8> = (0..4).flat_map(|k| batch_frame(16 * k)).collect();
+    bytes.extend(batch_frame(0));
+    pty.send(&bytes);
+    let o = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{stdout}{}", stderr(&o));
+    assert!(
+        stdout.contains(
+            "warning: the device restarted (sequence went back: 64 was due, 0 came) after seq 63"
+        ),
+        "{stdout}"
+    );
+    assert!(stdout.contains("resets 1"), "{stdout}");
+}
+
+#[test]
+fn an_unacknowledged_start_records_nothing_and_leaves_the_output_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("precious.csv");
+    std::fs::write(&out, "precious data\n").unwrap();
+    let mut pty = Pty::new();
+    pty.answers = false;
+    let child = spawn(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+        "--force",
+    ]);
+    pty.expect_command(Command::Start, Duration::from_secs(10));
+    // Batches without the answer to Start: another run's, never recorded.
+    pty.send(&batch_frame(0));
+    let o = child.wait_with_output().unwrap();
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(e.contains("did not acknowledge Start"), "{e}");
+    assert_eq!(std::fs::read_to_string(&out).unwrap(), "precious data\n");
+    assert!(!partial(&out).exists());
 }

@@ -1,6 +1,7 @@
 //! `jdbb live`: the latest D (mm, to 0.1 µm), the measured sample rate and the loss counters,
 //! redrawn on one terminal line a few times per second — or, when stdout is not a terminal (a
-//! log, a CI job), printed as one line per second.
+//! log, a CI job), printed as one line per second. A device restart is reported on a line of its
+//! own (what showed it, the last sample before it), and counted in `resets`.
 use std::io::{IsTerminal, Write};
 use std::sync::atomic::Ordering;
 use std::time::Instant;
@@ -33,6 +34,7 @@ pub fn run(args: &LiveArgs) -> Result<()> {
     let mut rate = RateMeter::new(t0);
     let mut last_draw = t0;
     let mut info_shown = false;
+    let mut resets_shown = 0;
     let mut out = std::io::stdout().lock();
     let end = loop {
         if interrupted.load(Ordering::SeqCst) {
@@ -43,6 +45,17 @@ pub fn run(args: &LiveArgs) -> Result<()> {
             break End::Time;
         }
         let polled = stream.poll(|_| {});
+        if stream.stats().resets > resets_shown {
+            // Said on a line of its own, so that it stays visible above the redrawn status.
+            resets_shown = stream.stats().resets;
+            if let Some(r) = stream.last_restart() {
+                let _ = write!(out, "{}", if tty { "\r\x1b[2K" } else { "" });
+                let _ = writeln!(out, "warning: {r}; the counts go on with its new run");
+            }
+        }
+        if let Err(e) = stream.check_start() {
+            break End::NotStarted(e);
+        }
         let now = Instant::now();
         let window_closed = rate.update(now, stream.stats().samples);
         if !info_shown {
@@ -97,7 +110,7 @@ pub fn run(args: &LiveArgs) -> Result<()> {
         summary(stream.stats(), seconds)
     ))?;
     match end {
-        End::Lost(e) => Err(e),
-        _ => Ok(()),
+        End::Lost(e) | End::NotStarted(e) | End::Write(e) => Err(e),
+        End::Restarted(_) | End::Time | End::Interrupted => Ok(()),
     }
 }

@@ -1,12 +1,17 @@
-//! `jdbb record`: stream from a device into a CSV file until `--seconds`, Ctrl-C or the device
-//! goes away; then a summary. Ending because the device went away is an error (nonzero exit),
-//! reported after the file is complete.
+//! `jdbb record`: stream one run from a device into a CSV file until `--seconds`, Ctrl-C (or
+//! SIGTERM, SIGHUP), the device goes away or restarts, or the file cannot be written; then a
+//! summary. The port is opened first, the samples go to `OUT.partial`, renamed to `OUT` at the
+//! end (see [`crate::link::record`]). Every end but time and interruption is an error (nonzero
+//! exit), reported after the file is complete and in place.
 use std::path::PathBuf;
 use std::time::Instant;
 
 use super::output::emit;
 use super::stream_args::StreamArgs;
-use crate::link::record::{create_output, record_to, summary, End};
+use crate::link::record::{
+    check_output, create_partial, finish_output, partial_path, record_to, summary, CsvOut, End,
+    CSV_HEADER,
+};
 use crate::link::stream::{describe_info, interrupt_flag, Stream};
 use crate::{Error, Result};
 
@@ -15,59 +20,89 @@ use crate::{Error, Result};
 pub struct RecordArgs {
     #[command(flatten)]
     pub stream: StreamArgs,
-    /// Output CSV file (created or overwritten).
+    /// Output CSV file. Must not exist (unless --force); written as FILE.partial and renamed to
+    /// FILE at the end.
     #[arg(long, short, value_name = "FILE")]
     pub out: PathBuf,
+    /// Replace --out if it exists (a regular file only; never a link or a device).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Run `jdbb record`.
 pub fn run(args: &RecordArgs) -> Result<()> {
     args.stream.validate()?;
-    let mut file = create_output(&args.out)?;
-    let mut stream = match Stream::open(&args.stream.port) {
-        Ok(s) => s,
-        Err(e) => {
-            // Leave no empty recording behind for a port that never opened.
-            drop(file);
-            let _ = std::fs::remove_file(&args.out);
-            return Err(e);
-        }
-    };
+    check_output(&args.out, args.force)?;
+    // The port first: a mistyped port leaves no file behind and touches none.
+    let mut stream = Stream::open(&args.stream.port)?;
+    let partial = partial_path(&args.out);
+    let file = create_partial(&partial)?;
     let interrupted = interrupt_flag();
-    args.stream.start(&mut stream)?;
+    if let Err(e) = args.stream.start(&mut stream) {
+        // Nothing recorded: remove the work file this run created (it holds the header only).
+        drop(file);
+        let _ = std::fs::remove_file(&partial);
+        return Err(e);
+    }
     eprintln!(
         "recording {} to {} ({})",
         args.stream.port,
         args.out.display(),
         match args.stream.seconds {
-            Some(s) => format!("{s} s or Ctrl-C"),
+            Some(s) => format!("{s} s, Ctrl-C to stop early"),
             None => "Ctrl-C to stop".into(),
         }
     );
     let t0 = Instant::now();
+    let mut out = CsvOut::new(file, CSV_HEADER.len() as u64);
     let end = record_to(
         &mut stream,
-        &mut file,
+        &mut out,
         &args.out,
         args.stream.deadline(t0),
         &interrupted,
         &mut |info| eprintln!("device: {}", describe_info(info)),
-    )?;
+    );
     let seconds = t0.elapsed().as_secs_f64();
     args.stream.stop(&mut stream);
-    file.sync_data().map_err(|source| Error::File {
+    // What was recorded is kept, however the record ended.
+    let synced = out.file.sync_data().map_err(|source| Error::File {
         action: "cannot write",
-        path: args.out.clone(),
+        path: partial.clone(),
         source,
-    })?;
+    });
+    drop(out.file);
+    let placed = if matches!(end, End::NotStarted(_)) {
+        // No run began, so nothing was recorded: remove the header-only work file this record
+        // created, and leave --out as it was.
+        std::fs::remove_file(&partial).map_err(|source| Error::File {
+            action: "cannot remove",
+            path: partial.clone(),
+            source,
+        })
+    } else {
+        finish_output(&partial, &args.out, args.force)
+    };
     emit(&format!(
         "recorded {} ({}): {}",
         args.out.display(),
         end.describe(),
         summary(stream.stats(), seconds)
     ))?;
-    match end {
-        End::Lost(e) => Err(e),
-        _ => Ok(()),
+    let failed = match end {
+        End::Lost(e) | End::NotStarted(e) | End::Write(e) => Some(e),
+        End::Restarted(restart) => Some(Error::DeviceRestarted {
+            restart,
+            path: args.out.clone(),
+        }),
+        End::Time | End::Interrupted => None,
+    };
+    match (failed, placed) {
+        (Some(e), Err(p)) => {
+            eprintln!("error: {p}");
+            Err(e)
+        }
+        (Some(e), Ok(())) => Err(e),
+        (None, placed) => synced.and(placed),
     }
 }

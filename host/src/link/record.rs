@@ -1,22 +1,37 @@
 //! Recording: samples from a device to a CSV file `seq,t_us,enc1,enc2,d_mm` (`jdbb record`).
 //!
-//! Crash safety: lines are formatted into a memory buffer and handed to the file with one
+//! **One run per file.** A record holds exactly the run the recorder started: the stream
+//! delivers nothing from before the device acknowledged the Start
+//! ([`stream`](super::stream) module docs), so `seq` begins at 0 and `t_us` increases
+//! strictly; a device restart during the record ends it with what it has ([`End::Restarted`]),
+//! never stitching the next run on. Listening without Start (`--no-start`) records what comes,
+//! one run too.
+//!
+//! **Files.** The port is opened first; the recording goes into `OUT.partial`, created new (never
+//! an existing file), and is renamed to `OUT` at the end, whatever the end (time, Ctrl-C, SIGTERM,
+//! SIGHUP, the device lost or restarted, a write error): nothing the recorder did not create is
+//! removed or cut. An existing `OUT` is replaced only with `--force`, and a link or anything but a
+//! regular file never ([`check_output`], [`finish_output`]).
+//!
+//! **Whole lines.** Lines are formatted into a memory buffer and handed to the file with one
 //! `write` per read from the port (every batch that read completed, ≤ [`READ_TIMEOUT`] apart), so
-//! the file grows by whole lines only and holds every sample received up to the latest read.
-//! Ctrl-C stops cleanly (flush, sync, summary); a killed process (SIGKILL) leaves the file as of
-//! its last write — a valid CSV. (A kill *during* a multi-page `write` system call could in
-//! principle cut it at a page boundary; the writes here are a few kB and last microseconds.)
+//! the file grows by whole lines only and holds every sample received up to the latest read. A
+//! write that fails (full disk) is cut back to the last whole line ([`CsvOut`]) and ends the
+//! record. A killed process (SIGKILL) leaves `OUT.partial` as of its last write — a valid CSV. (A
+//! kill *during* a multi-page `write` system call could in principle cut it at a page boundary;
+//! the writes here are a few kB and last microseconds.)
 //!
 //! [`READ_TIMEOUT`]: super::stream::READ_TIMEOUT
-use std::fs::File;
-use std::io::{Read, Write};
-use std::path::Path;
+use std::ffi::OsString;
+use std::fs::{self, File, OpenOptions};
+use std::io::{self, Read, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use jdbb_core::protocol::DeviceInfo;
 
-use super::stream::{Poll, SeqSample, Stats, Stream};
+use super::stream::{Poll, Restart, SeqSample, Stats, Stream};
 use crate::{Error, Result};
 
 /// First line of every recording.
@@ -41,10 +56,17 @@ pub fn write_csv_lines(out: &mut Vec<u8>, samples: &[SeqSample]) {
 pub enum End {
     /// `--seconds` elapsed.
     Time,
-    /// Ctrl-C.
+    /// Ctrl-C, SIGTERM or SIGHUP.
     Interrupted,
     /// The source ended (EOF) or failed (unplugged): the error to report.
     Lost(Error),
+    /// The device restarted (one-run mode): the run ends with the last sample before it.
+    Restarted(Restart),
+    /// The device refused or never acknowledged the Start.
+    NotStarted(Error),
+    /// The output could not be written (full disk): the error to report. The file ends with
+    /// the last whole line written.
+    Write(Error),
 }
 
 impl End {
@@ -54,6 +76,9 @@ impl End {
             End::Time => "time limit reached".into(),
             End::Interrupted => "interrupted".into(),
             End::Lost(e) => format!("device lost: {e}"),
+            End::Restarted(r) => format!("stopped: {r}"),
+            End::NotStarted(_) => "not started".into(),
+            End::Write(_) => "stopped: write error".into(),
         }
     }
 }
@@ -79,50 +104,220 @@ pub fn port_lost(port: &str) -> Error {
     }
 }
 
-/// Create the output file with its header. Done before the port is opened, so an unwritable path
-/// fails before anything is sent to the device.
-pub fn create_output(path: &Path) -> Result<File> {
-    let file_err = |action, source| Error::File {
-        action,
-        path: path.to_path_buf(),
-        source,
+/// The work file a recording to `out` is written in: `OUT.partial`.
+pub fn partial_path(out: &Path) -> PathBuf {
+    let mut s = OsString::from(out.as_os_str());
+    s.push(".partial");
+    PathBuf::from(s)
+}
+
+/// Check that a recording may be put at `out`: nothing there, or (with `force`) a regular file
+/// to be replaced. A symbolic link, a directory, a device (`/dev/null`), a pipe or a socket is
+/// refused whatever `force` says. Touches nothing.
+pub fn check_output(out: &Path, force: bool) -> Result<()> {
+    let meta = match fs::symlink_metadata(out) {
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(()),
+        Err(source) => {
+            return Err(Error::File {
+                action: "cannot check",
+                path: out.to_path_buf(),
+                source,
+            })
+        }
+        Ok(m) => m,
     };
-    let mut file = File::create(path).map_err(|e| file_err("cannot create", e))?;
+    let t = meta.file_type();
+    let what = if t.is_symlink() {
+        "a symbolic link"
+    } else if t.is_dir() {
+        "a directory"
+    } else if !t.is_file() {
+        "a device, pipe or socket"
+    } else if force {
+        return Ok(());
+    } else {
+        return Err(Error::OutputExists {
+            path: out.to_path_buf(),
+        });
+    };
+    Err(Error::OutputNotAFile {
+        path: out.to_path_buf(),
+        what,
+    })
+}
+
+/// Create the work file `partial` (it must not exist: never an existing file, never through a
+/// link) and write the header.
+pub fn create_partial(partial: &Path) -> Result<File> {
+    let mut file = OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(partial)
+        .map_err(|source| {
+            if source.kind() == io::ErrorKind::AlreadyExists {
+                Error::PartialExists {
+                    path: partial.to_path_buf(),
+                }
+            } else {
+                Error::File {
+                    action: "cannot create",
+                    path: partial.to_path_buf(),
+                    source,
+                }
+            }
+        })?;
     file.write_all(CSV_HEADER.as_bytes())
-        .map_err(|e| file_err("cannot write", e))?;
+        .map_err(|source| Error::File {
+            action: "cannot write",
+            path: partial.to_path_buf(),
+            source,
+        })?;
     Ok(file)
 }
 
-/// Stream from `stream` into `file` (named `path` in errors) until `deadline`, `interrupted` or the
-/// device goes away; `on_info` is called once, when the device first describes itself. Whatever
-/// was decoded is written before anything else happens (module docs). Returns how it ended.
-pub fn record_to<P: Read + Write>(
+/// Put the finished work file `partial` in place as `out`. Without `force`, never over a file
+/// that appeared meanwhile (a hard link fails if `out` exists; where the file system has none,
+/// `out` is checked just before the rename). With `force`, `out` is replaced (a link itself, not
+/// its target).
+pub fn finish_output(partial: &Path, out: &Path, force: bool) -> Result<()> {
+    let appeared = || Error::OutputAppeared {
+        out: out.to_path_buf(),
+        partial: partial.to_path_buf(),
+    };
+    let rename = || {
+        fs::rename(partial, out).map_err(|source| Error::File {
+            action: "cannot rename the recording to",
+            path: out.to_path_buf(),
+            source,
+        })
+    };
+    if force {
+        return rename();
+    }
+    match fs::hard_link(partial, out) {
+        Ok(()) => fs::remove_file(partial).map_err(|source| Error::File {
+            action: "cannot remove",
+            path: partial.to_path_buf(),
+            source,
+        }),
+        Err(e) if e.kind() == io::ErrorKind::AlreadyExists => Err(appeared()),
+        Err(_) => match fs::symlink_metadata(out) {
+            Err(e) if e.kind() == io::ErrorKind::NotFound => rename(),
+            _ => Err(appeared()),
+        },
+    }
+}
+
+/// A file that can be cut back to a length after a failed write.
+pub trait Truncate {
+    /// Make the file `len` bytes long and continue writing there.
+    fn truncate_to(&mut self, len: u64) -> io::Result<()>;
+}
+
+impl Truncate for File {
+    fn truncate_to(&mut self, len: u64) -> io::Result<()> {
+        self.set_len(len)?;
+        self.seek(SeekFrom::Start(len))?;
+        Ok(())
+    }
+}
+
+/// The CSV being written: whole lines only. `committed` bytes (header included) are whole lines;
+/// a write that fails is cut back to them.
+pub struct CsvOut<W> {
+    /// The file.
+    pub file: W,
+    /// Bytes of whole lines in the file.
+    pub committed: u64,
+    /// The last sample whose line is in the file.
+    pub last: Option<SeqSample>,
+    /// Data lines in the file.
+    pub lines: u64,
+}
+
+impl<W: Write + Truncate> CsvOut<W> {
+    /// A CSV whose first `committed` bytes (the header) are written.
+    pub fn new(file: W, committed: u64) -> Self {
+        CsvOut {
+            file,
+            committed,
+            last: None,
+            lines: 0,
+        }
+    }
+
+    /// Append `bytes` (whole lines for `samples`). On failure the file is cut back to its last
+    /// whole line and the write error returned (with the cut's error, if that failed too).
+    pub fn append(&mut self, bytes: &[u8], samples: &[SeqSample]) -> io::Result<()> {
+        if bytes.is_empty() {
+            return Ok(());
+        }
+        if let Err(e) = self.file.write_all(bytes).and_then(|()| self.file.flush()) {
+            return Err(match self.file.truncate_to(self.committed) {
+                Ok(()) => e,
+                Err(cut) => io::Error::new(
+                    e.kind(),
+                    format!("{e}; cutting back to the last whole line failed too: {cut}"),
+                ),
+            });
+        }
+        self.committed += bytes.len() as u64;
+        self.lines += samples.len() as u64;
+        if let Some(s) = samples.last() {
+            self.last = Some(*s);
+        }
+        Ok(())
+    }
+}
+
+/// Where a recording stands: the last line in the file, for messages.
+pub fn position(lines: u64, last: Option<&SeqSample>) -> String {
+    match last {
+        Some(s) => format!(
+            "{lines} samples, the last seq {}, t_us {}",
+            s.seq, s.sample.t_us
+        ),
+        None => "no sample".into(),
+    }
+}
+
+/// Stream from `stream` into `out` (named `path` in errors) until `deadline`, `interrupted`, the
+/// device goes away or restarts, the Start is not acknowledged, or a write fails; `on_info` is
+/// called once, when the device first describes itself. Whatever was decoded is written before
+/// anything else happens (module docs). The stream is put in one-run mode. Returns how it ended.
+pub fn record_to<P: Read + Write, W: Write + Truncate>(
     stream: &mut Stream<P>,
-    file: &mut File,
+    out: &mut CsvOut<W>,
     path: &Path,
     deadline: Option<Instant>,
     interrupted: &AtomicBool,
     on_info: &mut dyn FnMut(&DeviceInfo),
-) -> Result<End> {
-    let write_err = |source| Error::File {
-        action: "cannot write",
-        path: path.to_path_buf(),
-        source,
-    };
+) -> End {
+    stream.set_one_run(true);
     let mut lines = Vec::with_capacity(1 << 16);
+    let mut batch = Vec::new();
     let mut info_shown = false;
     let port = stream.name().to_string();
-    let end = loop {
+    loop {
         if interrupted.load(Ordering::SeqCst) {
-            break End::Interrupted;
+            return End::Interrupted;
         }
         if deadline.is_some_and(|d| Instant::now() >= d) {
-            break End::Time;
+            return End::Time;
         }
-        let polled = stream.poll(|batch| write_csv_lines(&mut lines, batch));
-        if !lines.is_empty() {
-            file.write_all(&lines).map_err(write_err)?;
-            lines.clear();
+        let polled = stream.poll(|b| {
+            write_csv_lines(&mut lines, b);
+            batch.extend_from_slice(b);
+        });
+        let written = out.append(&lines, &batch);
+        lines.clear();
+        batch.clear();
+        if let Err(source) = written {
+            return End::Write(Error::RecordWrite {
+                path: path.to_path_buf(),
+                position: position(out.lines, out.last.as_ref()),
+                source,
+            });
         }
         if !info_shown {
             if let Some(info) = stream.info() {
@@ -130,13 +325,18 @@ pub fn record_to<P: Read + Write>(
                 info_shown = true;
             }
         }
+        if let Some(r) = stream.run_ended() {
+            return End::Restarted(*r);
+        }
+        if let Err(e) = stream.check_start() {
+            return End::NotStarted(e);
+        }
         match polled {
-            Ok(Poll::Closed) => break End::Lost(port_lost(&port)),
-            Err(e) => break End::Lost(e),
+            Ok(Poll::Closed) => return End::Lost(port_lost(&port)),
+            Err(e) => return End::Lost(e),
             Ok(_) => {}
         }
-    };
-    Ok(end)
+    }
 }
 
 #[cfg(test)]
@@ -176,10 +376,263 @@ mod tests {
     }
 
     #[test]
-    fn unwritable_output_fails_before_the_port() {
+    fn unwritable_output_is_a_clear_error() {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("no/such/dir/x.csv");
-        let e = create_output(&out).unwrap_err();
+        let e = create_partial(&partial_path(&out)).unwrap_err();
         assert!(e.to_string().contains("cannot create"), "{e}");
+    }
+
+    use crate::link::stream::tests::{frame, info, run, Duplex};
+    use jdbb_core::protocol::{Command, DeviceMsg};
+    use std::io::Cursor;
+
+    impl Truncate for Cursor<Vec<u8>> {
+        fn truncate_to(&mut self, len: u64) -> io::Result<()> {
+            self.get_mut().truncate(len as usize);
+            self.set_position(len);
+            Ok(())
+        }
+    }
+
+    /// A file on a disk that fills up after `room` bytes: the write that does not fit puts what
+    /// fits, then fails (ENOSPC).
+    struct SmallDisk {
+        data: Vec<u8>,
+        room: usize,
+    }
+
+    impl Write for SmallDisk {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            let n = buf.len().min(self.room - self.data.len());
+            if n == 0 {
+                return Err(io::Error::from_raw_os_error(28)); // ENOSPC
+            }
+            self.data.extend_from_slice(&buf[..n]);
+            Ok(n)
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl Truncate for SmallDisk {
+        fn truncate_to(&mut self, len: u64) -> io::Result<()> {
+            self.data.truncate(len as usize);
+            Ok(())
+        }
+    }
+
+    /// Record everything `input` holds (after sending Start) into memory: how it ended, the CSV.
+    fn record_bytes<W: Write + Truncate>(input: Vec<u8>, file: W) -> (End, CsvOut<W>, Stats) {
+        let mut stream = Stream::new(Duplex::new(input), "mem");
+        stream.send(&Command::Start).unwrap();
+        let mut out = CsvOut::new(file, 0);
+        let end = record_to(
+            &mut stream,
+            &mut out,
+            Path::new("rec.csv"),
+            None,
+            &AtomicBool::new(false),
+            &mut |_| {},
+        );
+        (end, out, *stream.stats())
+    }
+
+    /// The data lines of a CSV, checked whole, as (seq, t_us).
+    fn rows(csv: &[u8]) -> Vec<(u64, u64)> {
+        let text = std::str::from_utf8(csv).unwrap();
+        assert!(text.is_empty() || text.ends_with('\n'), "torn: {text:?}");
+        text.lines()
+            .map(|l| {
+                let f: Vec<&str> = l.split(',').collect();
+                assert_eq!(f.len(), 5, "{l}");
+                (f[0].parse().unwrap(), f[1].parse().unwrap())
+            })
+            .collect()
+    }
+
+    /// seq from 0 and consecutive, t_us strictly increasing.
+    fn assert_one_run(rows: &[(u64, u64)]) {
+        for (i, w) in rows.iter().enumerate() {
+            assert_eq!(w.0, i as u64, "seq");
+        }
+        for w in rows.windows(2) {
+            assert!(w[1].1 > w[0].1, "t_us {} then {}", w[0].1, w[1].1);
+        }
+    }
+
+    #[test]
+    fn pre_start_samples_are_discarded() {
+        // The running session (at 7000, then a restart of its own at 0), the answer to Start,
+        // then the new run.
+        let mut input = run(7000, 2);
+        input.extend(run(0, 2));
+        input.extend(frame(&info()));
+        input.extend(run(0, 5));
+        let (end, out, st) = record_bytes(input, Cursor::new(Vec::new()));
+        assert!(matches!(end, End::Lost(_)), "{end:?}");
+        let rows = rows(out.file.get_ref());
+        assert_eq!(rows.len(), 80);
+        assert_one_run(&rows);
+        assert_eq!((st.before_start, st.resets, st.lost), (64, 0, 0));
+    }
+
+    #[test]
+    fn restart_mid_record_stops_with_whole_lines() {
+        let mut input = frame(&info());
+        input.extend(run(0, 4));
+        input.extend(run(0, 3)); // the device restarted
+        let (end, out, st) = record_bytes(input, Cursor::new(Vec::new()));
+        let End::Restarted(r) = end else {
+            panic!("{end:?}")
+        };
+        let rows = rows(out.file.get_ref());
+        assert_eq!(rows.len(), 64);
+        assert_one_run(&rows);
+        assert_eq!(st.resets, 1);
+        let e = Error::DeviceRestarted {
+            restart: r,
+            path: "rec.csv".into(),
+        }
+        .to_string();
+        assert!(
+            e.contains("after seq 63, t_us 63000") && e.contains("rec.csv holds the run up to"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_failed_write_is_cut_back_to_the_last_whole_line() {
+        let mut input = frame(&info());
+        input.extend(run(0, 10));
+        // One read takes all ten batches: 160 lines, more than the disk holds.
+        let disk = SmallDisk {
+            data: Vec::new(),
+            room: 1000,
+        };
+        let (end, out, _) = record_bytes(input, disk);
+        let End::Write(e) = end else {
+            panic!("{end:?}")
+        };
+        assert!(e.to_string().contains("whole lines"), "{e}");
+        // Nothing fit whole in one write of 160 lines: cut back to nothing, not a torn line.
+        assert!(rows(&out.file.data).is_empty());
+        assert_eq!(out.committed, 0);
+
+        // Two writes fit, the third does not: the file keeps the first two reads' lines.
+        let mut disk = CsvOut::new(
+            SmallDisk {
+                data: Vec::new(),
+                room: 1500,
+            },
+            0,
+        );
+        let samples: Vec<SeqSample> = {
+            let mut s = Stream::new(&[0u8; 0][..], "x");
+            let mut v = Vec::new();
+            s.feed(&run(0, 10), |b| v.extend_from_slice(b));
+            v
+        };
+        let mut wrote = 0;
+        let err = loop {
+            let chunk = &samples[wrote..wrote + 16];
+            let mut lines = Vec::new();
+            write_csv_lines(&mut lines, chunk);
+            if let Err(e) = disk.append(&lines, chunk) {
+                break e;
+            }
+            wrote += 16;
+        };
+        assert_eq!(err.raw_os_error(), Some(28));
+        let rows = rows(&disk.file.data);
+        assert_eq!(rows.len() as u64, disk.lines);
+        assert_eq!(rows.len(), wrote);
+        assert!(wrote > 0 && wrote < 160);
+        assert_eq!(disk.last.unwrap().seq, wrote as u64 - 1);
+        assert_eq!(disk.committed, disk.file.data.len() as u64);
+    }
+
+    #[test]
+    fn existing_outputs_are_refused_unless_force_and_never_links_or_devices() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("precious.csv");
+        assert!(check_output(&out, false).is_ok(), "nothing there");
+        std::fs::write(&out, "keep me\n").unwrap();
+        let e = check_output(&out, false).unwrap_err().to_string();
+        assert!(e.contains("exists") && e.contains("--force"), "{e}");
+        assert!(check_output(&out, true).is_ok());
+        #[cfg(unix)]
+        {
+            let link = dir.path().join("link.csv");
+            std::os::unix::fs::symlink(&out, &link).unwrap();
+            for force in [false, true] {
+                let e = check_output(&link, force).unwrap_err().to_string();
+                assert!(e.contains("symbolic link"), "{e}");
+                let e = check_output(Path::new("/dev/null"), force)
+                    .unwrap_err()
+                    .to_string();
+                assert!(e.contains("not a regular file"), "{e}");
+            }
+        }
+        let e = check_output(dir.path(), true).unwrap_err().to_string();
+        assert!(e.contains("a directory"), "{e}");
+        assert_eq!(std::fs::read_to_string(&out).unwrap(), "keep me\n");
+    }
+
+    #[test]
+    fn the_work_file_is_new_and_renamed_into_place() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("rec.csv");
+        let partial = partial_path(&out);
+        assert_eq!(partial, dir.path().join("rec.csv.partial"));
+        drop(create_partial(&partial).unwrap());
+        // A second recorder may not take over the work file.
+        let e = create_partial(&partial).unwrap_err().to_string();
+        assert!(e.contains("did not finish"), "{e}");
+        finish_output(&partial, &out, false).unwrap();
+        assert!(!partial.exists());
+        assert_eq!(std::fs::read_to_string(&out).unwrap(), CSV_HEADER);
+        // Without --force, a file that appeared meanwhile is left alone.
+        drop(create_partial(&partial).unwrap());
+        std::fs::write(&out, "theirs\n").unwrap();
+        let e = finish_output(&partial, &out, false)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("appeared") && e.contains("rec.csv.partial"),
+            "{e}"
+        );
+        assert_eq!(std::fs::read_to_string(&out).unwrap(), "theirs\n");
+        assert!(partial.exists());
+        // With --force it is replaced.
+        finish_output(&partial, &out, true).unwrap();
+        assert_eq!(std::fs::read_to_string(&out).unwrap(), CSV_HEADER);
+    }
+
+    #[test]
+    fn record_to_stops_on_interrupt_and_deadline() {
+        let mut input = frame(&DeviceMsg::Pong(1));
+        input.extend(run(0, 1));
+        let mut stream = Stream::new(Duplex::new(input), "mem");
+        let mut out = CsvOut::new(Cursor::new(Vec::new()), 0);
+        let end = record_to(
+            &mut stream,
+            &mut out,
+            Path::new("x"),
+            None,
+            &AtomicBool::new(true),
+            &mut |_| {},
+        );
+        assert!(matches!(end, End::Interrupted));
+        let end = record_to(
+            &mut stream,
+            &mut out,
+            Path::new("x"),
+            Some(Instant::now()),
+            &AtomicBool::new(false),
+            &mut |_| {},
+        );
+        assert!(matches!(end, End::Time));
     }
 }

@@ -8,13 +8,26 @@
 //! sample's sequence number, and keeps [`Stats`]:
 //!
 //! - `frames_ok`, and corrupt frames by kind (CRC, COBS, overflow, payload): corrupt frames are
-//!   counted and skipped, the decoder resynchronises at the next 0x00.
+//!   counted and skipped, the decoder resynchronises at the next 0x00. A port opened while the
+//!   device is sending starts in the middle of a frame: that first, cut frame is counted as
+//!   `partial`, not as corrupt.
 //! - `samples` received, `lost`: sequence numbers never received. The device numbers every sample
 //!   it takes, including those it drops itself when its queue is full, so `lost` includes
 //!   `device_dropped` (the device's own count); `lost − device_dropped` is what the link lost.
 //! - `resets`: the device restarted without being asked — its sequence number or clock went
 //!   backwards, or it announced itself ([`DeviceMsg::Info`]) unprompted. A restart the host asked
-//!   for with [`Command::Start`] is not a reset.
+//!   for with [`Command::Start`] is not a reset. The latest one is described by
+//!   [`Stream::last_restart`].
+//! - `before_start`: samples discarded because they were taken before the device acknowledged
+//!   the [`Command::Start`] this stream sent (see below).
+//!
+//! **One run.** After [`Stream::send`]`(&Command::Start)` no batch is delivered until the device
+//! has answered that Start (every command is answered, in order, by one [`DeviceMsg::Info`] or
+//! [`DeviceMsg::Rejected`], on the same queue as the batches): what comes before the answer
+//! belongs to the run that was going on, even if its sequence numbers are small; the first batch
+//! after it begins the new run (seq 0). [`Stream::check_start`] says when the answer is overdue or
+//! was a refusal. With [`Stream::set_one_run`], nothing is delivered after a device restart either,
+//! so that the samples delivered are exactly one run: a recording never stitches two.
 //!
 //! The sequence number on the wire is a `u32`; [`SeqSample::seq`] extends it to `u64` across wraps
 //! (at 10 kHz a `u32` wraps after 5 days) and restarts at the device's value after a restart.
@@ -41,6 +54,9 @@ pub const READ_TIMEOUT: Duration = Duration::from_millis(50);
 /// An [`DeviceMsg::Info`] arriving this long after a command was sent is taken as its reply; any
 /// other Info after samples have flowed means the device restarted.
 const INFO_REPLY_WINDOW: Duration = Duration::from_secs(2);
+
+/// How long after [`Command::Start`] the device has to acknowledge it (answer with its Info).
+pub const START_ACK_TIMEOUT: Duration = Duration::from_secs(3);
 
 /// How often [`Stream::handshake`] repeats its ping.
 pub const HANDSHAKE_RESEND: Duration = Duration::from_millis(250);
@@ -96,16 +112,24 @@ pub struct Stats {
     pub pongs: u64,
     /// Commands the device refused ([`DeviceMsg::Rejected`]).
     pub rejected: u64,
+    /// The first frame, when it was cut because the port was opened while the device was sending
+    /// (0 or 1): not valid, but not a corruption of the link either.
+    pub partial: u64,
+    /// Samples received before the device acknowledged this stream's Start, from the run that
+    /// was going on: discarded.
+    pub before_start: u64,
 }
 
 impl std::fmt::Display for Stats {
     /// One line: `samples N, lost N (device dropped N), corrupt frames N (crc N, cobs N, overflow
-    /// N, payload N), resets N`.
+    /// N, payload N), resets N, partial first frame N, discarded before start N`. `partial first
+    /// frame` is the frame cut by opening the port mid-stream (not counted as corrupt);
+    /// `discarded before start` the samples of the run before this session's Start.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let c = &self.corrupt;
         write!(
             f,
-            "samples {}, lost {} (device dropped {}), corrupt frames {} (crc {}, cobs {}, overflow {}, payload {}), resets {}",
+            "samples {}, lost {} (device dropped {}), corrupt frames {} (crc {}, cobs {}, overflow {}, payload {}), resets {}, partial first frame {}, discarded before start {}",
             self.samples,
             self.lost,
             self.device_dropped,
@@ -114,9 +138,73 @@ impl std::fmt::Display for Stats {
             c.cobs,
             c.overflow,
             c.payload,
-            self.resets
+            self.resets,
+            self.partial,
+            self.before_start
         )
     }
+}
+
+/// How the device showed that it restarted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RestartCause {
+    /// The sequence number went back: `expected` was due, `got` came.
+    SeqBack { expected: u64, got: u32 },
+    /// The clock went back (or stood still): a sample at `got` µs after one at `last` µs.
+    ClockBack { last: u64, got: u64 },
+    /// The device described itself ([`DeviceMsg::Info`]) without being asked.
+    Announced,
+    /// The device greeted the host ([`DeviceMsg::Hello`]), which it does only after a restart or
+    /// a new connection.
+    Greeted,
+}
+
+/// A device restart seen while samples were flowing, and the last sample before it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Restart {
+    /// How it showed.
+    pub cause: RestartCause,
+    /// The last sample delivered before it (None if none was).
+    pub last: Option<SeqSample>,
+}
+
+impl std::fmt::Display for Restart {
+    /// e.g. `the device restarted (sequence went back: 4032 was due, 0 came) after seq 4031, t_us
+    /// 4031000`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.cause {
+            RestartCause::SeqBack { expected, got } => write!(
+                f,
+                "the device restarted (sequence went back: {expected} was due, {got} came)"
+            )?,
+            RestartCause::ClockBack { last, got } => write!(
+                f,
+                "the device restarted (clock went back: t_us {got} after {last})"
+            )?,
+            RestartCause::Announced => {
+                write!(f, "the device restarted (it announced itself unasked)")?
+            }
+            RestartCause::Greeted => write!(f, "the device restarted (it sent its greeting)")?,
+        }
+        match self.last {
+            Some(s) => write!(f, " after seq {}, t_us {}", s.seq, s.sample.t_us),
+            None => write!(f, " before any sample"),
+        }
+    }
+}
+
+/// Where a stream stands with the run it started (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+enum Gate {
+    /// Deliver what comes (no Start sent, or the run has begun).
+    #[default]
+    Open,
+    /// Start sent, its answer is reply number `reply` (counted from 0) and has not come yet.
+    AwaitAck { reply: u64, sent: Instant },
+    /// Start acknowledged: the next batch begins the run.
+    AwaitFirst,
+    /// The device refused the Start.
+    Refused(CommandError),
 }
 
 /// What one [`Stream::poll`] saw.
@@ -146,11 +234,24 @@ struct Tracker {
     /// Dropped counts of the device's earlier sessions, and the latest count of the current one.
     dropped_before: u64,
     dropped_now: u32,
-    /// The host asked for a restart ([`Command::Start`]), or the device announced one: the next
-    /// backwards step of the sequence is expected and not a reset.
+    /// The device announced a restart (counted already): the next backwards step of the
+    /// sequence is expected and not a second reset.
     restart_expected: bool,
     /// Until when an Info is taken as the reply to a command.
     info_reply_until: Option<Instant>,
+    /// Commands sent that the device answers with Info or Rejected, and answers received.
+    replies_asked: u64,
+    replies_got: u64,
+    /// Where the run this stream started stands.
+    gate: Gate,
+    /// A frame (valid or not) has ended since the stream was opened.
+    seen_frame: bool,
+    /// Stop delivering at the first restart ([`Stream::set_one_run`]).
+    one_run: bool,
+    /// The one run ended with a restart: nothing more is delivered.
+    ended: bool,
+    /// The latest restart seen.
+    last_restart: Option<Restart>,
     /// Reused per batch.
     batch: Vec<SeqSample>,
 }
@@ -161,8 +262,15 @@ impl Tracker {
         frame: std::result::Result<DeviceMsg, FrameError>,
         on_batch: &mut impl FnMut(&[SeqSample]),
     ) {
+        let first = !self.seen_frame;
+        self.seen_frame = true;
         let msg = match frame {
             Ok(msg) => msg,
+            Err(_) if first => {
+                // The port was opened in the middle of a frame: its tail is all we saw.
+                self.stats.partial += 1;
+                return;
+            }
             Err(e) => {
                 let c = &mut self.stats.corrupt;
                 match e {
@@ -180,21 +288,22 @@ impl Tracker {
         match msg {
             DeviceMsg::Batch(batch) => self.on_batch(&batch, on_batch),
             DeviceMsg::Info(info) => {
-                let solicited = self
-                    .info_reply_until
-                    .is_some_and(|until| Instant::now() <= until);
-                if !solicited && self.next_seq.is_some() {
+                let solicited = self.take_reply(None)
+                    || self
+                        .info_reply_until
+                        .is_some_and(|until| Instant::now() <= until);
+                if !solicited && self.running() {
                     // Samples flowed and the device announces itself unprompted: it restarted.
                     // Its sequence restarts too; don't count that restart a second time.
-                    self.stats.resets += 1;
+                    self.on_restart(RestartCause::Announced);
                     self.restart_expected = true;
                 }
                 self.info = Some(info);
             }
             DeviceMsg::Hello(hello) => {
                 // The greeting is never a reply: after samples flowed, the device restarted.
-                if self.next_seq.is_some() {
-                    self.stats.resets += 1;
+                if self.running() {
+                    self.on_restart(RestartCause::Greeted);
                     self.restart_expected = true;
                 }
                 self.hello = Some(hello);
@@ -204,38 +313,108 @@ impl Tracker {
                 self.last_pong = Some(token);
             }
             DeviceMsg::Rejected(e) => {
+                self.take_reply(Some(e));
                 self.stats.rejected += 1;
                 self.last_rejected = Some(e);
             }
         }
     }
 
+    /// Samples of a run are flowing (a restart now would split it).
+    fn running(&self) -> bool {
+        self.gate == Gate::Open && self.next_seq.is_some() && !self.ended
+    }
+
+    /// Count a restart seen while running; in one-run mode, end the run.
+    fn on_restart(&mut self, cause: RestartCause) {
+        self.stats.resets += 1;
+        self.last_restart = Some(Restart {
+            cause,
+            last: self.last_sample,
+        });
+        if self.one_run {
+            self.ended = true;
+        }
+    }
+
+    /// Take an Info (`rejected` None) or Rejected as the answer to the oldest command not yet
+    /// answered, if there is one; returns whether there was. The answer to a Start opens the gate
+    /// for the new run (or records the refusal).
+    fn take_reply(&mut self, rejected: Option<CommandError>) -> bool {
+        if self.replies_got >= self.replies_asked {
+            return false;
+        }
+        let n = self.replies_got;
+        self.replies_got += 1;
+        if let Gate::AwaitAck { reply, .. } = self.gate {
+            if reply == n {
+                self.gate = match rejected {
+                    None => Gate::AwaitFirst,
+                    Some(e) => Gate::Refused(e),
+                };
+            }
+        }
+        true
+    }
+
     fn on_batch(&mut self, b: &SampleBatch, on_batch: &mut impl FnMut(&[SeqSample])) {
+        match self.gate {
+            Gate::AwaitAck { .. } | Gate::Refused(_) => {
+                // Taken before the device restarted for our Start: another run.
+                self.stats.before_start += b.samples.len() as u64;
+                return;
+            }
+            Gate::AwaitFirst => {
+                // The first batch after the answer to Start: the run begins (at seq 0, unless
+                // the link lost its first batches, which then count as lost).
+                self.gate = Gate::Open;
+                self.next_seq = None;
+                self.last_t_us = None;
+                self.last_sample = None;
+                self.restart_expected = false;
+                self.stats.lost += u64::from(b.seq);
+                self.dropped_before = 0;
+                self.dropped_now = 0;
+            }
+            Gate::Open => {}
+        }
+        if self.ended {
+            return;
+        }
         let first_seq = match self.next_seq {
-            // Joined a running stream: what came before is not counted as lost. A session seen
-            // from its first sample is the restart we may have asked for; otherwise these are the
-            // last samples of the session before our `Start`, and its restart is still to come.
+            // The first batch: of a run joined while it was going on (listening without Start:
+            // what came before is not counted as lost), or of the run our Start began (its
+            // missing first batches were counted above).
             None => {
-                if b.seq == 0 {
-                    self.restart_expected = false;
-                }
                 self.dropped_now = b.dropped;
                 u64::from(b.seq)
             }
             Some(next) => {
                 let forward = b.seq.wrapping_sub(next as u32);
                 let seq_back = forward >= 1 << 31;
-                let time_back = matches!(
-                    (b.samples.first(), self.last_t_us),
-                    (Some(s), Some(t)) if s.t_us < t
-                );
-                if seq_back || time_back {
+                let time_back = match (b.samples.first(), self.last_t_us) {
+                    (Some(s), Some(t)) if s.t_us <= t => Some((t, s.t_us)),
+                    _ => None,
+                };
+                if seq_back || time_back.is_some() {
                     // A new sampling session: sequence numbers restart at 0, so the ones before
                     // this batch were taken and never received.
                     if !self.restart_expected {
-                        self.stats.resets += 1;
+                        self.on_restart(match time_back {
+                            Some((last, got)) if !seq_back => RestartCause::ClockBack { last, got },
+                            _ => RestartCause::SeqBack {
+                                expected: next,
+                                got: b.seq,
+                            },
+                        });
+                    } else if self.one_run {
+                        // Announced already (and counted): the run ended there.
+                        self.ended = true;
                     }
                     self.restart_expected = false;
+                    if self.ended {
+                        return;
+                    }
                     self.stats.lost += u64::from(b.seq);
                     self.dropped_before += u64::from(self.dropped_now);
                     self.dropped_now = b.dropped;
@@ -341,6 +520,50 @@ impl<P> Stream<P> {
     /// ends here).
     pub fn pending_bytes(&self) -> usize {
         self.decoder.pending()
+    }
+
+    /// Deliver one run only: after a device restart, no more batches (the default delivers the
+    /// new run's batches too, and counts the reset). See [`Stream::run_ended`].
+    pub fn set_one_run(&mut self, on: bool) {
+        self.tracker.one_run = on;
+    }
+
+    /// In one-run mode: the run ended with this restart, and nothing after it was delivered.
+    pub fn run_ended(&self) -> Option<&Restart> {
+        if self.tracker.ended {
+            self.tracker.last_restart.as_ref()
+        } else {
+            None
+        }
+    }
+
+    /// The latest device restart seen while samples were flowing (counted in `resets`).
+    pub fn last_restart(&self) -> Option<&Restart> {
+        self.tracker.last_restart.as_ref()
+    }
+
+    /// Whether the run this stream started (with [`Command::Start`]) has begun delivering, or no
+    /// Start was sent.
+    pub fn run_begun(&self) -> bool {
+        self.tracker.gate == Gate::Open
+    }
+
+    /// After [`Command::Start`]: an error if the device refused it, or has not acknowledged it
+    /// within [`START_ACK_TIMEOUT`] (no sample is delivered until it does). Ok otherwise.
+    pub fn check_start(&self) -> Result<()> {
+        match self.tracker.gate {
+            Gate::Refused(reason) => Err(Error::StartRefused {
+                port: self.name.clone(),
+                reason: format!("{reason:?}"),
+            }),
+            Gate::AwaitAck { sent, .. } if sent.elapsed() > START_ACK_TIMEOUT => {
+                Err(Error::StartNotAcknowledged {
+                    port: self.name.clone(),
+                    seconds: START_ACK_TIMEOUT.as_secs(),
+                })
+            }
+            _ => Ok(()),
+        }
     }
 
     /// The port's name as given to [`Stream::new`].
@@ -464,33 +687,50 @@ impl<P: Read + Write> Stream<P> {
             }
         }
         let old = std::mem::take(&mut self.tracker);
-        self.tracker.info = old.info;
-        self.tracker.hello = old.hello;
-        self.tracker.last_pong = old.last_pong;
-        self.tracker.stats.bytes = 0;
+        let t = &mut self.tracker;
+        t.info = old.info;
+        t.hello = old.hello;
+        t.last_pong = old.last_pong;
+        // Commands and answers stay paired; a cut first frame stays reported.
+        t.replies_asked = old.replies_asked;
+        t.replies_got = old.replies_got;
+        t.info_reply_until = old.info_reply_until;
+        t.gate = old.gate;
+        t.seen_frame = old.seen_frame;
+        t.one_run = old.one_run;
+        t.stats.partial = old.stats.partial;
         Ok(answered)
     }
 }
 
 impl<P: Write> Stream<P> {
     /// Send one command to the device. After [`Command::Start`] the device's sequence restarts;
-    /// that restart is expected and not counted as a reset.
+    /// batches are delivered again from the first one after the device acknowledged the Start
+    /// (module docs), and that restart is not counted as a reset.
     pub fn send(&mut self, command: &Command) -> Result<()> {
         let mut buf = [0u8; MAX_FRAME_LEN];
         let frame = protocol::encode(command, &mut buf)
             .map_err(|e| Error::Usage(format!("cannot encode {command:?}: {e}")))?;
-        if matches!(command, Command::Start) {
-            self.tracker.restart_expected = true;
-        }
-        if !matches!(command, Command::Ping(_)) {
-            self.tracker.info_reply_until = Some(Instant::now() + INFO_REPLY_WINDOW);
-        }
         let write_err = |source| Error::PortWrite {
             port: self.name.clone(),
             source,
         };
         self.port.write_all(frame).map_err(write_err)?;
-        self.port.flush().map_err(write_err)
+        self.port.flush().map_err(write_err)?;
+        let t = &mut self.tracker;
+        if !matches!(command, Command::Ping(_)) {
+            // Answered (in order) by one Info or Rejected.
+            if matches!(command, Command::Start) {
+                t.gate = Gate::AwaitAck {
+                    reply: t.replies_asked,
+                    sent: Instant::now(),
+                };
+                t.ended = false;
+            }
+            t.replies_asked += 1;
+            t.info_reply_until = Some(Instant::now() + INFO_REPLY_WINDOW);
+        }
+        Ok(())
     }
 }
 
@@ -549,8 +789,9 @@ pub fn open_port(path: &str) -> Result<Box<dyn serialport::SerialPort>> {
         })
 }
 
-/// A flag set by Ctrl-C (SIGINT), for loops that must stop cleanly: flush what they have and
-/// print a summary. Installed once per process; later calls share it.
+/// A flag set by Ctrl-C (SIGINT), SIGTERM and SIGHUP (a closed terminal, `kill`, a service
+/// manager), for loops that must stop cleanly: flush what they have, send Stop and print a
+/// summary. Installed once per process; later calls share it.
 pub fn interrupt_flag() -> Arc<AtomicBool> {
     static FLAG: OnceLock<Arc<AtomicBool>> = OnceLock::new();
     FLAG.get_or_init(|| {
@@ -620,7 +861,7 @@ pub fn list_ports() -> Result<Vec<(String, String)>> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use jdbb_core::protocol::{Board, Status, BATCH_LEN};
     use jdbb_core::Calibration;
@@ -636,7 +877,7 @@ mod tests {
     }
 
     /// A batch of `n` samples starting at `seq`, time 1 ms per sample from `t0_us`.
-    fn batch(seq: u32, dropped: u32, n: usize, t0_us: u64) -> DeviceMsg {
+    pub(crate) fn batch(seq: u32, dropped: u32, n: usize, t0_us: u64) -> DeviceMsg {
         let mut samples = heapless::Vec::new();
         for i in 0..n {
             samples
@@ -650,7 +891,7 @@ mod tests {
         })
     }
 
-    fn info() -> DeviceMsg {
+    pub(crate) fn info() -> DeviceMsg {
         DeviceMsg::Info(DeviceInfo {
             protocol_version: protocol::PROTOCOL_VERSION,
             firmware_version: [0, 1, 0],
@@ -670,13 +911,13 @@ mod tests {
         })
     }
 
-    fn frame(msg: &DeviceMsg) -> Vec<u8> {
+    pub(crate) fn frame(msg: &DeviceMsg) -> Vec<u8> {
         let mut buf = [0u8; MAX_FRAME_LEN];
         protocol::encode(msg, &mut buf).unwrap().to_vec()
     }
 
     /// Frames for consecutive full batches covering seq `from..from + 16·n`, 1 ms apart.
-    fn run(from: u32, n: usize) -> Vec<u8> {
+    pub(crate) fn run(from: u32, n: usize) -> Vec<u8> {
         (0..n)
             .flat_map(|k| {
                 let seq = from + (k * BATCH_LEN) as u32;
@@ -828,11 +1069,16 @@ mod tests {
         bytes.extend(run(16, 3));
         let (got, st) = decode(&bytes, 5);
         // The leading garbage and the truncated frame have no delimiter of their own: they run
-        // into the next frame (batch 16) up to its 0x00, and the three make one bad frame.
-        // Everything after it is decoded.
-        assert_eq!(st.corrupt.total(), 1);
+        // into the next frame (batch 16) up to its 0x00, and the three make one bad frame: the
+        // first one, so it is the cut of opening mid-stream, not a corruption.
+        assert_eq!((st.partial, st.corrupt.total()), (1, 0));
         assert_eq!(seqs(&got), (32..64).collect::<Vec<_>>());
         assert_eq!(st.lost, 0); // joined at 32: nothing before counts as lost
+                                // The same bad frame after a good one is corrupt.
+        let mut later = run(0, 1);
+        later.extend(&bytes);
+        let (_, st) = decode(&later, 5);
+        assert_eq!((st.partial, st.corrupt.total()), (0, 1));
     }
 
     #[test]
@@ -882,22 +1128,138 @@ mod tests {
         );
     }
 
+    /// A port for tests: reads `input` (then EOF), keeps what is written.
+    pub(crate) struct Duplex {
+        pub(crate) input: io::Cursor<Vec<u8>>,
+        pub(crate) sent: Vec<u8>,
+    }
+
+    impl Duplex {
+        pub(crate) fn new(input: Vec<u8>) -> Self {
+            Duplex {
+                input: io::Cursor::new(input),
+                sent: Vec::new(),
+            }
+        }
+    }
+
+    impl Read for Duplex {
+        fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+            self.input.read(buf)
+        }
+    }
+
+    impl Write for Duplex {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            self.sent.extend_from_slice(buf);
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
     #[test]
     fn start_after_joining_a_running_stream_is_not_a_reset() {
         // Open, send Start, but the first batches still come from the session that was running.
-        let mut s = Stream::new(io::Cursor::new(Vec::<u8>::new()), "mem");
-        s.tracker.restart_expected = true;
+        let mut s = Stream::new(Duplex::new(Vec::new()), "mem");
+        s.send(&Command::Start).unwrap();
         let mut bytes = Vec::new();
         bytes.extend(frame(&batch(5000, 0, 4, 5_000_000)));
         bytes.extend(frame(&batch(5004, 0, 4, 5_004_000)));
+        bytes.extend(frame(&info())); // the answer to Start
         bytes.extend(frame(&batch(0, 0, 4, 0)));
         bytes.extend(frame(&batch(4, 0, 4, 4000)));
-        s.feed(&bytes, |_| {});
+        let mut got = Vec::new();
+        s.feed(&bytes, |b| got.extend_from_slice(b));
         let st = s.stats();
-        assert_eq!((st.resets, st.lost, st.samples), (0, 0, 16));
+        assert_eq!((st.resets, st.lost, st.samples), (0, 0, 8));
+        assert_eq!(st.before_start, 8);
+        assert_eq!(seqs(&got), (0..8).collect::<Vec<_>>());
         // ...and a genuine reset later is still seen.
         s.feed(&frame(&batch(0, 0, 4, 0)), |_| {});
         assert_eq!(s.stats().resets, 1);
+    }
+
+    #[test]
+    fn samples_before_the_acknowledged_start_are_discarded_even_at_small_seq() {
+        // The device had just started a run (seq 0, 16, ...) when our GetInfo and Start arrived:
+        // its batches before the answer to Start look like a fresh run but are not ours.
+        let mut s = Stream::new(Duplex::new(Vec::new()), "mem");
+        s.send(&Command::GetInfo).unwrap();
+        s.send(&Command::Start).unwrap();
+        assert!(!s.run_begun());
+        let mut bytes = run(0, 1);
+        bytes.extend(frame(&info())); // answer to GetInfo
+        bytes.extend(run(16, 1));
+        let mut got = Vec::new();
+        s.feed(&bytes, |b| got.extend_from_slice(b));
+        assert!(got.is_empty());
+        assert!(!s.run_begun());
+        // The answer to Start, then the new run.
+        let mut bytes = frame(&info());
+        bytes.extend(run(0, 3));
+        s.feed(&bytes, |b| got.extend_from_slice(b));
+        assert!(s.run_begun());
+        assert_eq!(seqs(&got), (0..48).collect::<Vec<_>>());
+        let st = s.stats();
+        assert_eq!(
+            (st.before_start, st.samples, st.resets, st.lost),
+            (32, 48, 0, 0)
+        );
+        assert!(s.check_start().is_ok());
+    }
+
+    #[test]
+    fn a_refused_or_unanswered_start_is_an_error() {
+        let mut s = Stream::new(Duplex::new(Vec::new()), "mem");
+        s.send(&Command::Start).unwrap();
+        assert!(s.check_start().is_ok(), "not overdue yet");
+        s.feed(
+            &frame(&DeviceMsg::Rejected(CommandError::Malformed)),
+            |_| {},
+        );
+        let e = s.check_start().unwrap_err().to_string();
+        assert!(e.contains("refused Start"), "{e}");
+        // Unanswered: overdue after START_ACK_TIMEOUT.
+        let mut s = Stream::new(Duplex::new(Vec::new()), "mem");
+        s.send(&Command::Start).unwrap();
+        s.tracker.gate = Gate::AwaitAck {
+            reply: 0,
+            sent: Instant::now() - START_ACK_TIMEOUT - Duration::from_millis(1),
+        };
+        let mut n = 0;
+        s.feed(&run(0, 2), |b| n += b.len());
+        assert_eq!(n, 0);
+        let e = s.check_start().unwrap_err().to_string();
+        assert!(e.contains("did not acknowledge Start"), "{e}");
+    }
+
+    #[test]
+    fn one_run_mode_delivers_nothing_after_a_restart() {
+        for (cause, restart) in [
+            ("seq", run(0, 1)),
+            ("clock", frame(&batch(64, 0, 16, 0))),
+            ("info", {
+                let mut b = frame(&info());
+                b.extend(run(0, 1));
+                b
+            }),
+        ] {
+            let mut s = Stream::new(Duplex::new(Vec::new()), "mem");
+            s.set_one_run(true);
+            let mut bytes = run(0, 4);
+            bytes.extend(&restart);
+            bytes.extend(run(16, 2));
+            let mut got = Vec::new();
+            s.feed(&bytes, |b| got.extend_from_slice(b));
+            assert_eq!(seqs(&got), (0..64).collect::<Vec<_>>(), "{cause}");
+            let r = s.run_ended().expect(cause);
+            assert_eq!(r.last.unwrap().seq, 63, "{cause}");
+            let msg = r.to_string();
+            assert!(msg.contains("after seq 63, t_us 63000"), "{cause}: {msg}");
+            assert_eq!(s.stats().resets, 1, "{cause}");
+        }
     }
 
     #[test]
