@@ -3,8 +3,9 @@
 //! how the README's example record `data/examples/ballbar-backlash.csv` was made:
 //!
 //! ```text
+//! jdbb plan --radius 90 --feed 2000 --centre 100,50,-20 --out out/plan1 --force
 //! cargo run --release -p jdbb-tests --example gmachine_record -- \
-//!   --program out/plan/ballbar.ngc --centre 100,50,-20 --rate 200 --backlash-x-um 6 \
+//!   --program out/plan1/ballbar.ngc --centre 100,50,-20 --rate 200 --backlash-x-um 6 \
 //!   --feed-override-pct 98 --clock-ppm 37 --noise-um 0.2 --start-delay-s 4 --seed 3 \
 //!   --out data/examples/ballbar-backlash.csv
 //! ```

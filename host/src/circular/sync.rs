@@ -20,12 +20,16 @@
 //!    s(t) along its line (normalised to the plateaus next to it, which takes out set-up and
 //!    instrument offsets); a trapezoidal speed profile — accelerate at a, cruise at v, decelerate
 //!    at a — is fitted to it by least squares ([`Profile`]): start, speed and acceleration.
-//! 3. **Time the arcs.** Between the feed-in's end and the feed-out's start the machine runs the
-//!    circle's arcs: runs of tangent arcs of one sense, each from rest to rest (the corner after
-//!    the feed-in, the reversal, the corner before the feed-out), and the plan's dwells. With the
-//!    ramps' acceleration a, the one speed v that fills that time exactly solves
-//!    Σ_runs (S_r/v + v/a) + Σ dwells = T (a quadratic in v). Each data arc's samples then get
-//!    their nominal position from the run's trapezoidal profile.
+//! 3. **Time the arcs.** The arcs run at the lines' feed, which the feed-in's cruise measures to
+//!    a few parts in 10⁵ at 1 kHz (the feed-out only where the feed-in cannot: the reversal
+//!    before it biases it). Between the feed-in's end and the feed-out's start the machine runs
+//!    the circle's arcs: runs of tangent arcs of one sense, each from rest to rest (the corner
+//!    after the feed-in, the reversal, the corner before the feed-out), and the plan's dwells. With
+//!    that speed v, the time the runs took fixes the acceleration at their ends:
+//!    Σ_runs (S_r/v + v/a) + Σ dwells = T. Each data arc's samples then get their nominal position
+//!    from the run's trapezoidal profile. The speed's standard error moves the data arcs' ends by
+//!    the *timing σ* (reported; a reversal spike's height carries it). Where the feed-in's speed
+//!    gives no plausible acceleration (the arcs ran at another speed), v is searched in the data.
 //! 4. **Report** the cycle start on the record's clock (the first feed-in's start minus the dwell
 //!    and the take-up line before it), the measured feed against the programmed one (%, on the record's clock: the
 //!    feed override, the controller's timing and the instrument clock's error together), the
