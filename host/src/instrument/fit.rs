@@ -18,11 +18,14 @@
 //! 4. Gauss–Newton on the selection: the selected effects' least-squares coefficients are the
 //!    Gauss–Newton step of the exact model, so the estimate moves there and steps 2–3 are
 //!    repeated, linearised at the new estimate, until the same effects are chosen and the step is
-//!    below 1 % of each standard error (two or three passes: instrument errors are small). A term
-//!    that only stood in for the model's curvature at the nominal point leaves on the way.
-//! 5. Exact refit: the chosen effects by Levenberg–Marquardt on the core model
-//!    ([`crate::numerics::lsq::least_squares`]): the values, their standard errors and the final
-//!    RMS. The fitted calibration is the nominal one plus the chosen effects.
+//!    below a tenth of each standard error (two or three passes: instrument errors are small). A
+//!    term that only stood in for the model's curvature at the nominal point leaves on the way.
+//!    These rounds are the exact non-linear refit of the chosen effects on the core model.
+//! 5. Statistics: one more pass through the shared engine
+//!    ([`crate::numerics::lsq::least_squares`], no step) at the estimate gives the standard errors
+//!    and the final RMS of the exact model; if the rounds did not settle, Levenberg–Marquardt
+//!    continues from there instead. The fitted calibration is the nominal one plus the chosen
+//!    effects.
 use jdbb_core::calib::{Calibration, N_PARAMS};
 use jdbb_core::geometry::Model;
 use nalgebra::DMatrix;
@@ -42,6 +45,11 @@ pub const MIN_EFFECT_UM: f64 = 0.02;
 
 /// Most Gauss–Newton rounds of selection and linearisation (module docs, step 4).
 const MAX_ROUNDS: usize = 8;
+
+/// The rounds have settled when the same effects are chosen and every parameter's step is below
+/// this many of its standard errors: Gauss–Newton converges quadratically on these small
+/// errors, so what the next step would add is far smaller still.
+const STEP_SIGMAS: f64 = 0.1;
 
 /// Knobs of the calibration.
 #[derive(Debug, Clone)]
@@ -313,7 +321,9 @@ pub fn calibrate(
         candidates.extend(Effect::EXTENDED);
     }
 
+    let baseline_ssr = first.ssr;
     let mut pass = first;
+    let mut converged = false;
     let mut prev: Option<Vec<usize>> = None;
     let mut rounds = 0;
     let sel = loop {
@@ -340,11 +350,15 @@ pub fn calibrate(
         set.sort_unstable();
         let small_step = sel.current.iter().enumerate().all(|(k, &c)| {
             let sigma = sel.covariance[(k, k)].max(0.0).sqrt();
-            (v_new[c] - v[c]).abs() <= 0.01 * sigma
+            (v_new[c] - v[c]).abs() <= STEP_SIGMAS * sigma
         });
         let same = prev.as_ref() == Some(&set);
         v = v_new;
-        if (same && small_step) || rounds == MAX_ROUNDS {
+        if same && small_step {
+            converged = true;
+            break sel;
+        }
+        if rounds == MAX_ROUNDS {
             break sel;
         }
         prev = Some(set);
@@ -364,10 +378,11 @@ pub fn calibrate(
         .map(|&(g, bound)| (group_effect(g).name().to_string(), bound))
         .collect();
 
-    // 5. Exact refit of the chosen columns from the Gauss–Newton estimate.
+    // 5. The statistics of the exact model at the Gauss–Newton estimate (one pass), or, if the
+    // rounds did not settle, Levenberg–Marquardt from there.
     let free: Vec<usize> = sel.current.clone();
     let (final_ssr, sigma, cov) = if free.is_empty() {
-        (pass.ssr, vec![], DMatrix::zeros(0, 0))
+        (baseline_ssr, vec![], DMatrix::zeros(0, 0))
     } else {
         let prob = Refit {
             design: &design,
@@ -376,12 +391,12 @@ pub fn calibrate(
         };
         let p0: Vec<f64> = free.iter().map(|&c| v[c]).collect();
         let lsq = LsqOptions {
-            max_iterations: 30,
+            max_iterations: if converged { 0 } else { 50 },
             tolerance: 1e-10,
             ..LsqOptions::default()
         };
         let fit = least_squares(&prob, &p0, &lsq)?;
-        if !fit.converged {
+        if !converged && !fit.converged {
             return Err(Error::Numerics(format!(
                 "the calibration fit did not converge in {} iterations; check that the samples come from one instrument and one reference",
                 fit.iterations
@@ -457,6 +472,19 @@ pub fn calibrate(
     })
 }
 
+/// Samples a calibrator gives of the instrument `hidden` (core model): D `from..to` mm in `n_d`
+/// steps, `per_turn` azimuths, reference with `noise_um` Gaussian noise (for the tests).
+#[cfg(test)]
+pub(crate) fn simulated_samples(
+    hidden: &Calibration,
+    d_mm: (f64, f64, usize),
+    per_turn: usize,
+    noise_um: f64,
+    seed: u64,
+) -> CalSamples {
+    tests::samples(hidden, d_mm, per_turn, noise_um, seed)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -466,9 +494,8 @@ mod tests {
     use rand_distr::{Distribution, Normal};
     use std::path::Path;
 
-    /// Samples a calibrator gives of the instrument `hidden` (core model): D `from..to` mm in
-    /// `n_d` steps, `per_turn` azimuths, reference with `noise_um` Gaussian noise.
-    fn samples(
+    /// See [`super::simulated_samples`].
+    pub(super) fn samples(
         hidden: &Calibration,
         d_mm: (f64, f64, usize),
         per_turn: usize,

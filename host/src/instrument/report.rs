@@ -155,3 +155,46 @@ pub fn to_json(c: &Calibrated) -> serde_json::Value {
         "calibration": serde_json::to_value(c.calibration).expect("a calibration is plain data"),
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::instrument::fit::{calibrate, simulated_samples, Options};
+    use crate::instrument::ARCSEC_RAD;
+    use jdbb_core::calib::Calibration;
+
+    #[test]
+    fn text_and_json_say_the_same() {
+        let mut hidden = Calibration::DEFAULT;
+        hidden.l1_mm += 0.01;
+        hidden
+            .enc1
+            .set_eccentricity_components(30.0 * ARCSEC_RAD, 10.0 * ARCSEC_RAD);
+        let s = simulated_samples(&hidden, (79.0, 99.0, 5), 72, 0.02, 5);
+        let c = calibrate(&s, &Calibration::DEFAULT, &Options::default()).unwrap();
+        let text = summary(&c);
+        println!("{text}");
+        assert!(text.contains("step 1: length_sum = 9.99"), "{text}");
+        assert!(text.contains("eccentricity_1 = 31.5"), "{text}");
+        assert!(text.contains("phase 18.4"), "{text}");
+        assert!(text.contains("confounded (these samples cannot tell apart): length_l1, length_l2 (equal nominal bars"), "{text}");
+        let v = to_json(&c);
+        assert_eq!(v["samples"], c.samples);
+        let e = &v["effects"][1];
+        assert_eq!(e["name"], "eccentricity_1");
+        assert_eq!(e["unit"], "arcsec");
+        for k in ["sin_arcsec", "cos_arcsec", "phase_deg"] {
+            assert!(
+                e["params"][k].is_f64() && e["params_sigma"][k].is_f64(),
+                "{e}"
+            );
+        }
+        assert_eq!(
+            v["confounded"],
+            serde_json::json!([["length_l1", "length_l2"]])
+        );
+        let back: Calibration = serde_json::from_value(v["calibration"].clone()).unwrap();
+        assert_eq!(back, c.calibration);
+        assert!(v["final"]["rms_um"].as_f64().unwrap() < 0.03);
+    }
+}
