@@ -4,11 +4,11 @@ use std::path::PathBuf;
 use jdbb_core::calib::Calibration;
 
 use super::output::{emit, json_text, print};
-use crate::instrument::file::{calibration_toml, read_calibration, write_atomic};
+use crate::instrument::file::{calibration_toml, read_calibration, same_file, write_atomic};
 use crate::instrument::fit::{calibrate, Options};
 use crate::instrument::report::{summary, to_json};
 use crate::instrument::samples::read_samples;
-use crate::Result;
+use crate::{Error, Result};
 
 /// Arguments of `jdbb calibrate`.
 #[derive(Debug, clap::Args)]
@@ -39,6 +39,14 @@ pub fn run(args: &CalibrateArgs) -> Result<()> {
         Some(file) => read_calibration(file)?,
         None => Calibration::DEFAULT,
     };
+    if let Some(out) = &args.out {
+        if same_file(out, &args.samples) {
+            return Err(Error::Usage(format!(
+                "-o {} is the samples file; the calibration goes to a file of its own: give another -o",
+                out.display()
+            )));
+        }
+    }
     let samples = read_samples(&args.samples)?;
     samples.check_against(&nominal)?;
     let opts = Options {

@@ -80,6 +80,17 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     })
 }
 
+/// Whether `a` and `b` name the same file (the same path, or one existing file).
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    if a == b {
+        return true;
+    }
+    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    }
+}
+
 /// A temporary file name beside `path`: `.NAME.tmp-PID`.
 pub fn temp_beside(path: &Path) -> PathBuf {
     let name = path

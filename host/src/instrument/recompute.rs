@@ -13,7 +13,7 @@ use std::path::Path;
 use jdbb_core::calib::Calibration;
 use jdbb_core::geometry::Model;
 
-use super::file::temp_beside;
+use super::file::{same_file, temp_beside};
 use crate::table::Table;
 use crate::{Error, Result};
 
@@ -39,17 +39,6 @@ pub fn recompute(record: &Path, cal: &Calibration, out: &Path) -> Result<usize> 
         let _ = std::fs::remove_file(&tmp);
     }
     result
-}
-
-/// Whether `a` and `b` name the same file (the same path, or one existing file).
-fn same_file(a: &Path, b: &Path) -> bool {
-    if a == b {
-        return true;
-    }
-    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
-        (Ok(x), Ok(y)) => x == y,
-        _ => false,
-    }
 }
 
 fn write_recomputed(record: &Path, cal: &Calibration, out: &Path, tmp: &Path) -> Result<usize> {

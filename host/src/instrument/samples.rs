@@ -75,7 +75,7 @@ impl CalSamples {
                 Error::input(&self.path, self.line[i], self.columns[i][k], msg)
             };
             for (name, t) in [("enc1", t1), ("enc2", t2)] {
-                if !(t.abs() <= KERNEL_RANGE_RAD) {
+                if t.is_nan() || t.abs() > KERNEL_RANGE_RAD {
                     return Err(at(
                         0,
                         format!(
@@ -88,7 +88,7 @@ impl CalSamples {
             }
             let d = model.distance_mm(self.enc1[i], self.enc2[i]);
             let miss = self.d_ref_mm[i] - d;
-            if !(miss.abs() <= MAX_MISS_MM) {
+            if miss.is_nan() || miss.abs() > MAX_MISS_MM {
                 return Err(at(
                     1,
                     format!(
