@@ -8,6 +8,7 @@
 //! | [`history`] | a machine's diagnoses over time in one SQLite file; trends |
 //! | [`rotary`] | rotary axes (seed 002): six geometric errors; angle-indexed run diagnosis |
 //! | [`rrsps`] | the A/C table as an RRSPS linkage (seed 004): design, synthesis, identification |
+//! | [`instrument`] | the instrument's own calibration from a calibrator's samples; records recomputed |
 //! | [`numerics`] | least squares, minimax, forward selection: used by all of the above |
 //! | [`table`] | the one reader of CSV tables (named columns, `file:line:col` errors) |
 //! | [`cli`] | the command line: one file per subcommand, the only code that prints |
@@ -16,7 +17,7 @@
 //! | [`error`] | the error type and its exit codes |
 //!
 //! Dependencies point one way: `cli` → `compensate`, `history` → `circular`, `rotary`, `rrsps`,
-//! `link` → `numerics`,
+//! `instrument`, `link` → `numerics`,
 //! `table` → `jdbb_core` (the instrument model, wire protocol and machine error models shared
 //! with the firmware). No module below `cli` prints or reads the command line.
 pub mod circular;
@@ -25,6 +26,7 @@ pub mod compensate;
 pub mod dates;
 pub mod error;
 pub mod history;
+pub mod instrument;
 pub mod link;
 pub mod numerics;
 pub mod rotary;

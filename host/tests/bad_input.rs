@@ -305,3 +305,108 @@ fn files_are_read_by_the_same_rules_everywhere() {
     );
     assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
 }
+
+#[test]
+fn calibrate_and_recompute_refuse_bad_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // CAL.csv: a missing column, a count that is no integer, too few samples, counts of another
+    // instrument (90° from the zero).
+    let cal = write(d, "cal.csv", b"enc1,enc2\n1,2\n");
+    fails(
+        &["calibrate", "--samples", &cal],
+        2,
+        "cal.csv:1: missing column `d_ref_mm`",
+    );
+    let cal = write(d, "cal.csv", b"enc1,enc2,d_ref_mm\n1,2.5,99\n");
+    fails(
+        &["calibrate", "--samples", &cal],
+        2,
+        "cal.csv:2:3: enc2: `2.5` is not an integer",
+    );
+    let cal = write(d, "cal.csv", b"enc1,enc2,d_ref_mm\n1,2,99.9\n");
+    fails(&["calibrate", "--samples", &cal], 2, "only 1 samples");
+    let mut text = String::from("enc1,enc2,d_ref_mm\n");
+    for i in 0..40 {
+        text += &format!("{},0,99.9\n", 2_097_152 * (i % 2));
+    }
+    let cal = write(d, "cal.csv", text.as_bytes());
+    fails(
+        &["calibrate", "--samples", &cal],
+        2,
+        "cal.csv:3:1: enc1 is 90.0°",
+    );
+    fails(
+        &["calibrate", "--samples", &cal, "-o", &cal],
+        2,
+        "is the samples file",
+    );
+    let nominal = write(d, "nominal.toml", b"l1_mm = 50.0\nl2_mm = \"long\"\n");
+    fails(
+        &["calibrate", "--samples", &cal, "--nominal", &nominal],
+        2,
+        "nominal.toml:2:9:",
+    );
+    fails(
+        &[
+            "calibrate",
+            "--samples",
+            &data("none.csv").to_string_lossy(),
+        ],
+        2,
+        "none.csv",
+    );
+    // recompute: never over the record; bad rows name file:line:column.
+    let good = write(
+        d,
+        "cal.toml",
+        b"l1_mm = 50.0\nl2_mm = 50.0\n[enc1]\ncounts_per_rev = 8388608\nzero_count = 0\ndirection = \"Positive\"\n[enc2]\ncounts_per_rev = 8388608\nzero_count = 0\ndirection = \"Positive\"\n",
+    );
+    let rec = write(
+        d,
+        "rec.csv",
+        b"seq,t_us,enc1,enc2,d_mm\n0,0,1,2,100\n1,10,3,x,100\n",
+    );
+    fails(
+        &[
+            "recompute",
+            "--record",
+            &rec,
+            "--calibration",
+            &good,
+            "-o",
+            &rec,
+        ],
+        2,
+        "is the record itself",
+    );
+    let out = d.join("out.csv");
+    let out = out.to_str().unwrap();
+    fails(
+        &[
+            "recompute",
+            "--record",
+            &rec,
+            "--calibration",
+            &good,
+            "-o",
+            out,
+        ],
+        2,
+        "rec.csv:3:8: enc2: `x` is not an integer",
+    );
+    assert!(!Path::new(out).exists());
+    fails(
+        &[
+            "recompute",
+            "--record",
+            &rec,
+            "--calibration",
+            &nominal,
+            "-o",
+            out,
+        ],
+        2,
+        "nominal.toml:2:9:",
+    );
+}

@@ -111,7 +111,6 @@ fn check_effect(v: &Value, name: &str, truth: f64) {
 }
 
 #[test]
-#[ignore = "needs jdbb calibrate (issue 9), merged by the lead"]
 fn hidden_instrument_effects_are_named_and_nothing_else() {
     let dir = tempfile::tempdir().unwrap();
     let samples = calibration_samples(&hidden_instrument(), 1);
@@ -182,7 +181,6 @@ fn hidden_instrument_effects_are_named_and_nothing_else() {
 }
 
 #[test]
-#[ignore = "needs jdbb calibrate (issue 9), merged by the lead"]
 fn hidden_bar_lengths_are_told_apart_when_the_bars_differ() {
     // Nominal bars 40 and 60 mm: D is no longer symmetric in them, so each length is named.
     let nominal = Calibration::nominal(40.0, 60.0, 1 << 23);
@@ -211,7 +209,6 @@ fn hidden_bar_lengths_are_told_apart_when_the_bars_differ() {
 }
 
 #[test]
-#[ignore = "needs jdbb calibrate (issue 9), merged by the lead"]
 fn extended_terms_are_told_from_eccentricity() {
     // A pivot offset acts on the reading almost as the same frame's eccentricity does (with
     // this design ≈ 92 % of a 40″ offset is absorbed by a 42″ eccentricity, leaving 0.17 µm RMS
@@ -252,7 +249,6 @@ fn rms_um(a: &[f64], b: &[f64]) -> f64 {
 }
 
 #[test]
-#[ignore = "needs jdbb calibrate (issue 9), merged by the lead"]
 fn calibration_predicts_held_out_poses() {
     let dir = tempfile::tempdir().unwrap();
     let hidden = hidden_instrument();
@@ -385,7 +381,7 @@ fn diagnose_in_process(dir: &Path, name: &str, rec: &CircularRecord, d_mm: &[f64
 
 #[test]
 fn the_true_calibration_removes_what_the_nominal_instrument_blamed_on_the_machine() {
-    // Not the fit (that is the ignored §6 test below) but the model: the core's distance with
+    // Not the fit (that is the §6 test below) but the model: the core's distance with
     // the instrument's true calibration must leave a perfect machine perfect, whatever the
     // nominal instrument made of the same counts.
     let dir = tempfile::tempdir().unwrap();
@@ -410,7 +406,6 @@ fn the_true_calibration_removes_what_the_nominal_instrument_blamed_on_the_machin
 }
 
 #[test]
-#[ignore = "needs jdbb calibrate (issue 9), merged by the lead"]
 fn calibrated_instrument_removes_what_the_nominal_one_blamed_on_the_machine() {
     let dir = tempfile::tempdir().unwrap();
     let hidden = hidden_instrument();

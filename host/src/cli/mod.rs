@@ -7,12 +7,14 @@
 //!   [`crate::history`]);
 //! - [`rotary`], [`diagnose_rotary`]: rotary axes ([`crate::rotary`]);
 //! - [`rrsps`]: the A/C table as an RRSPS linkage ([`crate::rrsps`]);
+//! - [`calibrate`], [`recompute`]: the instrument's own calibration ([`crate::instrument`]);
 //! - [`args`], [`output`], [`stream_args`]: what the subcommands share.
 use clap::{Parser, Subcommand};
 
 use crate::Result;
 
 pub mod args;
+pub mod calibrate;
 pub mod compensate;
 pub mod devices;
 pub mod diagnose;
@@ -21,6 +23,7 @@ pub mod history;
 pub mod live;
 pub mod output;
 pub mod plan;
+pub mod recompute;
 pub mod record;
 pub mod rotary;
 pub mod rrsps;
@@ -62,6 +65,11 @@ pub enum Command {
     Compensate(compensate::CompensateArgs),
     /// A machine's diagnoses over time: add, list, trend (one SQLite file).
     History(history::HistoryArgs),
+    /// Calibrate the instrument from a calibrator's samples `enc1,enc2,d_ref_mm`: which of its
+    /// own errors (bar lengths, encoder zeros, axes skew, disc eccentricity) and how large.
+    Calibrate(calibrate::CalibrateArgs),
+    /// A record with d_mm recomputed from enc1, enc2 with another calibration.
+    Recompute(recompute::RecomputeArgs),
 }
 
 /// Run one parsed command line.
@@ -78,5 +86,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::DiagnoseRotary(args) => diagnose_rotary::run(&args),
         Command::Compensate(args) => compensate::run(&args),
         Command::History(args) => history::run(&args),
+        Command::Calibrate(args) => calibrate::run(&args),
+        Command::Recompute(args) => recompute::run(&args),
     }
 }

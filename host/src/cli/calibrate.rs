@@ -1,0 +1,90 @@
+//! `jdbb calibrate`: arguments and glue to [`crate::instrument`].
+use std::path::PathBuf;
+
+use jdbb_core::calib::Calibration;
+
+use super::output::{emit, json_text, print};
+use crate::instrument::file::{calibration_toml, read_calibration, same_file, write_atomic};
+use crate::instrument::fit::{calibrate, Options};
+use crate::instrument::report::{summary, to_json};
+use crate::instrument::samples::read_samples;
+use crate::{Error, Result};
+
+/// Arguments of `jdbb calibrate`.
+#[derive(Debug, clap::Args)]
+pub struct CalibrateArgs {
+    /// CSV `enc1,enc2,d_ref_mm`: the encoders' extended counts and the calibrator's reference
+    /// ball distance (mm) at each pose.
+    #[arg(long, value_name = "CAL.csv")]
+    pub samples: PathBuf,
+    /// The nominal calibration (TOML: l1_mm, l2_mm, [enc1], [enc2], …) the fit starts from and
+    /// whose discrete fields it keeps; default: the default instrument (50 + 50 mm, 2²³ counts/rev).
+    #[arg(long, value_name = "CAL.toml")]
+    pub nominal: Option<PathBuf>,
+    /// Also search the frames' pivot geometry (tilt_k, offset_normal_k, offset_axial_k); needs
+    /// samples over a wide range of both frames.
+    #[arg(long)]
+    pub extended: bool,
+    /// Print the documented JSON instead of the human summary.
+    #[arg(long)]
+    pub json: bool,
+    /// Write the fitted calibration (the nominal fields plus what was fitted) as TOML.
+    #[arg(short = 'o', long = "out", value_name = "OUT.toml")]
+    pub out: Option<PathBuf>,
+}
+
+/// Run `jdbb calibrate`.
+pub fn run(args: &CalibrateArgs) -> Result<()> {
+    let nominal = match &args.nominal {
+        Some(file) => read_calibration(file)?,
+        None => Calibration::DEFAULT,
+    };
+    if let Some(out) = &args.out {
+        if same_file(out, &args.samples) {
+            return Err(Error::Usage(format!(
+                "-o {} is the samples file; the calibration goes to a file of its own: give another -o",
+                out.display()
+            )));
+        }
+    }
+    let samples = read_samples(&args.samples)?;
+    samples.check_against(&nominal)?;
+    let opts = Options {
+        extended: args.extended,
+        ..Options::default()
+    };
+    let cal = calibrate(&samples, &nominal, &opts)?;
+    if let Some(out) = &args.out {
+        let header = vec![
+            format!(
+                "J-DBB calibration fitted by `jdbb calibrate` from {} ({} samples)",
+                args.samples.display(),
+                cal.samples
+            ),
+            format!(
+                "RMS of d_ref - D: nominal {:.4} um, calibrated {:.4} um; effects: {}",
+                cal.baseline_rms_um,
+                cal.final_rms_um,
+                if cal.effects.is_empty() {
+                    "none".to_string()
+                } else {
+                    cal.effects
+                        .iter()
+                        .map(|f| f.effect.name())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                }
+            ),
+        ];
+        write_atomic(out, calibration_toml(&cal.calibration, &header).as_bytes())?;
+    }
+    if args.json {
+        emit(&json_text(&to_json(&cal)))?;
+    } else {
+        print(&summary(&cal))?;
+        if let Some(out) = &args.out {
+            emit(&format!("calibration written to {}", out.display()))?;
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,32 @@
+//! `jdbb recompute`: arguments and glue to [`crate::instrument::recompute`].
+use std::path::PathBuf;
+
+use super::output::emit;
+use crate::instrument::file::read_calibration;
+use crate::instrument::recompute::recompute;
+use crate::Result;
+
+/// Arguments of `jdbb recompute`.
+#[derive(Debug, clap::Args)]
+pub struct RecomputeArgs {
+    /// A `jdbb record` file (`seq,t_us,enc1,enc2,d_mm`).
+    #[arg(long, value_name = "REC.csv")]
+    pub record: PathBuf,
+    /// The calibration to evaluate it with (TOML, e.g. from `jdbb calibrate -o`).
+    #[arg(long, value_name = "CAL.toml")]
+    pub calibration: PathBuf,
+    /// The new record: the same file with `d_mm` recomputed (must not be the record itself).
+    #[arg(short = 'o', long = "out", value_name = "OUT.csv")]
+    pub out: PathBuf,
+}
+
+/// Run `jdbb recompute`.
+pub fn run(args: &RecomputeArgs) -> Result<()> {
+    let cal = read_calibration(&args.calibration)?;
+    let rows = recompute(&args.record, &cal, &args.out)?;
+    emit(&format!(
+        "{rows} samples: d_mm recomputed with {}, written to {}",
+        args.calibration.display(),
+        args.out.display()
+    ))
+}
