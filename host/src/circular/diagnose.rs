@@ -106,6 +106,9 @@ pub struct NotSignificant {
     pub value: f64,
     /// Its standard uncertainty, timing included.
     pub sigma_value: f64,
+    /// Its parameters in the exact refit, by name (a spike's decay shows why its height is
+    /// undetermined: τ far below the sample period).
+    pub params: Vec<(&'static str, f64)>,
 }
 
 /// The result of [`diagnose`].
@@ -549,6 +552,13 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                     unit: f.effect.unit(),
                     value: f.value,
                     sigma_value: f.sigma.unwrap_or(f64::NAN),
+                    params: f
+                        .effect
+                        .param_names()
+                        .iter()
+                        .copied()
+                        .zip(f.params.iter().copied())
+                        .collect(),
                 };
                 (ei, weak)
             });

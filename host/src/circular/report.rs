@@ -34,7 +34,7 @@
 //!                          anywhere is not named (µm)
 //! below_floor[]            {name, peak_um}: effects the data support but that stay under the
 //!                          floor (peak_um bounds their largest contribution to D)
-//! not_significant[]        {name, value, sigma, unit}: effects the selection chose whose value
+//! not_significant[]        {name, value, sigma, unit, params}: effects the selection chose whose value
 //!                          is within 2σ of zero once σ counts the timing uncertainty (not named)
 //! final.rms_um             RMS of the residual of the exact refit, µm
 //! gain                     baseline.rms_um / final.rms_um
@@ -161,13 +161,19 @@ pub fn summary(d: &Diagnosis) -> String {
         );
     }
     for w in &d.not_significant {
+        let params: Vec<String> = w
+            .params
+            .iter()
+            .map(|(n, v)| format!("{n} = {v:.4}"))
+            .collect();
         let _ = writeln!(
             s,
-            "not significant (|value| < 2σ, σ with the timing uncertainty): {} = {:.3} ± {:.3} {} — not named",
+            "not significant (|value| < 2σ, σ with the timing uncertainty): {} = {:.3} ± {:.3} {} ({}) — not named",
             w.name,
             w.value,
             w.sigma_value,
-            crate::units::human(w.unit)
+            crate::units::human(w.unit),
+            params.join(", ")
         );
     }
     let _ = writeln!(
@@ -234,6 +240,7 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
         "below_floor": d.below_floor.iter().map(|(n, p)| json!({"name": n, "peak_um": num(*p)})).collect::<Vec<_>>(),
         "not_significant": d.not_significant.iter().map(|w| json!({
             "name": w.name, "value": num(w.value), "sigma": num(w.sigma_value), "unit": w.unit,
+            "params": w.params.iter().map(|(n, v)| (n.to_string(), num(*v))).collect::<serde_json::Map<_, _>>(),
         })).collect::<Vec<_>>(),
         "final": {"rms_um": num(d.final_rms_um)},
         "gain": num(d.gain),
