@@ -362,7 +362,7 @@ impl Effect {
                 let k = a.index();
                 let (h, tau) = (1e-3 * theta[0], theta[1].max(MIN_TAU_MS));
                 for_each_spike(path, k, i0, n, |j, s, dt_ms| {
-                    q[j][k] -= h * s * (-dt_ms / tau).exp();
+                    q[j][k] -= h * s * decay(dt_ms / tau);
                 });
             }
         }
@@ -409,7 +409,7 @@ impl Effect {
                     out[o + 1] = 0.0;
                 }
                 for_each_spike(path, k, i0, n, |j, s, dt_ms| {
-                    let e = (-dt_ms / tau).exp();
+                    let e = decay(dt_ms / tau);
                     let o = j * stride + offset;
                     out[o] = -u[j][k] * s * e;
                     out[o + 1] = -u[j][k] * h * s * e * dt_ms / (tau * tau);
@@ -455,6 +455,16 @@ impl Effect {
             Effect::ReversalSpike(_) | Effect::SetupOffset => None,
             _ => Some(vec![value; self.n_params()]),
         }
+    }
+}
+
+/// e^(−x) for x ≥ 0, exactly 0 beyond x = 700 (e^(−700) ≈ 1e−304): a spike's decay long after
+/// its reversal, without libm's slow underflow path (which took a tenth of a long diagnosis).
+fn decay(x: f64) -> f64 {
+    if x < 700.0 {
+        (-x).exp()
+    } else {
+        0.0
     }
 }
 
@@ -631,7 +641,7 @@ impl Candidate {
                     out[o] = 0.0;
                 }
                 for_each_spike(path, k, i0, n, |j, s, dt_ms| {
-                    out[j * stride + offset] = -u[j][k] * s * (-dt_ms / tau).exp();
+                    out[j * stride + offset] = -u[j][k] * s * decay(dt_ms / tau);
                 });
             }
         }
