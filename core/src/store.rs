@@ -83,11 +83,11 @@ impl<F: NorFlash> CalStore<F> {
     pub fn open(mut flash: F, base: u32, block: u32) -> Result<Self, StoreError<F::Error>> {
         let b = block as usize;
         let fits = b > 0
-            && b % F::ERASE_SIZE == 0
-            && b % SLOT == 0
-            && SLOT % F::WRITE_SIZE == 0
-            && SLOT % F::READ_SIZE == 0
-            && base as usize % F::ERASE_SIZE == 0
+            && b.is_multiple_of(F::ERASE_SIZE)
+            && b.is_multiple_of(SLOT)
+            && SLOT.is_multiple_of(F::WRITE_SIZE)
+            && SLOT.is_multiple_of(F::READ_SIZE)
+            && (base as usize).is_multiple_of(F::ERASE_SIZE)
             && (base as usize)
                 .checked_add(2 * b)
                 .is_some_and(|end| end <= flash.capacity());
@@ -184,7 +184,10 @@ impl<F: NorFlash> CalStore<F> {
         let mut buf = [0u8; SLOT];
         for slot in first..self.block / SLOT as u32 {
             self.flash
-                .read(self.base + block * self.block + slot * SLOT as u32, &mut buf)
+                .read(
+                    self.base + block * self.block + slot * SLOT as u32,
+                    &mut buf,
+                )
                 .map_err(StoreError::Flash)?;
             if buf.iter().all(|&b| b == 0xFF) {
                 return Ok(Some(slot));
@@ -381,7 +384,12 @@ mod tests {
         // pages, spread evenly, and none outside it.
         let total: u32 = flash.erases.iter().sum();
         let switches = (n - 1) / slots_per_block; // the first block starts erased
-        assert_eq!(total, switches * (BLOCK / ERASE as u32), "{:?}", flash.erases);
+        assert_eq!(
+            total,
+            switches * (BLOCK / ERASE as u32),
+            "{:?}",
+            flash.erases
+        );
         let region = &flash.erases[1..5];
         let (lo, hi) = (region.iter().min().unwrap(), region.iter().max().unwrap());
         assert!(hi - lo <= 1, "uneven wear {region:?}");
@@ -435,7 +443,13 @@ mod tests {
         f.mem[BASE as usize + 4] = FORMAT_VERSION + 1;
         assert_eq!(reopen(f.clone()).load(), None);
         // Regions that do not fit the flash.
-        for (base, block) in [(0, 100), (0, 512), (1, 2048), (4 * ERASE as u32, 4096), (0, 0)] {
+        for (base, block) in [
+            (0, 100),
+            (0, 512),
+            (1, 2048),
+            (4 * ERASE as u32, 4096),
+            (0, 0),
+        ] {
             assert!(matches!(
                 CalStore::open(f.clone(), base, block),
                 Err(StoreError::Geometry)
