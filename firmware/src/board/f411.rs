@@ -20,7 +20,8 @@
 //! The calibration is kept in flash sectors 6 and 7 (offsets 256–512 KiB, 2 × 128 KiB, the HAL's
 //! erase size) with [`jdbb_core::store`]: `memory.x` gives the program the first 256 KiB only.
 //! Writing one record stalls the CPU's instruction fetch for ~2 ms (about 110 bytes programmed one
-//! at a time); every 512th store also erases a 128 KiB sector, ~1–2 s. A calibration sent while
+//! at a time, 16 µs each, as the HAL programs); every 512th store also erases a 128 KiB sector,
+//! 2–4 s (the F411 datasheet's figures for byte-wide erase). A calibration sent while
 //! sampling may therefore cost samples (counted as overruns and drops). An F411xC (256 KiB) has no
 //! sectors 6 and 7: there the calibration is not kept (logged at start-up).
 //!
