@@ -272,7 +272,7 @@ mod tests {
             if self.dead {
                 return Err(FlashError::PowerLost);
             }
-            if offset as usize % align != 0 || len % align != 0 {
+            if !(offset as usize).is_multiple_of(align) || !len.is_multiple_of(align) {
                 return Err(FlashError::NotAligned);
             }
             if offset as usize + len > self.mem.len() {

@@ -33,7 +33,7 @@ fn triple(s: &str) -> Result<[f64; 3], String> {
 
 fn run() -> Result<(), String> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    if args.len() % 2 != 0 {
+    if !args.len().is_multiple_of(2) {
         return Err("options come as --name value pairs".into());
     }
     let mut opt: HashMap<&str, &str> = HashMap::new();
