@@ -14,6 +14,8 @@
 //!   hardware-free.
 //! - [`link`]: the device's writer policy: an absent host, the queue's room for replies, runs.
 //! - [`reset`]: why the device last started (reset flags, a recorded panic or fault).
+//! - [`store`]: the calibration kept in NOR flash (a versioned, CRC-checked append log over two
+//!   erase blocks, safe against power loss, wear-aware).
 //! - [`math`]: the one place that names which floating-point implementation is used.
 //!
 //! `no_std`, no allocation. The `std` feature only adds conveniences for the host.
@@ -30,5 +32,6 @@ pub mod quadrature;
 pub mod reset;
 pub mod sampler;
 pub mod sim;
+pub mod store;
 
 pub use calib::{Calibration, EncoderCal, FrameCal, Param};

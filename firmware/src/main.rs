@@ -117,6 +117,8 @@ mod app {
     /// What commands act on and replies report, besides the sampler and the timer.
     pub struct State {
         cal: Calibration,
+        /// Where the calibration is kept across power cycles.
+        cal_memory: board::CalMemory,
         reply_tx: Tx,
         chip_id: [u8; 12],
         reset_cause: ResetCause,
@@ -133,7 +135,9 @@ mod app {
             cx.core.SCB.set_priority(SystemHandler::SysTick, hw);
         }
         let mut timer = parts.timer;
-        let cal = Calibration::DEFAULT;
+        // The calibration kept from before the last power cycle, else the default instrument.
+        let kept = parts.cal_memory.load();
+        let cal = kept.unwrap_or(Calibration::DEFAULT);
         let clock = SampleClock::new(timer.clock_hz(), timer.period_ticks());
         let mut sampler = Sampler::new(parts.initial_raw, &cal, clock, board::SIMULATED);
         if let Some(index) = parts.index_raw {
@@ -150,6 +154,7 @@ mod app {
             decoder: Decoder::new(),
             state: State {
                 cal,
+                cal_memory: parts.cal_memory,
                 reply_tx: reply_tx.clone(),
                 chip_id: parts.chip_id,
                 reset_cause: parts.reset_cause,
@@ -170,6 +175,9 @@ mod app {
             timer.is_running(),
             parts.reset_cause.0
         );
+        if kept.is_some() {
+            defmt::info!("calibration kept from before the last power-up in force");
+        }
         (
             Shared {
                 sampler,
@@ -566,6 +574,10 @@ mod app {
                 // only for the copy.
                 let kernel = Kernel::new(&new);
                 sampler.lock(|s| s.set_kernel(kernel));
+                // Kept for the next power-up (board: flash; QEMU: RAM).
+                if !control.cal_memory.store(&new) {
+                    defmt::warn!("the calibration is in force but could not be kept in flash");
+                }
             }
             Command::Zero => sampler.lock(|s| s.zero_here()),
             Command::ArmIndex => sampler.lock(|s| s.arm_index()),

@@ -38,6 +38,23 @@ pub enum Error {
         restart: crate::link::stream::Restart,
         path: PathBuf,
     },
+    /// The device did not answer a command in time.
+    #[error("{port} did not answer {command} within {seconds} s. Check that the device is a J-DBB with this protocol (`jdbb live --port {port}` shows it), that nothing else holds the port, and try again")]
+    NoReply {
+        port: String,
+        command: &'static str,
+        seconds: f64,
+    },
+    /// The device refused a command.
+    #[error("{port} refused {command}: {reason}")]
+    CommandRefused {
+        port: String,
+        command: &'static str,
+        reason: String,
+    },
+    /// What the device reports holding differs from what was sent to it.
+    #[error("{port} accepted the calibration but reports holding another one: {differences}. Send it again; if it persists, the firmware does not keep what it is sent")]
+    ReadBackMismatch { port: String, differences: String },
     /// Writing the recording failed (e.g. a full disk); the file was cut back to whole lines.
     #[error("cannot write {path}: {source}. The file ends with whole lines ({position}); free some space or choose another --out, then record again")]
     RecordWrite {

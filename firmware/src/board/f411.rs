@@ -17,6 +17,14 @@
 //!   `crate::sample_timer`);
 //! - at every index edge, into CCR3, so index referencing is exact however late its interrupt runs.
 //!
+//! The calibration is kept in flash sectors 6 and 7 (offsets 256–512 KiB, 2 × 128 KiB, the HAL's
+//! erase size) with [`jdbb_core::store`]: `memory.x` gives the program the first 256 KiB only.
+//! Writing one record stalls the CPU's instruction fetch for ~2 ms (about 110 bytes programmed one
+//! at a time, 16 µs each, as the HAL programs); every 512th store also erases a 128 KiB sector,
+//! 2–4 s (the F411 datasheet's figures for byte-wide erase). A calibration sent while
+//! sampling may therefore cost samples (counted as overruns and drops). An F411xC (256 KiB) has no
+//! sectors 6 and 7: there the calibration is not kept (logged at start-up).
+//!
 //! Clocks: HSE 25 MHz → PLL → SYSCLK 96 MHz (48 MHz for USB), APB1 48 MHz, timer clock 96 MHz,
 //! with the regulator in voltage scale 1 (needed above 84 MHz).
 
@@ -24,10 +32,14 @@ use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicBool, Ordering};
 
 use super::Parts;
+use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 use jdbb_core::protocol::{Board, ResetCause, SampleBatch};
 use jdbb_core::quadrature::IndexEdge;
 use jdbb_core::reset;
 use jdbb_core::sampler::Sampler;
+use jdbb_core::store::CalStore;
+use jdbb_core::Calibration;
+use stm32f4xx_hal::flash::{FlashExt, LockedFlash};
 use stm32f4xx_hal::otg_fs::{UsbBus, UsbBusType, USB};
 use stm32f4xx_hal::qei::{Qei, QeiExt};
 use stm32f4xx_hal::{pac, prelude::*};
@@ -236,6 +248,70 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
         index_raw: None,
         chip_id,
         reset_cause,
+        cal_memory: CalMemory::open(dp.FLASH),
+    }
+}
+
+/// Offset (from the start of flash) of the calibration store: sector 6.
+const CAL_BASE: u32 = 0x4_0000;
+/// One block of the store: a 128 KiB sector (sectors 6 and 7).
+const CAL_BLOCK: u32 = 0x2_0000;
+
+/// The flash, unlocked only for the length of each erase or write.
+pub struct BoardFlash(LockedFlash);
+
+impl ErrorType for BoardFlash {
+    type Error = stm32f4xx_hal::flash::Error;
+}
+
+impl ReadNorFlash for BoardFlash {
+    const READ_SIZE: usize = 1;
+
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        ReadNorFlash::read(&mut self.0, offset, bytes)
+    }
+
+    fn capacity(&self) -> usize {
+        ReadNorFlash::capacity(&self.0)
+    }
+}
+
+impl NorFlash for BoardFlash {
+    const WRITE_SIZE: usize = 1;
+    const ERASE_SIZE: usize = 128 * 1024;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        NorFlash::erase(&mut self.0.unlocked(), from, to)
+    }
+
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        NorFlash::write(&mut self.0.unlocked(), offset, bytes)
+    }
+}
+
+/// The calibration kept across power cycles, in flash (see the module docs); None where the
+/// flash has no room for the store.
+pub struct CalMemory(Option<CalStore<BoardFlash>>);
+
+impl CalMemory {
+    fn open(flash: pac::FLASH) -> Self {
+        let store = CalStore::open(BoardFlash(LockedFlash::new(flash)), CAL_BASE, CAL_BLOCK);
+        if store.is_err() {
+            defmt::warn!(
+                "no room in flash for the calibration: it is not kept across power cycles"
+            );
+        }
+        CalMemory(store.ok())
+    }
+
+    /// The calibration stored last, if any.
+    pub fn load(&self) -> Option<Calibration> {
+        self.0.as_ref().and_then(CalStore::load)
+    }
+
+    /// Keep `cal` in flash; whether it was kept.
+    pub fn store(&mut self, cal: &Calibration) -> bool {
+        self.0.as_mut().is_some_and(|s| s.store(cal).is_ok())
     }
 }
 

@@ -12,6 +12,9 @@
 //!   (non-blocking), whether it came up or went down, and its transmit buffer;
 //! - [`LINK_UP_AT_START`]: whether a host may be listening at power-up (UART) or only once the
 //!   link reports it came up (USB).
+//! - `CalMemory::{load, store}`: where the calibration is kept across power cycles — flash on the
+//!   board ([`jdbb_core::store`] over sectors 6 and 7), RAM on QEMU, which does not emulate flash
+//!   writes (so there it lasts until QEMU is restarted).
 
 #[cfg(feature = "board-f411")]
 mod f411;
@@ -43,4 +46,6 @@ pub struct Parts {
     pub chip_id: [u8; 12],
     /// Why the device started.
     pub reset_cause: jdbb_core::protocol::ResetCause,
+    /// The calibration kept across power cycles.
+    pub cal_memory: CalMemory,
 }

@@ -76,6 +76,7 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
         // QEMU models no unique ID (reading its address would fault) and no reset flags.
         chip_id: [0; 12],
         reset_cause: ResetCause::default(),
+        cal_memory: CalMemory(None),
     }
 }
 
@@ -269,4 +270,21 @@ impl SampleTimer {
     /// Nothing to acknowledge: the interrupt was pended by software.
     #[inline]
     pub fn clear_update(&mut self) {}
+}
+
+/// The calibration kept across resets: in RAM here, since QEMU does not emulate flash writes (it
+/// lasts until QEMU is restarted). The board keeps it in flash (`jdbb_core::store`).
+pub struct CalMemory(Option<jdbb_core::Calibration>);
+
+impl CalMemory {
+    /// The calibration stored last, if any.
+    pub fn load(&self) -> Option<jdbb_core::Calibration> {
+        self.0
+    }
+
+    /// Keep `cal`; whether it was kept.
+    pub fn store(&mut self, cal: &jdbb_core::Calibration) -> bool {
+        self.0 = Some(*cal);
+        true
+    }
 }

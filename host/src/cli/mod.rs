@@ -8,6 +8,7 @@
 //! - [`rotary`], [`diagnose_rotary`]: rotary axes ([`crate::rotary`]);
 //! - [`rrsps`]: the A/C table as an RRSPS linkage ([`crate::rrsps`]);
 //! - [`calibrate`], [`recompute`]: the instrument's own calibration ([`crate::instrument`]);
+//!   [`calibration`]: the calibration on the device ([`crate::link::calibration`]);
 //! - [`args`], [`output`], [`stream_args`]: what the subcommands share.
 use clap::{Parser, Subcommand};
 
@@ -15,6 +16,7 @@ use crate::Result;
 
 pub mod args;
 pub mod calibrate;
+pub mod calibration;
 pub mod compensate;
 pub mod devices;
 pub mod diagnose;
@@ -70,6 +72,8 @@ pub enum Command {
     Calibrate(calibrate::CalibrateArgs),
     /// A record with d_mm recomputed from enc1, enc2 with another calibration.
     Recompute(recompute::RecomputeArgs),
+    /// The calibration on the device: send a calibration file and read it back, or show it.
+    Calibration(calibration::CalibrationArgs),
 }
 
 /// Run one parsed command line.
@@ -88,5 +92,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::History(args) => history::run(&args),
         Command::Calibrate(args) => calibrate::run(&args),
         Command::Recompute(args) => recompute::run(&args),
+        Command::Calibration(args) => calibration::run(&args),
     }
 }

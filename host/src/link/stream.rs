@@ -227,6 +227,9 @@ struct Tracker {
     last_sample: Option<SeqSample>,
     last_rejected: Option<CommandError>,
     last_pong: Option<u32>,
+    /// The latest answer to a command: its number (counted from 0, as `replies_got`) and the
+    /// Info or the refusal.
+    last_reply: Option<(u64, std::result::Result<DeviceInfo, CommandError>)>,
     /// Extended sequence number expected next; None before the first batch.
     next_seq: Option<u64>,
     /// Time stamp of the last sample received.
@@ -288,7 +291,12 @@ impl Tracker {
         match msg {
             DeviceMsg::Batch(batch) => self.on_batch(&batch, on_batch),
             DeviceMsg::Info(info) => {
-                let solicited = self.take_reply(None)
+                let n = self.replies_got;
+                let answer = self.take_reply(None);
+                if answer {
+                    self.last_reply = Some((n, Ok(info)));
+                }
+                let solicited = answer
                     || self
                         .info_reply_until
                         .is_some_and(|until| Instant::now() <= until);
@@ -313,7 +321,10 @@ impl Tracker {
                 self.last_pong = Some(token);
             }
             DeviceMsg::Rejected(e) => {
-                self.take_reply(Some(e));
+                let n = self.replies_got;
+                if self.take_reply(Some(e)) {
+                    self.last_reply = Some((n, Err(e)));
+                }
                 self.stats.rejected += 1;
                 self.last_rejected = Some(e);
             }
@@ -691,6 +702,7 @@ impl<P: Read + Write> Stream<P> {
         t.info = old.info;
         t.hello = old.hello;
         t.last_pong = old.last_pong;
+        t.last_reply = old.last_reply;
         // Commands and answers stay paired; a cut first frame stays reported.
         t.replies_asked = old.replies_asked;
         t.replies_got = old.replies_got;
@@ -700,6 +712,62 @@ impl<P: Read + Write> Stream<P> {
         t.one_run = old.one_run;
         t.stats.partial = old.stats.partial;
         Ok(answered)
+    }
+}
+
+impl<P: Read + Write> Stream<P> {
+    /// Send `command` and wait, at most `timeout`, for the device's answer to it: its
+    /// [`DeviceInfo`] (accepted, the state after the command) or the reason it refused
+    /// (`Err` inside `Ok`). Not for [`Command::Ping`], which is answered by a Pong
+    /// ([`Stream::handshake`]). Batches decoded meanwhile are counted and dropped.
+    ///
+    /// [`Error::NoReply`] if no answer came in time or the port closed first.
+    pub fn request(
+        &mut self,
+        command: &Command,
+        timeout: Duration,
+    ) -> Result<std::result::Result<DeviceInfo, CommandError>> {
+        assert!(
+            !matches!(command, Command::Ping(_)),
+            "a Ping is answered by a Pong: use handshake"
+        );
+        let n = self.tracker.replies_asked;
+        self.send(command)?;
+        let t0 = Instant::now();
+        loop {
+            if let Some((k, reply)) = self.tracker.last_reply {
+                if k == n {
+                    return Ok(reply);
+                }
+            }
+            if t0.elapsed() >= timeout || self.poll(|_| {})? == Poll::Closed {
+                // One last look: the answer may have come with the final read.
+                if let Some((k, reply)) = self.tracker.last_reply {
+                    if k == n {
+                        return Ok(reply);
+                    }
+                }
+                return Err(Error::NoReply {
+                    port: self.name.clone(),
+                    command: command_name(command),
+                    seconds: timeout.as_secs_f64(),
+                });
+            }
+        }
+    }
+}
+
+/// A command's name for messages: `SetCalibration`, `GetInfo`, ...
+pub fn command_name(command: &Command) -> &'static str {
+    match command {
+        Command::Start => "Start",
+        Command::Stop => "Stop",
+        Command::SetSampleRate(_) => "SetSampleRate",
+        Command::SetCalibration(_) => "SetCalibration",
+        Command::Zero => "Zero",
+        Command::Ping(_) => "Ping",
+        Command::GetInfo => "GetInfo",
+        Command::ArmIndex => "ArmIndex",
     }
 }
 
