@@ -4,9 +4,11 @@ use std::path::PathBuf;
 use jdbb_core::calib::Calibration;
 
 use super::output::{emit, json_text, print};
+use crate::circular::plan::Plan;
 use crate::instrument::file::{calibration_toml, read_calibration, same_file, write_atomic};
 use crate::instrument::fit::{calibrate, Options};
 use crate::instrument::report::{summary, to_json};
+use crate::instrument::run::calibrate_run;
 use crate::instrument::samples::read_samples;
 use crate::{Error, Result};
 
@@ -15,8 +17,21 @@ use crate::{Error, Result};
 pub struct CalibrateArgs {
     /// CSV `enc1,enc2,d_ref_mm`: the encoders' extended counts and the calibrator's reference
     /// ball distance (mm) at each pose.
-    #[arg(long, value_name = "CAL.csv")]
-    pub samples: PathBuf,
+    #[arg(
+        long,
+        value_name = "CAL.csv",
+        required_unless_present = "record",
+        conflicts_with = "record"
+    )]
+    pub samples: Option<PathBuf>,
+    /// Without a calibrator: a `jdbb record` file of the machine running the program of
+    /// `--plan` (best `jdbb plan --calibration-test`); the table ball's set-up offset is fitted
+    /// alongside and the report says which instrument terms the machine's errors could mimic.
+    #[arg(long, value_name = "REC.csv", requires = "plan")]
+    pub record: Option<PathBuf>,
+    /// The plan.json of the program the machine ran for `--record`.
+    #[arg(long, value_name = "PLAN.json", requires = "record")]
+    pub plan: Option<PathBuf>,
     /// The nominal calibration (TOML: l1_mm, l2_mm, [enc1], [enc2], …) the fit starts from and
     /// whose discrete fields it keeps; default: the default instrument (50 + 50 mm, 2²³ counts/rev).
     #[arg(long, value_name = "CAL.toml")]
@@ -39,26 +54,42 @@ pub fn run(args: &CalibrateArgs) -> Result<()> {
         Some(file) => read_calibration(file)?,
         None => Calibration::DEFAULT,
     };
+    let input = match (&args.samples, &args.record) {
+        (Some(s), None) => s,
+        (None, Some(r)) => r,
+        _ => {
+            return Err(Error::Usage(
+                "give --samples CAL.csv, or --record REC.csv with --plan PLAN.json".into(),
+            ))
+        }
+    };
     if let Some(out) = &args.out {
-        if same_file(out, &args.samples) {
-            return Err(Error::Usage(format!(
-                "-o {} is the samples file; the calibration goes to a file of its own: give another -o",
-                out.display()
-            )));
+        for f in [Some(input), args.plan.as_ref()].into_iter().flatten() {
+            if same_file(out, f) {
+                return Err(Error::Usage(format!(
+                    "-o {} is an input file; the calibration goes to a file of its own: give another -o",
+                    out.display()
+                )));
+            }
         }
     }
-    let samples = read_samples(&args.samples)?;
-    samples.check_against(&nominal)?;
     let opts = Options {
         extended: args.extended,
         ..Options::default()
     };
-    let cal = calibrate(&samples, &nominal, &opts)?;
+    let cal = match (&args.record, &args.plan) {
+        (Some(rec), Some(plan)) => calibrate_run(&Plan::read(plan)?, rec, &nominal, &opts)?,
+        _ => {
+            let samples = read_samples(input)?;
+            samples.check_against(&nominal)?;
+            calibrate(&samples, &nominal, &opts)?
+        }
+    };
     if let Some(out) = &args.out {
         let header = vec![
             format!(
                 "J-DBB calibration fitted by `jdbb calibrate` from {} ({} samples)",
-                args.samples.display(),
+                input.display(),
                 cal.samples
             ),
             format!(

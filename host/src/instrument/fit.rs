@@ -122,12 +122,142 @@ pub struct Calibrated {
     pub nominal: Calibration,
     /// The nominal calibration with the named effects applied.
     pub calibration: Calibration,
+    /// Without a calibrator (samples with positions): the table ball's set-up offset fitted
+    /// alongside, per axis (µm) with its standard error.
+    pub setup_um: Option<[(f64, Option<f64>); 3]>,
+    /// Without a calibrator: how each searched instrument effect stands against the machine's
+    /// linear errors and the set-up offset on these samples ([`machine_separation`]).
+    pub machine: Vec<Separation>,
+}
+
+/// The machine's linear geometric errors a run of spheres also measures, as columns of D (µm
+/// per ppm of scale or µrad of squareness): `scale_x/y/z` (δD = p_k²/|p|) and `squareness_xy/yz/zx`
+/// (δD = p_i p_j/|p|).
+pub const MACHINE_NAMES: [&str; 6] = [
+    "scale_x",
+    "scale_y",
+    "scale_z",
+    "squareness_xy",
+    "squareness_yz",
+    "squareness_zx",
+];
+
+/// One instrument effect against the machine's errors and the set-up offset.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Separation {
+    /// The instrument effect.
+    pub effect: String,
+    /// The share of its columns' effect on D (smallest over its columns, 0–1) that no
+    /// combination of machine errors and set-up offset reproduces: 0 = cannot be told apart.
+    pub separable: f64,
+    /// When it is not separable: the machine and set-up terms that reproduce it (each carrying
+    /// at least a tenth of the combination that does).
+    pub confounded_with: Vec<String>,
+}
+
+/// A share below this is a confounding (the rank test's tolerance, as a share of the column).
+const SEPARABLE_MIN: f64 = 1e-4;
+
+/// The rank test of each instrument effect in `effects` against the machine's linear errors
+/// ([`MACHINE_NAMES`]) and the set-up offset, on samples with positions at the instrument
+/// `cal`: which instrument terms a run of spheres cannot tell from the machine.
+pub fn machine_separation(
+    samples: &CalSamples,
+    cal: &Calibration,
+    effects: &[Effect],
+) -> Vec<Separation> {
+    let Some(pos) = &samples.positions else {
+        return vec![];
+    };
+    let design = Design::new(cal, effects);
+    let n0 = design.cols.len();
+    let n = n0 + 3 + MACHINE_NAMES.len();
+    let model = Model::new(cal);
+    let mut g = DMatrix::<f64>::zeros(n, n);
+    let mut row = vec![0.0; n];
+    for (i, &p) in pos.iter().enumerate() {
+        let (_, grad) = model.distance_and_gradient(samples.enc1[i], samples.enc2[i]);
+        let d = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+        for (c, map) in design.maps.iter().enumerate() {
+            row[c] = map.iter().map(|&(q, f)| f * grad[q]).sum();
+        }
+        for k in 0..3 {
+            row[n0 + k] = p[k] / d;
+            row[n0 + 3 + k] = 1e-3 * p[k] * p[k] / d;
+            row[n0 + 6 + k] = 1e-3 * p[k] * p[(k + 1) % 3] / d;
+        }
+        for a in 0..n {
+            for b in a..n {
+                g[(a, b)] += row[a] * row[b];
+            }
+        }
+    }
+    for a in 0..n {
+        for b in 0..a {
+            g[(a, b)] = g[(b, a)];
+        }
+    }
+    let name = |c: usize| {
+        if c < n0 {
+            design.name(c)
+        } else if c < n0 + 3 {
+            SETUP_NAMES[c - n0].to_string()
+        } else {
+            MACHINE_NAMES[c - n0 - 3].to_string()
+        }
+    };
+    let others: Vec<usize> = (n0..n).collect();
+    let a = sub(&g, &others);
+    let a_pinv = a.clone().pseudo_inverse(1e-12 * a.norm()).unwrap_or(a);
+    effects
+        .iter()
+        .map(|&e| {
+            let cols = design.cols_of(e);
+            let separable = cols
+                .iter()
+                .map(|&c| {
+                    let b = nalgebra::DVector::from_fn(others.len(), |k, _| g[(others[k], c)]);
+                    let explained = (b.transpose() * &a_pinv * &b)[(0, 0)];
+                    let total = g[(c, c)];
+                    if total > 0.0 {
+                        ((total - explained).max(0.0) / total).sqrt()
+                    } else {
+                        0.0
+                    }
+                })
+                .fold(1.0f64, f64::min);
+            // The combination of machine and set-up columns that reproduces the first column.
+            let c = cols[0];
+            let b = nalgebra::DVector::from_fn(others.len(), |k, _| g[(others[k], c)]);
+            let x = &a_pinv * &b;
+            let parts: Vec<f64> = (0..others.len())
+                .map(|k| x[k].abs() * g[(others[k], others[k])].max(0.0).sqrt())
+                .collect();
+            let big = parts.iter().cloned().fold(0.0, f64::max);
+            let confounded_with = if separable < SEPARABLE_MIN {
+                (0..others.len())
+                    .filter(|&k| parts[k] >= 0.1 * big)
+                    .map(|k| name(others[k]))
+                    .collect()
+            } else {
+                vec![]
+            };
+            Separation {
+                effect: e.name().to_string(),
+                separable,
+                confounded_with,
+            }
+        })
+        .collect()
 }
 
 /// The search columns: every effect's fit parameters (both length forms, all candidates), with
 /// the core parameters each one moves.
 struct Design {
+    /// The instrument's columns; with `setup`, three more follow: the table ball's set-up
+    /// offset c (µm per axis, [`SETUP_NAMES`]).
     cols: Vec<(Effect, usize)>,
+    setup: bool,
     /// Per column: (index into `Param::ALL`, µm of D per mm or rad of that parameter × its
     /// change per unit of the column).
     maps: Vec<Vec<(usize, f64)>>,
@@ -163,8 +293,24 @@ impl Design {
             .collect();
         Design {
             cols,
+            setup: false,
             maps,
             nominal: *nominal,
+        }
+    }
+
+    /// Number of columns: the instrument's, then the set-up offset's.
+    fn n(&self) -> usize {
+        self.cols.len() + if self.setup { 3 } else { 0 }
+    }
+
+    /// The set-up offset (mm) in the values `v`.
+    fn setup_mm(&self, v: &[f64]) -> [f64; 3] {
+        let n0 = self.cols.len();
+        if self.setup {
+            [0, 1, 2].map(|k| 1e-3 * v[n0 + k])
+        } else {
+            [0.0; 3]
         }
     }
 
@@ -182,13 +328,16 @@ impl Design {
     }
 
     fn name(&self, c: usize) -> String {
-        self.cols[c].0.name().to_string()
+        match self.cols.get(c) {
+            Some(col) => col.0.name().to_string(),
+            None => SETUP_NAMES[c - self.cols.len()].to_string(),
+        }
     }
 
     /// The nominal calibration with the columns' values `v` applied.
     fn calibration(&self, v: &[f64]) -> Calibration {
         let mut p: [f64; N_PARAMS] = self.nominal.params();
-        for (c, &x) in v.iter().enumerate() {
+        for (c, &x) in v.iter().enumerate().take(self.cols.len()) {
             if x != 0.0 {
                 for &(q, f) in self.cols[c].0.targets(self.cols[c].1) {
                     p[q.index()] += f * x;
@@ -201,7 +350,9 @@ impl Design {
     /// One pass: the Gram of the columns and of y = r + J·v at the estimate `v` (module docs).
     fn pass(&self, s: &CalSamples, v: &[f64]) -> Result<Pass> {
         let model = Model::new(&self.calibration(v));
-        let n = self.cols.len();
+        let setup = self.setup_mm(v);
+        let n0 = self.cols.len();
+        let n = self.n();
         let w = n + 1;
         let mut acc = GramAccumulator::new(w);
         let mut peak = vec![0.0f64; n];
@@ -214,7 +365,8 @@ impl Design {
             for j in 0..len {
                 let i = i0 + j;
                 let (d, g) = model.distance_and_gradient(s.enc1[i], s.enc2[i]);
-                let r = 1e3 * (s.d_ref_mm[i] - d);
+                let (d_ref, u) = reference(s, i, setup);
+                let r = 1e3 * (d_ref - d);
                 if !r.is_finite() {
                     return Err(Error::input(
                         &s.path,
@@ -230,6 +382,13 @@ impl Design {
                     row[c] = x;
                     y += x * v[c];
                     peak[c] = peak[c].max(x.abs());
+                }
+                for k in 0..n - n0 {
+                    // d_ref = |p − c| grows by u·δc: the column of r's model is −u.
+                    let x = -u[k];
+                    row[n0 + k] = x;
+                    y += x * v[n0 + k];
+                    peak[n0 + k] = peak[n0 + k].max(x.abs());
                 }
                 row[n] = y;
                 ssr += r * r;
@@ -263,19 +422,44 @@ impl Problem for Refit<'_> {
         self.samples.len()
     }
     fn eval(&self, p: &[f64], visit: &mut dyn FnMut(usize, f64, &[f64])) {
-        let mut v = vec![0.0; self.design.cols.len()];
+        let mut v = vec![0.0; self.design.n()];
         for (a, &c) in self.free.iter().enumerate() {
             v[c] = p[a];
         }
         let model = Model::new(&self.design.calibration(&v));
+        let setup = self.design.setup_mm(&v);
+        let n0 = self.design.cols.len();
         let s = self.samples;
         let mut grad = vec![0.0; self.free.len()];
         for i in 0..s.len() {
             let (d, g) = model.distance_and_gradient(s.enc1[i], s.enc2[i]);
+            let (d_ref, u) = reference(s, i, setup);
             for (a, &c) in self.free.iter().enumerate() {
-                grad[a] = self.design.maps[c].iter().map(|&(q, f)| f * g[q]).sum();
+                grad[a] = if c < n0 {
+                    self.design.maps[c].iter().map(|&(q, f)| f * g[q]).sum()
+                } else {
+                    -u[c - n0]
+                };
             }
-            visit(i, 1e3 * (d - s.d_ref_mm[i]), &grad);
+            visit(i, 1e3 * (d - d_ref), &grad);
+        }
+    }
+}
+
+/// Names of the set-up offset's columns (µm): where the table ball is, relative to where the
+/// plan put it, when the samples come from a machine run (`--record` with `--plan`).
+pub const SETUP_NAMES: [&str; 3] = ["setup_x", "setup_y", "setup_z"];
+
+/// Sample `i`'s reference distance (mm) and u = ∂d_ref/∂c: a calibrator's d_ref (u = 0), or
+/// |p − c| for a machine run's nominal position p (relative to where the plan put the table
+/// ball) and the table ball's set-up offset c (mm): u = −(p − c)/|p − c|.
+fn reference(s: &CalSamples, i: usize, setup_mm: [f64; 3]) -> (f64, [f64; 3]) {
+    match &s.positions {
+        None => (s.d_ref_mm[i], [0.0; 3]),
+        Some(p) => {
+            let q = [0, 1, 2].map(|k| p[i][k] - setup_mm[k]);
+            let d = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
+            (d, q.map(|x| -x / d))
         }
     }
 }
@@ -300,9 +484,11 @@ pub fn calibrate(
     if opts.extended {
         all.extend(Effect::EXTENDED);
     }
-    let design = Design::new(nominal, &all);
+    let mut design = Design::new(nominal, &all);
+    design.setup = samples.positions.is_some();
+    let base: Vec<usize> = (design.cols.len()..design.n()).collect();
     let name = |c: usize| design.name(c);
-    let mut v = vec![0.0; design.cols.len()];
+    let mut v = vec![0.0; design.n()];
 
     // Round 0 at the nominal instrument: the baseline, and whether the bars can be told apart.
     let first = design.pass(samples, &v)?;
@@ -341,7 +527,7 @@ pub fn calibrate(
                 }
             })
             .collect();
-        let sel = forward_select(&pass.gram, m, &[], &groups, &opts.select, &name)?;
+        let sel = forward_select(&pass.gram, m, &base, &groups, &opts.select, &name)?;
         let mut v_new = vec![0.0; v.len()];
         for (k, &c) in sel.current.iter().enumerate() {
             v_new[c] = sel.coef[k];
@@ -414,6 +600,16 @@ pub fn calibrate(
         ))
     })?;
     let final_rms_um = (final_ssr / m as f64).sqrt();
+    let setup_um = design.setup.then(|| {
+        [0, 1, 2].map(|k| {
+            let c = design.cols.len() + k;
+            (
+                v[c],
+                free.iter().position(|&x| x == c).and_then(|a| sigma[a]),
+            )
+        })
+    });
+    let machine = machine_separation(samples, &calibration, &candidates);
 
     // Report, in the order the selection added the effects.
     let at = |c: usize| free.iter().position(|&x| x == c);
@@ -469,6 +665,8 @@ pub fn calibrate(
         rounds,
         nominal: *nominal,
         calibration,
+        setup_um,
+        machine,
     })
 }
 

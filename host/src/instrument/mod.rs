@@ -11,9 +11,12 @@
 //!   core model (the same engine as `diagnose`), exact non-linear refit.
 //! - [`report`]: the text summary and the documented JSON of a calibration.
 //! - [`file`]: calibration TOML files: reading (checked), writing (temp file, then rename).
+//! - [`run`]: calibration samples without a calibrator: a record of a machine running a plan's
+//!   spheres, with the nominal positions; the set-up offset is fitted alongside.
 //! - [`recompute`]: a `jdbb record` file with `d_mm` recomputed from the counts.
 //!
-//! May use: [`crate::numerics`], [`crate::table`], [`crate::error`] and `jdbb_core` (the
+//! May use: [`crate::numerics`], [`crate::table`], [`crate::error`], [`crate::circular`]'s plan
+//! and synchronisation (for [`run`]) and `jdbb_core` (the
 //! instrument model `geometry` and its parameters `calib`: the model fitted here is the core's,
 //! never a copy). [`crate::cli`] uses this module, never the reverse; nothing here prints.
 pub mod effects;
@@ -21,6 +24,7 @@ pub mod file;
 pub mod fit;
 pub mod recompute;
 pub mod report;
+pub mod run;
 pub mod samples;
 
 /// One arc second in radians (angles are radians inside, arcsec only in reports).

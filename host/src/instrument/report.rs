@@ -30,6 +30,12 @@
 //! gain                   baseline.rms_um / final.rms_um
 //! candidates[]           the effects searched
 //! rounds                 Gauss–Newton rounds of selection and linearisation
+//! setup                  with --record/--plan: the table ball's set-up offset fitted alongside,
+//!                        {x_um, y_um, z_um, x_sigma_um, …}; null with --samples
+//! machine[]              with --record/--plan: each searched instrument effect against the
+//!                        machine's linear errors (scale_x/y/z, squareness_xy/yz/zx) and the
+//!                        set-up offset: {name, separable (share of its effect on D no machine
+//!                        error reproduces, 0–1), confounded_with[] (rank test; empty if separable)}
 //! nominal                the calibration the fit started from (jdbb-core Calibration)
 //! calibration            the fitted calibration: nominal plus the named effects (what -o writes)
 //! ```
@@ -91,6 +97,35 @@ pub fn summary(c: &Calibrated) -> String {
             g.join(", ")
         );
     }
+    if let Some(su) = &c.setup_um {
+        let axes = ["x", "y", "z"]
+            .iter()
+            .zip(su)
+            .map(|(a, (v, sg))| format!("{a} {}", format_estimate(*v, *sg)))
+            .collect::<Vec<_>>()
+            .join(", ");
+        let _ = writeln!(
+            s,
+            "set-up offset of the table ball (fitted alongside): {axes} µm"
+        );
+    }
+    for m in &c.machine {
+        if m.separable >= 1e-4 {
+            let _ = writeln!(
+                s,
+                "machine run: {} is told from the machine's linear errors and the set-up ({:.1} % of its effect on D is its own)",
+                m.effect,
+                100.0 * m.separable
+            );
+        } else {
+            let _ = writeln!(
+                s,
+                "machine run: {} cannot be told from machine errors: confounded with {} — its value is only as good as the machine",
+                m.effect,
+                m.confounded_with.join(", ")
+            );
+        }
+    }
     for (name, peak) in &c.below_floor {
         let _ = writeln!(
             s,
@@ -151,6 +186,13 @@ pub fn to_json(c: &Calibrated) -> serde_json::Value {
         "gain": num(c.gain),
         "candidates": c.candidates,
         "rounds": c.rounds,
+        "setup": c.setup_um.map(|su| json!({
+            "x_um": num(su[0].0), "y_um": num(su[1].0), "z_um": num(su[2].0),
+            "x_sigma_um": su[0].1.map(num), "y_sigma_um": su[1].1.map(num), "z_sigma_um": su[2].1.map(num),
+        })),
+        "machine": c.machine.iter().map(|m| json!({
+            "name": m.effect, "separable": num(m.separable), "confounded_with": m.confounded_with,
+        })).collect::<Vec<_>>(),
         "nominal": serde_json::to_value(c.nominal).expect("a calibration is plain data"),
         "calibration": serde_json::to_value(c.calibration).expect("a calibration is plain data"),
     })

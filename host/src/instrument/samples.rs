@@ -36,6 +36,10 @@ pub struct CalSamples {
     pub d_ref_mm: Vec<f64>,
     /// 1-based line of each sample.
     pub line: Vec<usize>,
+    /// Without a calibrator (`--record` with `--plan`): each sample's nominal ball position
+    /// relative to the table ball (mm). The reference is then |p + c| with the table ball's
+    /// set-up offset c fitted alongside the instrument, and `d_ref_mm` holds |p|.
+    pub positions: Option<Vec<[f64; 3]>>,
     /// 1-based character column of each row's `enc1` and `d_ref_mm` fields.
     columns: Vec<[usize; 2]>,
 }
@@ -60,6 +64,33 @@ impl CalSamples {
             enc2,
             d_ref_mm,
             line: (2..n + 2).collect(),
+            positions: None,
+            columns: vec![[1, 1]; n],
+        }
+    }
+
+    /// Samples of a machine run (no calibrator): counts, nominal positions p relative to the
+    /// table ball (mm) and each one's line in the record; the reference is |p + c| (field
+    /// `positions`).
+    pub fn from_positions(
+        path: &Path,
+        enc1: Vec<i64>,
+        enc2: Vec<i64>,
+        positions: Vec<[f64; 3]>,
+        line: Vec<usize>,
+    ) -> Self {
+        let n = positions.len();
+        let d_ref_mm = positions
+            .iter()
+            .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
+            .collect();
+        CalSamples {
+            path: path.to_path_buf(),
+            enc1,
+            enc2,
+            d_ref_mm,
+            line,
+            positions: Some(positions),
             columns: vec![[1, 1]; n],
         }
     }
@@ -88,7 +119,9 @@ impl CalSamples {
             }
             let d = model.distance_mm(self.enc1[i], self.enc2[i]);
             let miss = self.d_ref_mm[i] - d;
-            if miss.is_nan() || miss.abs() > MAX_MISS_MM {
+            // A machine run's reference |p| also misses by the set-up offset (≤ MAX_MISS_MM).
+            let limit = if self.positions.is_some() { 2.0 } else { 1.0 } * MAX_MISS_MM;
+            if miss.is_nan() || miss.abs() > limit {
                 return Err(at(
                     1,
                     format!(
@@ -121,6 +154,7 @@ fn samples_from(mut table: Table) -> Result<CalSamples> {
         enc2: vec![],
         d_ref_mm: vec![],
         line: vec![],
+        positions: None,
         columns: vec![],
     };
     let mut last_line = table.header_line();

@@ -44,6 +44,11 @@ impl Default for AzimuthWalk {
 pub struct InstrumentConfig {
     /// The calibration in force: the counts are made with it and the device computes D with it.
     pub calibration: Calibration,
+    /// The instrument as built, when it differs from the calibration in force (calibration
+    /// tests): the counts are made with this one (the core inverse model) while the device
+    /// computes D with `calibration`, as a J-DBB with unknown errors running a nominal
+    /// calibration does. None: the instrument is exactly `calibration`.
+    pub true_calibration: Option<Calibration>,
     /// Sample rate on the device's clock (Hz).
     pub sample_rate_hz: f64,
     /// The device's clock runs at (1 + ppm·1e-6) × true time.
@@ -69,6 +74,7 @@ impl Default for InstrumentConfig {
     fn default() -> Self {
         InstrumentConfig {
             calibration: Calibration::DEFAULT,
+            true_calibration: None,
             sample_rate_hz: 1000.0,
             clock_ppm: 0.0,
             t0_us: 0,
@@ -86,6 +92,10 @@ impl InstrumentConfig {
         self.calibration
             .validate()
             .map_err(|e| format!("calibration rejected: {e:?}"))?;
+        if let Some(t) = &self.true_calibration {
+            t.validate()
+                .map_err(|e| format!("true_calibration rejected: {e:?}"))?;
+        }
         let pos = |v: f64| v > 0.0 && v.is_finite();
         let nonneg = |v: f64| v >= 0.0 && v.is_finite();
         if !(pos(self.sample_rate_hz) && self.sample_rate_hz <= 1e6) {
@@ -320,8 +330,11 @@ impl Iterator for Samples<'_> {
             d_true
         };
         let block = (t_p >= 0.0 && t_p < traj.end_s).then(|| traj.segment_at(t_p));
-        let Some((enc1, enc2)) = geometry::counts_for_distance(&ins.calibration, d_ins, self.psi)
-        else {
+        let counts = match &ins.true_calibration {
+            None => geometry::counts_for_distance(&ins.calibration, d_ins, self.psi),
+            Some(truth) => true_counts(truth, d_ins, self.psi),
+        };
+        let Some((enc1, enc2)) = counts else {
             self.failed = true;
             return Some(Err(SimError::OutOfReach {
                 t_s,
@@ -362,4 +375,23 @@ impl Iterator for Samples<'_> {
         let n = (self.sim.n_samples - self.k) as usize;
         (0, Some(n))
     }
+}
+
+/// Counts of the instrument as built `truth` at distance `d_mm` and lean `psi`: the core inverse
+/// is exact only for the nominal frames (errors such as eccentricity are inverted to first
+/// order), so the target is corrected until the forward model gives `d_mm` to a nanometre
+/// (fixed point, a few steps), so that the counts carry D and nothing of the inverse's
+/// approximation.
+fn true_counts(truth: &Calibration, d_mm: f64, psi: f64) -> Option<(i64, i64)> {
+    let mut target = d_mm;
+    let mut counts = geometry::counts_for_distance(truth, target, psi)?;
+    for _ in 0..4 {
+        let miss = d_mm - geometry::distance_mm(truth, counts.0, counts.1);
+        if miss.abs() < 1e-6 {
+            break;
+        }
+        target += miss;
+        counts = geometry::counts_for_distance(truth, target, psi)?;
+    }
+    Some(counts)
 }

@@ -1,0 +1,87 @@
+//! Calibration samples without a calibrator: a `jdbb record` file of a machine running the
+//! program of a plan (best `jdbb plan --calibration-test`: spheres at several distances),
+//! synchronised with the plan from D alone ([`crate::circular::sync`]). Each data-arc sample
+//! gives the encoders' counts and the ball's nominal position p relative to the table ball;
+//! the reference is |p + c| with the set-up offset c fitted alongside the instrument
+//! ([`super::fit`]). The machine is taken as perfect: what it does wrong goes into the
+//! instrument's terms it is confounded with ([`super::fit::machine_separation`] says which).
+use std::path::Path;
+
+use crate::circular::plan::Plan;
+use crate::circular::sync::{data_path, synchronise, Record, Sync};
+use crate::table::Table;
+use crate::{Error, Result};
+use jdbb_core::calib::Calibration;
+use jdbb_core::geometry::Model;
+
+use super::samples::CalSamples;
+
+/// Calibrate from a machine run: synchronise on the record's D, fit, then synchronise again on
+/// D recomputed with that fit and fit once more (see [`run_samples`]).
+pub fn calibrate_run(
+    plan: &Plan,
+    record: &Path,
+    nominal: &Calibration,
+    opts: &super::fit::Options,
+) -> Result<super::fit::Calibrated> {
+    let (samples, _) = run_samples(plan, record, None)?;
+    samples.check_against(nominal)?;
+    let first = super::fit::calibrate(&samples, nominal, opts)?;
+    let (samples, _) = run_samples(plan, record, Some(&first.calibration))?;
+    super::fit::calibrate(&samples, nominal, opts)
+}
+
+/// The samples of a machine run `record` of `plan`, and the synchronisation that found them.
+/// With `recal`, the record's D is first recomputed from the counts with that calibration (a
+/// first fit's): the synchronisation reads D alone, and the nominal instrument's micrometres,
+/// with a set-up offset, bias where it places the data arcs.
+pub fn run_samples(
+    plan: &Plan,
+    record: &Path,
+    recal: Option<&Calibration>,
+) -> Result<(CalSamples, Sync)> {
+    let mut rec = Record::read(record)?;
+    // The counts (Record keeps only time and D).
+    let mut table = Table::open(record)?;
+    let cols = table.require(&["t_us", "enc1", "enc2"])?;
+    let (mut t_us, mut enc1, mut enc2, mut lines) = (vec![], vec![], vec![], vec![]);
+    while let Some(row) = table.next_row()? {
+        t_us.push(row.number(&cols[0])?);
+        enc1.push(row.integer(&cols[1])?);
+        enc2.push(row.integer(&cols[2])?);
+        lines.push(row.line());
+    }
+    if t_us.len() != rec.t_s.len() {
+        return Err(Error::Numerics(format!(
+            "{}: read {} rows of counts but {} of D",
+            record.display(),
+            t_us.len(),
+            rec.t_s.len()
+        )));
+    }
+    if let Some(cal) = recal {
+        let model = Model::new(cal);
+        for (i, d) in rec.d_mm.iter_mut().enumerate() {
+            *d = model.distance_mm(enc1[i], enc2[i]);
+        }
+    }
+    let sync = synchronise(plan, &rec)?;
+    let (path, _) = data_path(plan, &rec, &sync, [None; 3])?;
+    let (mut e1, mut e2, mut p, mut line) = (vec![], vec![], vec![], vec![]);
+    for (k, &t) in path.t_s.iter().enumerate() {
+        // data_path's times are the record's own unless it averaged bins (very long records).
+        let i = rec.t_s.partition_point(|&x| x < t);
+        if i >= rec.t_s.len() || rec.t_s[i] != t {
+            return Err(Error::Usage(format!(
+                "{}: more than {} samples on the data arcs; a calibration takes each sample's counts as they are: record at a lower rate",
+                record.display(),
+                crate::circular::sync::MAX_DATA_SAMPLES
+            )));
+        }
+        e1.push(enc1[i]);
+        e2.push(enc2[i]);
+        p.push(path.p_mm[k]);
+        line.push(lines[i]);
+    }
+    Ok((CalSamples::from_positions(record, e1, e2, p, line), sync))
+}
