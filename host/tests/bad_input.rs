@@ -339,7 +339,7 @@ fn calibrate_and_recompute_refuse_bad_input() {
     fails(
         &["calibrate", "--samples", &cal, "-o", &cal],
         2,
-        "is the samples file",
+        "is an input file",
     );
     let nominal = write(d, "nominal.toml", b"l1_mm = 50.0\nl2_mm = \"long\"\n");
     fails(
