@@ -374,6 +374,15 @@ pub fn read_columns(path: &Path, names: &[&str]) -> Result<(Vec<usize>, Vec<Vec<
     Ok((lines, out))
 }
 
+/// Line and column (1-based, the column in characters) of byte offset `byte` in `text`: where a
+/// whole-file parser (TOML) reports an error, as the CSV reader's `file:line:column`.
+pub fn line_col(text: &str, byte: usize) -> (usize, usize) {
+    let before = &text[..byte.min(text.len())];
+    let line = before.matches('\n').count() + 1;
+    let col = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+    (line, col)
+}
+
 /// Read all of `reader` as text for a parser that needs the whole file (TOML); bad input (exit 2)
 /// if it cannot be read or is not UTF-8.
 pub fn read_text(path: &Path) -> Result<String> {

@@ -78,15 +78,7 @@ fn read_calibration(file: &std::path::Path) -> Result<serde_json::Value> {
     })?;
     cal.validate().map_err(|e| Error::Input {
         location: file.display().to_string(),
-        message: match e {
-            jdbb_core::calib::CalibrationError::BarLength => {
-                "a bar length is not a finite positive number below 10 m".into()
-            }
-            jdbb_core::calib::CalibrationError::Resolution => {
-                "an encoder has fewer than 4 counts per revolution".into()
-            }
-            other => format!("calibration rejected: {other:?}"),
-        },
+        message: format!("calibration rejected: {}", crate::instrument::file::why(e)),
     })?;
     Ok(serde_json::to_value(cal).expect("a calibration is plain data"))
 }

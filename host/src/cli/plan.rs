@@ -9,7 +9,7 @@ use crate::circular::plan::build::{
 };
 use crate::circular::plan::{
     calibration_circles, default_calibration_distances, gcode, instrument, machine_test_circles,
-    plan, read_calibration, write_program, Dialect, Plan, PlanSpec, Plane, Purpose,
+    plan, write_program, Dialect, Plan, PlanSpec, Plane, Purpose,
 };
 use crate::{Error, Result};
 
@@ -100,7 +100,7 @@ fn parse_centre(s: &str) -> std::result::Result<[f64; 3], String> {
 /// Run `jdbb plan`.
 pub fn run(args: &PlanArgs) -> Result<()> {
     let cal = match &args.calibration {
-        Some(path) => read_calibration(path)?,
+        Some(path) => crate::instrument::file::read_calibration(path)?,
         None => Calibration::DEFAULT,
     };
     let inst = instrument(&cal)?;

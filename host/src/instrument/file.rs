@@ -19,7 +19,7 @@ pub fn read_calibration(path: &Path) -> Result<Calibration> {
 /// [`read_calibration`] on text in memory; `path` names it in errors.
 pub fn parse_calibration(path: &Path, text: &str) -> Result<Calibration> {
     let cal = toml::from_str::<Calibration>(text).map_err(|e| {
-        let (line, col) = e.span().map_or((1, 0), |s| line_col(text, s.start));
+        let (line, col) = e.span().map_or((1, 0), |s| crate::table::line_col(text, s.start));
         Error::input(
             path,
             line,
@@ -97,13 +97,6 @@ pub fn temp_beside(path: &Path) -> PathBuf {
         .file_name()
         .map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
     path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
-}
-
-fn line_col(text: &str, byte: usize) -> (usize, usize) {
-    let before = &text[..byte.min(text.len())];
-    let line = before.matches('\n').count() + 1;
-    let col = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
-    (line, col)
 }
 
 #[cfg(test)]

@@ -35,16 +35,11 @@ struct ParamsToml {
     alpha12_deg: f64,
 }
 
-fn line_col(text: &str, byte: usize) -> (usize, usize) {
-    let before = &text[..byte.min(text.len())];
-    let line = before.matches('\n').count() + 1;
-    let col = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
-    (line, col)
-}
-
 fn parse_params_toml(path: &Path, text: &str) -> Result<Params> {
     let t: ParamsToml = toml::from_str(text).map_err(|e| {
-        let (line, col) = e.span().map_or((1, 0), |s| line_col(text, s.start));
+        let (line, col) = e
+            .span()
+            .map_or((1, 0), |s| crate::table::line_col(text, s.start));
         Error::input(
             path,
             line,

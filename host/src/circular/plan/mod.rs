@@ -350,32 +350,6 @@ impl Instrument {
     }
 }
 
-/// Read a calibration from TOML: the fields of [`Calibration`] (`l1_mm`, `l2_mm`, `[enc1]`,
-/// `[enc2]` with `counts_per_rev`, `zero_count`, `direction = "Positive"`), by serde, so fields
-/// the struct gains with defaults are read as it defines them. Bad input names `file:line:col`.
-pub fn read_calibration(path: &Path) -> Result<Calibration> {
-    let text = crate::table::read_text(path)?;
-    toml::from_str::<Calibration>(&text).map_err(|e| {
-        let (line, col) = e.span().map_or((1, 0), |s| line_col(&text, s.start));
-        Error::input(
-            path,
-            line,
-            col,
-            format!(
-                "{}; a calibration file holds the fields of the instrument's calibration, e.g. l1_mm = 50.0, l2_mm = 50.0 and [enc1], [enc2] tables",
-                e.message()
-            ),
-        )
-    })
-}
-
-fn line_col(text: &str, byte: usize) -> (usize, usize) {
-    let before = &text[..byte.min(text.len())];
-    let line = before.matches('\n').count() + 1;
-    let col = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
-    (line, col)
-}
-
 /// One circle of a plan.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Circle {
