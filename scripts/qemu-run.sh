@@ -2,7 +2,12 @@
 # Run the QEMU build of the firmware (netduinoplus2: simulated circular test, USART2) with USART2
 # on a pseudo-terminal, for `jdbb live --port PTY` / `jdbb record --port PTY`.
 #
-#   scripts/qemu-run.sh [--seconds N] [--elf PATH] [--icount]
+#   scripts/qemu-run.sh [--seconds N] [--elf PATH] [--icount] [--scenario FILE]
+#
+# `--scenario FILE` plays a scenario file (format: `jdbb_core::scenario`; made by the tests'
+# G-code machine simulator, e.g. `cargo run -p jdbb-tests --example gmachine_record -- ...
+# --scenario FILE`) as the encoders instead of the built-in circle: each run (each Start) plays
+# it from its first record. Record it at the scenario's own rate under `--icount`.
 #
 # By default QEMU runs on the host's clock: the stream is real time (1 kHz at boot). If the host
 # starves QEMU, or a high rate makes the simulated encoders' ~33 000 instructions per sample add
@@ -27,12 +32,14 @@ TARGET=thumbv7em-none-eabihf
 ELF="target/qemu/$TARGET/release/jdbb-firmware"
 SECONDS_TO_RUN=""
 ICOUNT=""
+SCENARIO=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --seconds) SECONDS_TO_RUN=$2; shift 2 ;;
     --elf) ELF=$2; shift 2 ;;
     --icount) ICOUNT="-icount shift=0,sleep=off"; shift ;;
-    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
+    --scenario) SCENARIO=$2; shift 2 ;;
+    -h|--help) sed -n '2,28p' "$0"; exit 0 ;;
     *) echo "qemu-run.sh: unknown argument '$1' (try --help)" >&2; exit 2 ;;
   esac
 done
@@ -42,12 +49,28 @@ if [ ! -f "$ELF" ]; then
     --no-default-features --features qemu --bin jdbb-firmware >&2
 fi
 
+SEMIHOSTING="enable=on,target=native"
+if [ -n "$SCENARIO" ]; then
+  if [ ! -f "$SCENARIO" ] || [ ! -r "$SCENARIO" ]; then
+    echo "qemu-run.sh: --scenario $SCENARIO: no such readable file" >&2
+    exit 2
+  fi
+  if [ "$(head -c 8 "$SCENARIO")" != "JDBBSCEN" ]; then
+    echo "qemu-run.sh: --scenario $SCENARIO: not a scenario file (it does not begin with JDBBSCEN)" >&2
+    exit 2
+  fi
+  # The firmware reads the path from the semihosting command line (second word); QEMU's option
+  # syntax needs commas doubled.
+  ABS=$(realpath "$SCENARIO")
+  SEMIHOSTING="$SEMIHOSTING,arg=jdbb-firmware,arg=${ABS//,/,,}"
+fi
+
 mkdir -p target/qemu
 LOG=target/qemu/qemu.log
 : >"$LOG"
 qemu-system-arm -machine netduinoplus2 -nographic -monitor none $ICOUNT \
   -serial null -serial pty \
-  -semihosting-config enable=on,target=native \
+  -semihosting-config "$SEMIHOSTING" \
   -kernel "$ELF" >"$LOG" 2>&1 &
 QEMU_PID=$!
 cleanup() {
@@ -87,5 +110,12 @@ if [ -n "$SECONDS_TO_RUN" ]; then
   sleep "$SECONDS_TO_RUN" &
   wait $! || true
 else
-  wait "$QEMU_PID" || true
+  RC=0
+  wait "$QEMU_PID" || RC=$?
+  if [ "$RC" -ne 0 ]; then
+    # The firmware's own words (semihosting) among the binary defmt log, e.g. a refused scenario.
+    grep -a -o 'jdbb-firmware: [[:print:]]*' "$LOG" >&2 || true
+    echo "qemu-run.sh: QEMU exited with status $RC (log: $LOG)" >&2
+    exit 1
+  fi
 fi

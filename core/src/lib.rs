@@ -10,6 +10,8 @@
 //! - [`machine`]: seed 000's error equation (1) and its positioning-error models.
 //! - [`protocol`]: every message between device and host, and their framing (postcard, CRC-32, COBS).
 //! - [`sim`]: a simulated circular test producing encoder counts (QEMU build, tests).
+//! - [`scenario`]: the file of encoder counts a QEMU run plays instead (a machine run simulated
+//!   on the host).
 //! - [`sampler`]: the device's sample path (counts → D → batches, counted drops and overruns),
 //!   hardware-free.
 //! - [`link`]: the device's writer policy: an absent host, the queue's room for replies, runs.
@@ -31,6 +33,7 @@ pub mod protocol;
 pub mod quadrature;
 pub mod reset;
 pub mod sampler;
+pub mod scenario;
 pub mod sim;
 pub mod store;
 

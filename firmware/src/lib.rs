@@ -16,6 +16,8 @@ pub mod board;
 #[cfg(feature = "board-f411")]
 pub mod sample_timer;
 #[cfg(feature = "qemu")]
+pub mod scenario;
+#[cfg(feature = "qemu")]
 pub mod usart2;
 
 /// Firmware version reported in `DeviceInfo` (from Cargo.toml).

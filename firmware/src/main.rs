@@ -527,8 +527,15 @@ mod app {
             Command::Start => {
                 timer.lock(|t| {
                     t.stop();
-                    sampler.lock(|s| s.restart());
+                    // Starting applies a rate change that was waiting for the next period: the
+                    // sampler's clock must take the period the timer now runs at (else the
+                    // samples' t_us would step by the old period).
                     t.start();
+                    let (clock_hz, ticks) = (t.clock_hz(), t.period_ticks());
+                    sampler.lock(|s| {
+                        s.restart();
+                        s.set_period(clock_hz, ticks);
+                    });
                 });
             }
             Command::Stop => {

@@ -11,7 +11,9 @@
 //! ```
 //!
 //! Options (each `--name value`): `--program FILE` (LinuxCNC dialect; required), `--centre X,Y,Z`
-//! (mm, where the table ball is in program coordinates; required), `--out FILE` (required),
+//! (mm, where the table ball is in program coordinates; required), `--out FILE` (the record),
+//! `--scenario FILE` (the same run as a QEMU scenario, `jdbb_core::scenario`, for
+//! `scripts/qemu-run.sh --scenario`; one of the two is required),
 //! `--rate` (Hz, 1000), `--backlash-x-um`, `--backlash-y-um`, `--squareness-xy-um-per-m`,
 //! `--drift-um-per-min`, `--setup-offset-um X,Y,Z`, `--feed-override-pct` (100), `--clock-ppm`,
 //! `--noise-um`, `--start-delay-s` (3), `--seed`. It prints the truth (cycle start, feed) on
@@ -79,10 +81,34 @@ fn run() -> Result<(), String> {
     cfg.instrument.noise_um = num("noise-um", 0.0)?;
     cfg.instrument.start_delay_s = num("start-delay-s", 3.0)?;
     cfg.instrument.seed = num("seed", 0.0)? as u64;
-    let rec = Simulation::new(&program, cfg)
-        .map_err(|e| e.to_string())?
-        .run()
-        .map_err(|e| e.to_string())?;
+    let sim = Simulation::new(&program, cfg).map_err(|e| e.to_string())?;
+    if let Some(path) = opt.get("scenario") {
+        // Write to a new file beside it and rename: a failed run leaves no half scenario.
+        let part = format!("{path}.partial");
+        let mut f = std::io::BufWriter::new(
+            std::fs::File::create(&part).map_err(|e| format!("{part}: {e}"))?,
+        );
+        let h = sim
+            .write_scenario(&mut f)
+            .map_err(|e| format!("{path}: {e}"))?;
+        f.flush().map_err(|e| format!("{part}: {e}"))?;
+        drop(f);
+        std::fs::rename(&part, path).map_err(|e| format!("{path}: {e}"))?;
+        eprintln!(
+            "wrote {path}: scenario of {} samples every {} µs ({:.1} s); truth: cycle start at \
+             t_us {:.0} after Start, feed factor {}, clock {} ppm",
+            h.n_samples,
+            h.period_us,
+            f64::from(h.n_samples) * f64::from(h.period_us) * 1e-6,
+            sim.device_us(sim.trajectory().cycle_start_s) - sim.config().instrument.t0_us as f64,
+            sim.config().machine.feed_override_pct / 100.0,
+            sim.config().instrument.clock_ppm
+        );
+        if !opt.contains_key("out") {
+            return Ok(());
+        }
+    }
+    let rec = sim.run().map_err(|e| e.to_string())?;
     let out = need("out")?;
     let mut f =
         std::io::BufWriter::new(std::fs::File::create(out).map_err(|e| format!("{out}: {e}"))?);

@@ -66,6 +66,18 @@ impl Drop for Qemu {
 }
 
 fn base_command(elf: &Path, icount: bool) -> Command {
+    base_command_with(elf, icount, None)
+}
+
+/// The QEMU command for `elf`; with `scenario`, the semihosting command line names it, as
+/// `scripts/qemu-run.sh --scenario` does (commas doubled for QEMU's option syntax).
+fn base_command_with(elf: &Path, icount: bool, scenario: Option<&Path>) -> Command {
+    let mut semihosting = String::from("enable=on,target=native");
+    if let Some(file) = scenario {
+        let abs = std::fs::canonicalize(file).expect("the scenario file exists");
+        let path = abs.to_str().expect("a UTF-8 path").replace(',', ",,");
+        semihosting.push_str(&format!(",arg=jdbb-firmware,arg={path}"));
+    }
     let mut c = Command::new("qemu-system-arm");
     c.args([
         "-machine",
@@ -74,7 +86,7 @@ fn base_command(elf: &Path, icount: bool) -> Command {
         "-monitor",
         "none",
     ])
-    .args(["-semihosting-config", "enable=on,target=native"]);
+    .args(["-semihosting-config", &semihosting]);
     if icount {
         // One instruction per ns of emulated time, idle time skipped: the emulated CPU can never
         // overrun its sample clock however busy the host is, so a run is lossless and repeatable.
@@ -114,7 +126,15 @@ impl Qemu {
     /// Start `elf` with USART2 on a pseudo-terminal, under `-icount shift=0,sleep=off`; returns
     /// the process and the pty path.
     pub fn start_with_pty(elf: &Path) -> (Qemu, PathBuf) {
-        let mut c = base_command(elf, true);
+        Self::start_pty(base_command(elf, true))
+    }
+
+    /// [`Self::start_with_pty`], the encoders playing `scenario` (`jdbb_core::scenario`).
+    pub fn start_with_scenario(elf: &Path, scenario: &Path) -> (Qemu, PathBuf) {
+        Self::start_pty(base_command_with(elf, true, Some(scenario)))
+    }
+
+    fn start_pty(mut c: Command) -> (Qemu, PathBuf) {
         c.args(["-serial", "null", "-serial", "pty"])
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit());

@@ -6,9 +6,10 @@
 //! - RCC, GPIO and USB OTG are not modelled: HSI only (the HAL would wait for HSE/PLL ready bits
 //!   forever) and USART2 instead of USB.
 //! - TIM2–5 have no encoder mode (16-bit counters clocked at 1 GHz whatever RCC says), so the
-//!   encoders are simulated: a circular test from [`jdbb_core::sim`] gives the extended counts at
-//!   each sample time, presented as 32-bit raw counter values and fed through the same
-//!   `Encoder<32>` path as TIM2/TIM5 on the real board.
+//!   encoders are simulated: a circular test from [`jdbb_core::sim`], or a scenario file named on
+//!   the semihosting command line ([`crate::scenario`], `scripts/qemu-run.sh --scenario`), gives
+//!   the extended counts at each sample time, presented as 32-bit raw counter values and fed
+//!   through the same `Encoder<32>` path as TIM2/TIM5 on the real board.
 //! - TIM3's update interrupt is not periodic there. Measured with SysTick under `-icount`: the
 //!   first period is right (1 ms = 168 012 SysTick ticks), but re-armed by an update event each
 //!   following period doubles, and left alone the interrupt fires back to back. So the sample clock
@@ -33,9 +34,11 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use super::Parts;
 use jdbb_core::protocol::{Board, ResetCause, SampleBatch};
 use jdbb_core::sampler::Sampler;
+use jdbb_core::scenario::raw_of;
 use jdbb_core::sim::CircularTest;
 use stm32f4xx_hal::{pac, prelude::*};
 
+use crate::scenario::Scenario;
 use crate::usart2::Usart2;
 
 /// Reported in `DeviceInfo`.
@@ -61,17 +64,15 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
     start_pace_clock(dp.TIM2);
     let _tx = gpioa.pa2.into_alternate::<7>();
     let _rx = gpioa.pa3.into_alternate::<7>();
+    let encoders = Encoders::new();
     Parts {
-        encoders: Encoders {
-            test: CircularTest::DEFAULT,
-            last: [0, 0],
-        },
+        initial_raw: encoders.last,
+        encoders,
         link: Link {
             uart: Usart2::new(dp.USART2, clocks.pclk1().raw()),
         },
         timer: SampleTimer::new(rate_hz),
         systick_hz: SYSTICK_HZ,
-        initial_raw: [0, 0],
         index_raw: Some([0, 0]),
         // QEMU models no unique ID (reading its address would fault) and no reset flags.
         chip_id: [0; 12],
@@ -98,13 +99,56 @@ pub fn pace_clock_raw_us() -> u32 {
     unsafe { (*pac::TIM2::ptr()).cnt().read().bits() }
 }
 
-/// Simulated encoders: [`CircularTest::DEFAULT`] (R = 90 mm, 1000 mm/min, ccw then cw).
+/// Simulated encoders: a scenario file if the semihosting command line names one
+/// ([`crate::scenario`]), else [`CircularTest::DEFAULT`] (R = 90 mm, 1000 mm/min, ccw then cw).
 pub struct Encoders {
-    test: CircularTest,
+    source: Source,
     last: [u32; 2],
 }
 
+// One instance, the sample task's local resource; no heap to box the block buffer into.
+#[allow(clippy::large_enum_variant)]
+enum Source {
+    Circle(CircularTest),
+    Scenario(Scenario),
+}
+
 impl Encoders {
+    /// The encoders the command line asks for. A scenario that cannot be played stops QEMU with
+    /// the reason on its stdout (a run must never silently fall back to the built-in circle).
+    fn new() -> Self {
+        let mut enc = match Scenario::from_command_line() {
+            None => Encoders {
+                source: Source::Circle(CircularTest::DEFAULT),
+                last: [0, 0],
+            },
+            Some(Ok(s)) => {
+                let h = s.header();
+                defmt::info!("scenario: {} records every {} us", h.n_samples, h.period_us);
+                cortex_m_semihosting::hprintln!(
+                    "jdbb-firmware: playing a scenario of {} records every {} us",
+                    h.n_samples,
+                    h.period_us
+                );
+                Encoders {
+                    source: Source::Scenario(s),
+                    last: [0, 0],
+                }
+            }
+            Some(Err(e)) => {
+                defmt::error!("scenario: {}", e);
+                cortex_m_semihosting::hprintln!(
+                    "jdbb-firmware: scenario not played: {}",
+                    e.describe()
+                );
+                cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
+                unreachable!("QEMU exits");
+            }
+        };
+        enc.last = enc.read(0);
+        enc
+    }
+
     /// One tick of the sample clock: the pacer's tick count, and the simulated counters at the
     /// tick's time, to the sampler.
     #[inline]
@@ -118,8 +162,13 @@ impl Encoders {
     /// test's radius were out of the instrument's reach.
     #[inline]
     fn read(&mut self, t_us: u64) -> [u32; 2] {
-        if let Some((c1, c2)) = self.test.counts_at(t_us) {
-            self.last = [c1 as u32, c2 as u32];
+        match &mut self.source {
+            Source::Circle(test) => {
+                if let Some((c1, c2)) = test.counts_at(t_us) {
+                    self.last = [raw_of(c1), raw_of(c2)];
+                }
+            }
+            Source::Scenario(s) => self.last = s.raw_at(t_us),
         }
         self.last
     }

@@ -29,7 +29,10 @@
 //!    Σ_runs (S_r/v + v/a) + Σ dwells = T. Each data arc's samples then get their nominal position
 //!    from the run's trapezoidal profile. The speed's standard error moves the data arcs' ends by
 //!    the *timing σ* (reported; a reversal spike's height carries it). Where the feed-in's speed
-//!    gives no plausible acceleration (the arcs ran at another speed), v is searched in the data.
+//!    gives no plausible acceleration (the arcs ran at another speed, or the feed-in was too short
+//!    to reach the feed: at 2000–4000 mm/min it never cruises), v is searched in the data, around
+//!    the feed-in's speed if the arcs' time allows it, else around the speed the feed-in's
+//!    acceleration gives.
 //! 4. **Report** the cycle start on the record's clock (the first feed-in's start minus the dwell
 //!    and the take-up line before it), the measured feed against the programmed one (%, on the record's clock: the
 //!    feed override, the controller's timing and the instrument clock's error together), the
@@ -1057,7 +1060,15 @@ fn arc_motion(
     let (v, sigma_v) = if accel_for(v_line).is_some_and(plausible) && sigma_line.is_finite() {
         (v_line, sigma_line)
     } else {
-        match speed_from_data(plan, rec, items, lengths, t0, avail, v_line, 0.2) {
+        // Search around the lines' speed if the arcs could have run at it with a plausible
+        // acceleration, else around the speed the lines' acceleration gives (a feed-in too short
+        // to cruise can fit a speed the arcs' time rules out, or no speed at all).
+        let v0 = if accel_for(v_line).is_some_and(plausible) {
+            v_line
+        } else {
+            solve_speed(lengths, line_accel, avail)
+        };
+        match speed_from_data(plan, rec, items, lengths, t0, avail, v0, 0.2) {
             Some(v) => (v, 1e-4 * v),
             None => {
                 let v = solve_speed(lengths, line_accel, avail);

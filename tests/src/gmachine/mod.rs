@@ -165,6 +165,9 @@ pub enum SimError {
     /// A configuration value is unusable.
     #[error("simulator configuration: {0}")]
     Config(String),
+    /// Writing the output failed.
+    #[error("cannot write: {0}")]
+    Write(String),
     /// The instrument cannot reach the distance.
     #[error(
         "{t_s:.3} s into the recording{}, D = {d_mm:.4} mm is out of the J-DBB's reach at lean \
@@ -281,6 +284,43 @@ impl Simulation {
     /// or a QEMU scenario.
     pub fn samples(&self) -> Samples<'_> {
         Samples::new(self)
+    }
+
+    /// Write the recording as a QEMU scenario ([`jdbb_core::scenario`]): the encoders' raw
+    /// counter values at every sample, which the `qemu` firmware build plays as its encoders
+    /// (`scripts/qemu-run.sh --scenario FILE`), record k at k sample periods after the device's
+    /// Start. The sample rate must give a whole number of µs per sample; `t0_us` is ignored (the
+    /// device's clock starts at its Start). Returns the header written.
+    pub fn write_scenario(
+        &self,
+        out: &mut impl std::io::Write,
+    ) -> Result<jdbb_core::scenario::Header, SimError> {
+        use jdbb_core::scenario::{encode_record, raw_of, Header};
+        let period_us = 1e6 / self.config.instrument.sample_rate_hz;
+        if (period_us - period_us.round()).abs() > 1e-9 || period_us < 1.0 {
+            return Err(SimError::Config(format!(
+                "a scenario needs a whole number of µs per sample; {} Hz gives {period_us} µs",
+                self.config.instrument.sample_rate_hz
+            )));
+        }
+        let n_samples = u32::try_from(self.len()).map_err(|_| {
+            SimError::Config(format!(
+                "{} samples: a scenario holds at most 2³² − 1",
+                self.len()
+            ))
+        })?;
+        let header = Header {
+            period_us: period_us.round() as u32,
+            n_samples,
+        };
+        let io = |e: std::io::Error| SimError::Write(e.to_string());
+        out.write_all(&header.encode()).map_err(io)?;
+        for s in self.samples() {
+            let r = s?.row;
+            out.write_all(&encode_record([raw_of(r.enc1), raw_of(r.enc2)]))
+                .map_err(io)?;
+        }
+        Ok(header)
     }
 
     /// Record everything: rows and truth.
