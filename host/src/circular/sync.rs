@@ -1068,8 +1068,12 @@ fn arc_motion(
         } else {
             solve_speed(lengths, line_accel, avail)
         };
+        let v_accel = solve_speed(lengths, line_accel, avail);
         match speed_from_data(plan, rec, items, lengths, t0, avail, v0, 0.2) {
-            Some(v) => (v, 1e-4 * v),
+            // The search's minimum has no standard error of its own worth trusting (the residual
+            // is not the machine's noise alone): its distance from the speed the lines'
+            // acceleration gives stands for it, at least 10⁻⁴.
+            Some(v) => (v, (1e-4 * v).max((v - v_accel).abs())),
             None => {
                 let v = solve_speed(lengths, line_accel, avail);
                 (v, 1e-3 * v)
