@@ -22,7 +22,9 @@ use std::collections::HashMap;
 use std::io::Write;
 use std::process::ExitCode;
 
-use jdbb_tests::gmachine::{Axis, Dialect, MachineErrors, SimConfig, Simulation, Squareness};
+use jdbb_tests::gmachine::{
+    Axis, Dialect, MachineErrors, SimConfig, Simulation, Squareness, CSV_HEADER,
+};
 
 fn triple(s: &str) -> Result<[f64; 3], String> {
     let v: Vec<f64> = s
@@ -108,19 +110,25 @@ fn run() -> Result<(), String> {
             return Ok(());
         }
     }
-    let rec = sim.run().map_err(|e| e.to_string())?;
+    // Row by row (constant memory, for records of tens of millions of samples).
     let out = need("out")?;
     let mut f =
         std::io::BufWriter::new(std::fs::File::create(out).map_err(|e| format!("{out}: {e}"))?);
-    rec.write_csv(&mut f).map_err(|e| format!("{out}: {e}"))?;
+    f.write_all(CSV_HEADER.as_bytes())
+        .map_err(|e| format!("{out}: {e}"))?;
+    let mut n = 0u64;
+    for s in sim.samples() {
+        let row = s.map_err(|e| e.to_string())?.row;
+        row.write_csv_line(&mut f)
+            .map_err(|e| format!("{out}: {e}"))?;
+        n += 1;
+    }
     f.flush().map_err(|e| format!("{out}: {e}"))?;
-    let t = &rec.truth;
     eprintln!(
-        "wrote {out}: {} samples; truth: cycle start at t_us {:.0}, feed factor {}, clock {} ppm",
-        rec.rows.len(),
-        t.cycle_start_us,
-        t.feed_factor,
-        t.clock_ppm
+        "wrote {out}: {n} samples; truth: cycle start at t_us {:.0}, feed factor {}, clock {} ppm",
+        sim.device_us(sim.trajectory().cycle_start_s),
+        sim.config().machine.feed_override_pct / 100.0,
+        sim.config().instrument.clock_ppm
     );
     Ok(())
 }
