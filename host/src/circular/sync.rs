@@ -484,15 +484,32 @@ fn fit_ramp(
 ) -> Option<Ramp> {
     let len = dist(&from, &to);
     let tol = LEVEL_TOLERANCE_MM.min(0.25 * (d_to - d_from).abs());
-    // Ramp extent: from the last sample near D_from before the crossing to the first sample near
-    // D_to after it.
+    // Ramp extent: from the last sample near D_from's level before the crossing to the first
+    // sample near D_to's level after it (2 % of the ramp). The levels are measured, not the
+    // plan's: a set-up offset or an instrument error moves them by tens of µm, as much as 2 % of
+    // a 2 mm ramp. First the samples within `tol` of the plan's levels, then the standstills just
+    // beyond them give the levels.
     let near = 0.02 * (d_to - d_from).abs();
     let mut a = cross;
-    while a > 0 && (rec.d_mm[a] - d_from).abs() > near {
+    while a > 0 && (rec.d_mm[a] - d_from).abs() > tol {
         a -= 1;
     }
     let mut b = cross;
-    while b + 1 < rec.len() && (rec.d_mm[b] - d_to).abs() > near {
+    while b + 1 < rec.len() && (rec.d_mm[b] - d_to).abs() > tol {
+        b += 1;
+    }
+    let level_from = rec
+        .median(rec.t_s[a] - 0.15, rec.t_s[a] - 0.05)
+        .unwrap_or(d_from);
+    let level_to = rec
+        .median(rec.t_s[b] + 0.05, rec.t_s[b] + 0.15)
+        .unwrap_or(d_to);
+    let mut a = cross;
+    while a > 0 && (rec.d_mm[a] - level_from).abs() > near {
+        a -= 1;
+    }
+    let mut b = cross;
+    while b + 1 < rec.len() && (rec.d_mm[b] - level_to).abs() > near {
         b += 1;
     }
     // The 2 % points lie up to LEAD_S inside the motion (at 100 mm/s², 28 ms after the start):
