@@ -41,15 +41,17 @@ fn calibration_plan() -> Plan {
 /// Run the plan on a perfect machine with a set-up offset; counts from `truth`, D from the
 /// nominal calibration; then calibrate from the record file as the CLI does.
 fn run_and_calibrate(plan: &Plan, truth: Option<Calibration>, seed: u64) -> Calibrated {
-    run_and_calibrate_with(plan, truth, seed, SETUP_UM)
+    run_and_calibrate_with(plan, truth, seed, SETUP_UM, None)
 }
 
-/// [`run_and_calibrate`] with the table ball `setup_um` off.
+/// [`run_and_calibrate`] with the table ball `setup_um` off, and the machine's axes accelerating
+/// at `accel_mm_s2` (default: the simulator's).
 fn run_and_calibrate_with(
     plan: &Plan,
     truth: Option<Calibration>,
     seed: u64,
     setup_um: [f64; 3],
+    accel_mm_s2: Option<[f64; 3]>,
 ) -> Calibrated {
     let text = write_program(plan, PlanDialect::Linuxcnc);
     let mut cfg = SimConfig::new(Dialect::LinuxCnc, CENTRE);
@@ -58,6 +60,9 @@ fn run_and_calibrate_with(
         ..MachineErrors::default()
     };
     cfg.instrument.true_calibration = truth;
+    if let Some(a) = accel_mm_s2 {
+        cfg.machine.accel_mm_s2 = a;
+    }
     cfg.instrument.noise_um = 0.1;
     cfg.instrument.seed = seed;
     cfg.instrument.sample_rate_hz = 1000.0;
@@ -158,21 +163,27 @@ fn a_perfect_instrument_names_nothing_on_a_calibration_test_run() {
 }
 
 #[test]
-fn a_larger_set_up_offset_still_synchronises_and_is_found() {
+fn a_larger_set_up_offset_and_a_fast_machine_still_synchronise_and_the_set_up_is_found() {
     // (35, −20, 5) µm moved the ramps' end levels by up to 2 % of the 2 mm feed-out on the
     // smallest sphere, and the synchronisation used the plan's levels to find the ramp's ends:
-    // "does not come back to the feed-in start". It now measures the levels. The instrument's
-    // terms are not checked here: with this offset they come out biased by 2–7 % and two small
-    // terms are added (see the README's limits), though the fit reaches the noise.
+    // "does not come back to the feed-in start". It now measures the levels. At 5000 mm/s² the
+    // ramp fit started from an acceleration 20 times too small and stopped at a 2.5 mm ramp for a
+    // 2 mm line: "no feed-in" on the third sphere; it now also starts from the feed. The
+    // instrument's terms are not checked here: with this offset they come out biased by 2–7 %
+    // and two small terms are added (see the README's limits), though the fit reaches the noise.
     let plan = calibration_plan();
     let mut truth = Calibration::DEFAULT;
     truth.enc2.zero_offset_rad = 60.0 * ARCSEC;
     truth.axes_skew_rad = 90.0 * ARCSEC;
     truth.enc1.set_eccentricity_components(40.0 * ARCSEC, 0.0);
-    let setup = [35.0, -20.0, 5.0];
-    let c = run_and_calibrate_with(&plan, Some(truth), 3, setup);
-    println!("{}", jdbb::instrument::report::summary(&c));
-    check_setup_is(&c, setup);
-    // The noise is 0.1 µm.
-    assert!(c.final_rms_um < 0.105, "final RMS {} µm", c.final_rms_um);
+    for (setup, accel) in [
+        ([35.0, -20.0, 5.0], None),
+        (SETUP_UM, Some([5000.0, 5000.0, 3000.0])),
+    ] {
+        let c = run_and_calibrate_with(&plan, Some(truth), 3, setup, accel);
+        println!("{}", jdbb::instrument::report::summary(&c));
+        check_setup_is(&c, setup);
+        // The noise is 0.1 µm.
+        assert!(c.final_rms_um < 0.105, "final RMS {} µm", c.final_rms_um);
+    }
 }

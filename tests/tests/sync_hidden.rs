@@ -58,6 +58,20 @@ fn record_at(
     Simulation::new(&text, cfg).unwrap().run().unwrap()
 }
 
+/// [`record_at`] at 1 kHz on a machine whose axes accelerate at `accel_mm_s2`.
+fn record_accel(plan: &Plan, errors: MachineErrors, seed: u64, accel_mm_s2: [f64; 3]) -> Recording {
+    let text = write_program(plan, PlanDialect::Linuxcnc);
+    let mut cfg = SimConfig::new(Dialect::LinuxCnc, CENTRE);
+    cfg.errors = errors;
+    cfg.machine.feed_override_pct = 96.0 + (seed % 9) as f64;
+    cfg.machine.accel_mm_s2 = accel_mm_s2;
+    cfg.instrument.clock_ppm = 37.0;
+    cfg.instrument.start_delay_s = 2.5;
+    cfg.instrument.noise_um = 0.2;
+    cfg.instrument.seed = seed;
+    Simulation::new(&text, cfg).unwrap().run().unwrap()
+}
+
 /// The diagnosis of a recording through a CSV file, as `jdbb diagnose --record --plan` does.
 fn diagnose_record(plan: &Plan, rec: &Recording, pitch: [Option<f64>; 3]) -> Diagnosis {
     diagnose_record_feed(plan, rec, pitch, 0.05)
@@ -212,6 +226,20 @@ fn at_high_feeds_the_feed_in_that_cannot_cruise_does_not_set_the_speed() {
             let d = diagnose_record_feed(&p, &rec, [None; 3], 0.2);
             assert_only(&d, "backlash_x", 6.0);
         }
+    }
+}
+
+#[test]
+fn fast_and_slow_machines_are_synchronised() {
+    // The ramps' fit must find a feed-in that accelerates in a few ms as well as one that takes
+    // most of its length to reach the feed (the default machine accelerates at 400–600 mm/s²).
+    let p = make_plan(&[90.0, 84.0], PlanDialect::Linuxcnc);
+    for (seed, accel) in [(2, [5000.0, 5000.0, 3000.0]), (5, [200.0, 200.0, 100.0])] {
+        let mut errors = MachineErrors::default();
+        errors.backlash_um[1] = 5.0;
+        let rec = record_accel(&p, errors, seed, accel);
+        let d = diagnose_record(&p, &rec, [None; 3]);
+        assert_only(&d, "backlash_y", 5.0);
     }
 }
 

@@ -579,23 +579,43 @@ fn fit_ramp(
     };
     let to_mid = (rec.t_s[cross] - ta).max(1e-3);
     let a0 = (v0 / to_mid).max(1.0) * 2.0;
+    // A second start for a fast machine: the ramp cruises at about the feed (along the line: D
+    // moves slower than s where the line is not radial) and the time it takes beyond len/v is
+    // v/a. The fit keeps whichever start ends with the smaller residual.
+    let v1 = {
+        let ratio = len / (d_to - d_from).abs().max(1e-9);
+        let v = slope * ratio;
+        if v.is_finite() && v > 0.0 {
+            v.min(5.0 * feed_mm_s.max(1e-3))
+        } else {
+            feed_mm_s.max(1e-3)
+        }
+    };
+    let spare = (tb - ta) - len / v1;
+    let a1 = (v1 / spare.max(1e-3)).clamp(1.0, 1e5);
     let prob = RampProblem { t: &t, s: &s };
-    let p0 = [ta - 0.5 * v0 / a0, v0, a0, len];
-    let fit = least_squares(
-        &prob,
-        &p0,
-        &LsqOptions {
-            max_iterations: 80,
-            tolerance: 1e-10,
-            initial_lambda: 1e-3,
-            ..Default::default()
-        },
-    )
-    .ok()?;
-    let profile = RampProblem::profile(&fit.params);
-    if (profile.length_mm - len).abs() > tol {
-        return None;
-    }
+    let starts = [
+        [ta - 0.5 * v0 / a0, v0, a0, len],
+        [ta - 0.5 * v1 / a1, v1, a1, len],
+    ];
+    let (fit, profile) = starts
+        .iter()
+        .filter_map(|p0| {
+            let fit = least_squares(
+                &prob,
+                p0,
+                &LsqOptions {
+                    max_iterations: 80,
+                    tolerance: 1e-10,
+                    initial_lambda: 1e-3,
+                    ..Default::default()
+                },
+            )
+            .ok()?;
+            let profile = RampProblem::profile(&fit.params);
+            ((profile.length_mm - len).abs() <= tol).then_some((fit, profile))
+        })
+        .min_by(|x, y| x.0.rms.total_cmp(&y.0.rms))?;
     Some(Ramp {
         profile,
         speed_sigma_mm_s: fit.sigma[1].unwrap_or(f64::INFINITY),
