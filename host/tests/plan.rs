@@ -617,18 +617,19 @@ fn position_and_duration_known_answers() {
         &Calibration::DEFAULT,
     )
     .unwrap();
-    // Segment 5 is the first lead-in arc: ccw from (190, 50) about (100, 50); a quarter of it
+    // Segment 6 is the first lead-in arc (5: the corner dwell after the feed-in): ccw from (190, 50) about (100, 50); a quarter of it
     // (πR/2 along the path) is at 90°, (100, 140).
+    assert_eq!(p.segments[5], Segment::Dwell { seconds: 0.1 });
     assert!(matches!(
-        p.segments[5],
+        p.segments[6],
         Segment::Arc {
             sense: Sense::Ccw,
             ..
         }
     ));
-    let q = p.position_at(5, std::f64::consts::FRAC_PI_2 * 90.0);
+    let q = p.position_at(6, std::f64::consts::FRAC_PI_2 * 90.0);
     assert!(close(&q, &[100.0, 140.0, -20.0], 1e-9), "{q:?}");
-    assert!((p.length_mm(5) - std::f64::consts::PI * 90.0).abs() < 1e-9);
+    assert!((p.length_mm(6) - std::f64::consts::PI * 90.0).abs() < 1e-9);
     // After the stop, the take-up: 0.5 mm along the feed-in's direction to the feed-in start.
     assert_eq!(p.length_mm(2), 0.5);
     assert_eq!(p.position_at(2, 0.0), p.start_mm);
@@ -637,8 +638,9 @@ fn position_and_duration_known_answers() {
     assert_eq!(p.position_at(3, 0.0), p.position_at(2, 0.5));
     assert!((p.length_mm(4) - 2.0).abs() < 1e-12);
     // Time: 4 half circles of πR each way, the take-up of 0.5 mm, feed-in and feed-out of 2 mm,
-    // at 1000 mm/min; three 1 s dwells (after the take-up, at the reversal, after the feed-out).
-    let want = (8.0 * std::f64::consts::PI * 90.0 + 4.5) / 1000.0 * 60.0 + 3.0;
+    // at 1000 mm/min; three 1 s dwells (after the take-up, at the reversal, after the feed-out)
+    // and two corner dwells of 0.1 s (after the feed-in, before the feed-out).
+    let want = (8.0 * std::f64::consts::PI * 90.0 + 4.5) / 1000.0 * 60.0 + 3.0 + 0.2;
     assert!(
         (p.nominal_duration_s() - want).abs() < 1e-9,
         "{} vs {want}",
@@ -724,9 +726,10 @@ fn plan_json_round_trips_and_bad_files_name_the_place() {
     assert_eq!(v["segments"][0]["kind"], "rapid");
     assert_eq!(v["segments"][1]["kind"], "stop");
     assert_eq!(v["segments"][2]["role"], "move");
-    assert_eq!(v["segments"][5]["sense"], "ccw");
-    assert_eq!(v["segments"][5]["role"], "lead_in");
     assert_eq!(v["segments"][4]["role"], "feed_in");
+    assert_eq!(v["segments"][5]["kind"], "dwell");
+    assert_eq!(v["segments"][6]["sense"], "ccw");
+    assert_eq!(v["segments"][6]["role"], "lead_in");
     // Malformed JSON: file:line:col.
     let e = Plan::from_json(
         Path::new("p.json"),

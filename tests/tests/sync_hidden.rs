@@ -244,6 +244,31 @@ fn fast_and_slow_machines_are_synchronised() {
 }
 
 #[test]
+fn corners_passed_at_junction_speed_are_synchronised() {
+    // grbl and Marlin do not stop at the corner between the feed-in and the lead-in arc (nor
+    // before the feed-out): they pass it at their junction speed, a few mm/s.
+    for (dialect, gdialect, deviation_mm, seed) in [
+        (PlanDialect::Grbl, Dialect::Grbl, 0.01, 4),
+        (PlanDialect::Marlin, Dialect::Marlin, 0.013, 7),
+    ] {
+        let p = make_plan(&[90.0], dialect);
+        let mut cfg = SimConfig::new(gdialect, CENTRE);
+        cfg.errors.backlash_um[0] = 6.0;
+        cfg.machine.junction_deviation_mm = deviation_mm;
+        cfg.machine.feed_override_pct = 98.0;
+        cfg.instrument.clock_ppm = -52.0;
+        cfg.instrument.noise_um = 0.2;
+        cfg.instrument.seed = seed;
+        let rec = Simulation::new(&write_program(&p, dialect), cfg)
+            .unwrap()
+            .run()
+            .unwrap();
+        let d = diagnose_record(&p, &rec, [None; 3]);
+        assert_only(&d, "backlash_x", 6.0);
+    }
+}
+
+#[test]
 fn a_servo_delay_is_a_mismatch_and_no_scale() {
     // τ_x 3.0 ms, τ_y 4.2 ms: Δτ = −1.2 ms (x leads y), and the second-order part must not turn
     // into a scale mismatch.

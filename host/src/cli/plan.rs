@@ -5,7 +5,8 @@ use jdbb_core::calib::Calibration;
 
 use super::output::{emit, write_file};
 use crate::circular::plan::build::{
-    DEFAULT_DWELL_S, DEFAULT_FEED_IN_MM, DEFAULT_LEAD_IN_DEG, DEFAULT_OVERSHOOT_DEG,
+    DEFAULT_CORNER_DWELL_S, DEFAULT_DWELL_S, DEFAULT_FEED_IN_MM, DEFAULT_LEAD_IN_DEG,
+    DEFAULT_OVERSHOOT_DEG,
 };
 use crate::circular::plan::{
     calibration_circles, default_calibration_distances, gcode, instrument, machine_test_circles,
@@ -62,6 +63,10 @@ pub struct PlanArgs {
     /// Dwell at each reversal, s (default: --dwell-s; 0: none).
     #[arg(long, value_parser = super::args::non_negative)]
     pub reversal_dwell_s: Option<f64>,
+    /// Dwell at the corner after each feed-in and before each feed-out, s (0: none; then grbl
+    /// and Marlin pass the corner at their junction speed instead of stopping).
+    #[arg(long, default_value_t = DEFAULT_CORNER_DWELL_S, value_parser = super::args::non_negative)]
+    pub corner_dwell_s: f64,
     /// Directory for plan.json and the program (created if missing).
     #[arg(long, short, value_name = "DIR")]
     pub out: PathBuf,
@@ -130,6 +135,7 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         feed_in_mm: args.feed_in_mm,
         dwell_s: args.dwell_s,
         reversal_dwell_s: args.reversal_dwell_s.unwrap_or(args.dwell_s),
+        corner_dwell_s: args.corner_dwell_s,
     };
     let plan = plan(&spec, &cal)?;
     let program = write_program(&plan, args.dialect);

@@ -54,6 +54,13 @@ pub struct MachineConfig {
     pub feed_override_pct: f64,
     /// Junctions whose tangents differ by at most this angle (deg) are run without stopping.
     pub blend_angle_deg: f64,
+    /// Corners sharper than that: 0 stops at each (LinuxCNC `G64 P0.001`, exact stop); a
+    /// positive junction deviation δ (mm) passes them at grbl's and Marlin's junction speed
+    /// v² = a·δ·sin(θ/2)/(1 − sin(θ/2)), θ the angle between the entry move's direction reversed
+    /// and the exit move's (180° straight on, 90° at a right-angle corner, 0 at a reversal, which
+    /// stops), a the smaller of their acceleration limits (grbl's default δ is 0.01 mm, Marlin's
+    /// 0.013 mm).
+    pub junction_deviation_mm: f64,
     /// How long the operator takes to press cycle start at a program stop (M0, M1) other than the
     /// first (s). The first stop is where the instrument is mounted; see
     /// [`InstrumentConfig::start_delay_s`](super::InstrumentConfig::start_delay_s).
@@ -75,6 +82,7 @@ impl Default for MachineConfig {
             accel_mm_s2: [500.0, 500.0, 300.0],
             feed_override_pct: 100.0,
             blend_angle_deg: 0.5,
+            junction_deviation_mm: 0.0,
             stop_wait_s: 5.0,
             optional_stop: true,
             initial_position_mm: [0.0; 3],
@@ -97,6 +105,9 @@ impl MachineConfig {
         }
         if !(0.0..90.0).contains(&self.blend_angle_deg) {
             return bad("blend_angle_deg must be in 0..90 degrees");
+        }
+        if !(self.junction_deviation_mm >= 0.0 && self.junction_deviation_mm.is_finite()) {
+            return bad("junction_deviation_mm must be a number ≥ 0 (mm)");
         }
         if !(self.stop_wait_s >= 0.0 && self.stop_wait_s.is_finite()) {
             return bad("stop_wait_s must be ≥ 0 (s)");
@@ -622,10 +633,14 @@ pub fn plan(
                 path: p,
                 vmax: vi,
                 exact_stop,
+                a: ai,
                 ..
             },
             Spec::Move {
-                path: q, vmax: vj, ..
+                path: q,
+                vmax: vj,
+                a: aj,
+                ..
             },
         ) = (&specs[i], &specs[j])
         else {
@@ -635,8 +650,14 @@ pub fn plan(
             continue;
         }
         let (ti, tj) = (p.tangent(1.0), q.tangent(0.0));
-        if ti[0] * tj[0] + ti[1] * tj[1] + ti[2] * tj[2] >= cos_blend {
+        let dot = ti[0] * tj[0] + ti[1] * tj[1] + ti[2] * tj[2];
+        if dot >= cos_blend {
             cap[k] = vi.min(*vj);
+        } else if machine.junction_deviation_mm > 0.0 {
+            // θ between the lines: sin(θ/2) = √((1 + t_i·t_j)/2); a reversal (θ = 0) stops.
+            let sin_half = (0.5 * (1.0 + dot)).max(0.0).sqrt().min(1.0 - 1e-12);
+            let v2 = ai.min(*aj) * machine.junction_deviation_mm * sin_half / (1.0 - sin_half);
+            cap[k] = vi.min(*vj).min(v2.sqrt());
         }
     }
     // Lookahead: backward then forward.
@@ -794,6 +815,25 @@ mod tests {
         }
         assert!((p.s_at(p.t_total) - 10.0).abs() < 1e-12);
         assert!((p.v_at(0.0) - 3.0).abs() < 1e-12 && (p.v_at(p.t_total) - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn junction_deviation_passes_a_corner_at_grbls_speed() {
+        // δ 0.01 mm, a 500 mm/s², 90°: v² = 500·0.01·√½/(1 − √½) → v = 3.474 mm/s; two 100 mm
+        // moves at 20 mm/s through it take the time of their two profiles with that junction.
+        let m = MachineConfig {
+            junction_deviation_mm: 0.01,
+            ..MachineConfig::default()
+        };
+        let s = 0.5f64.sqrt();
+        let v = (500.0 * 0.01 * s / (1.0 - s)).sqrt();
+        assert!((v - 3.474).abs() < 1e-3);
+        let t = traj("G21 G90 G1 X100 F1200\nY100\n", &m);
+        let leg = |v0: f64, v1: f64| Profile::new(100.0, v0, v1, 20.0, 500.0).t_total;
+        assert!((t.end_s - (leg(0.0, v) + leg(v, 0.0))).abs() < 1e-9);
+        // A reversal still stops.
+        let t = traj("G21 G90 G1 X100 F1200\nX0\n", &m);
+        assert!((t.end_s - 2.0 * analytic(100.0, 20.0, 500.0)).abs() < 1e-9);
     }
 
     #[test]

@@ -16,6 +16,11 @@ pub const DEFAULT_OVERSHOOT_DEG: f64 = 180.0;
 pub const DEFAULT_FEED_IN_MM: f64 = 2.0;
 /// Default dwell (s).
 pub const DEFAULT_DWELL_S: f64 = 1.0;
+/// Default dwell at the corners next to the feed-in and the feed-out (s): long enough for any
+/// controller to stop there (a dwell empties the planner's queue), so the arcs start and end at
+/// rest whatever the controller's corner blending (grbl's and Marlin's junction deviation pass a
+/// right-angle corner at a few mm/s, which would move the arcs' timeline by milliseconds).
+pub const DEFAULT_CORNER_DWELL_S: f64 = 0.1;
 /// Every feed-in start is approached along the feed-in's own direction over this length (mm),
 /// the take-up: the axes' backlash is taken up and a reversal spike decays (in the dwell) before
 /// the feed-in, so that the feed-in's ramp in D — which times the test — carries neither.
@@ -54,6 +59,8 @@ pub struct PlanSpec {
     pub dwell_s: f64,
     /// Dwell at each reversal (s; 0: none).
     pub reversal_dwell_s: f64,
+    /// Dwell at the corner after each feed-in and before each feed-out (s; 0: none).
+    pub corner_dwell_s: f64,
 }
 
 impl PlanSpec {
@@ -80,6 +87,7 @@ impl PlanSpec {
             feed_in_mm: DEFAULT_FEED_IN_MM,
             dwell_s: DEFAULT_DWELL_S,
             reversal_dwell_s: DEFAULT_DWELL_S,
+            corner_dwell_s: DEFAULT_CORNER_DWELL_S,
         }
     }
 
@@ -114,6 +122,7 @@ impl PlanSpec {
         for (name, v) in [
             ("--dwell-s", self.dwell_s),
             ("--reversal-dwell-s", self.reversal_dwell_s),
+            ("--corner-dwell-s", self.corner_dwell_s),
         ] {
             if !(0.0..=MAX_DWELL_S).contains(&v) {
                 return usage(format!("{name} {v}: a dwell of 0 to {MAX_DWELL_S} s"));
@@ -225,6 +234,7 @@ pub fn plan(spec: &PlanSpec, cal: &Calibration) -> Result<Plan> {
     let f = spec.feed_in_mm;
     let dwell = (spec.dwell_s * 1000.0).round() / 1000.0;
     let reversal_dwell = (spec.reversal_dwell_s * 1000.0).round() / 1000.0;
+    let corner_dwell = (spec.corner_dwell_s * 1000.0).round() / 1000.0;
     let theta0 = spec.start_deg;
     let mut u = [0.0; 3];
     (u[j], u[i]) = theta0.to_radians().sin_cos();
@@ -301,6 +311,11 @@ pub fn plan(spec: &PlanSpec, cal: &Calibration) -> Result<Plan> {
             role: LineRole::FeedIn,
             circle: k,
         });
+        if corner_dwell > 0.0 {
+            segments.push(Segment::Dwell {
+                seconds: corner_dwell,
+            });
+        }
         let mut arcs = Arcs {
             circle: k,
             centre: c,
@@ -325,6 +340,11 @@ pub fn plan(spec: &PlanSpec, cal: &Calibration) -> Result<Plan> {
         arcs.sweep(-360.0, ArcRole::Data);
         arcs.sweep(-over, ArcRole::Overshoot);
         let end = arcs.at;
+        if corner_dwell > 0.0 {
+            segments.push(Segment::Dwell {
+                seconds: corner_dwell,
+            });
+        }
         segments.push(Segment::Line {
             from_mm: end,
             to_mm: p_in,

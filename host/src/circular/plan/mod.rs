@@ -19,11 +19,14 @@
 //!    or a few lines along a spiral in the (radius, height) half-plane at θ0 when a straight line
 //!    would bring the balls closer than the instrument allows (role `move`);
 //! 2. a dwell of `--dwell-s` (G4): a standstill the synchronisation can find in D;
-//! 3. the feed-in: a line from P_in to the circle at θ0 (D changes by about f·R/D);
+//! 3. the feed-in: a line from P_in to the circle at θ0 (D changes by about f·R/D), and a dwell of
+//!    `--corner-dwell-s` (default 0.1 s) at the corner, so that every controller stops there
+//!    (grbl and Marlin would pass it at their junction speed);
 //! 4. counter-clockwise: the lead-in arc (θ0 → θ0 + L, L = `--lead-in-deg`), the data arc of
 //!    360°, the overshoot arc of O = `--overshoot-deg`;
 //! 5. a dwell of `--reversal-dwell-s` (default: `--dwell-s`) at the reversal;
-//! 6. clockwise: lead-in L, data 360°, overshoot O, ending at θ0 again;
+//! 6. clockwise: lead-in L, data 360°, overshoot O, ending at θ0 again, and a dwell of
+//!    `--corner-dwell-s`;
 //! 7. the feed-out: a line back to P_in, and a dwell of `--dwell-s`.
 //!
 //! A dwell of 0 s is left out. Arcs are split into equal pieces of at most 180° (a full circle or
@@ -76,6 +79,7 @@
 //!     {"kind": "dwell", "seconds": 1.0},
 //!     {"kind": "line", "from_mm": [188.0, 50.0, -20.0], "to_mm": [190.0, 50.0, -20.0],
 //!      "feed_mm_min": 1000.0, "role": "feed_in", "circle": 0},
+//!     {"kind": "dwell", "seconds": 0.1},
 //!     {"kind": "arc", "circle": 0, "centre_mm": [100.0, 50.0, -20.0], "radius_mm": 90.0,
 //!      "plane": "xy", "sense": "ccw", "start_deg": 0.0, "sweep_deg": 180.0,
 //!      "feed_mm_min": 1000.0, "role": "lead_in", "from_mm": [190.0, 50.0, -20.0],
