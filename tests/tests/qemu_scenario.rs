@@ -2,14 +2,14 @@
 //!
 //! 1. `jdbb plan` writes the ballbar program (LinuxCNC) and plan.json;
 //! 2. the independent G-code machine simulator (`jdbb_tests::gmachine`) runs that program with a
-//!    hidden 6 µm X backlash, a 97 % feed override, acceleration limits, an unknown start, the
+//!    hidden 6 µm X backlash and a 20 µm/m XY squareness error, a 97 % feed override, acceleration limits, an unknown start, the
 //!    device clock 37 ppm fast, 0.2 µm noise and a wandering lean, and turns the run into the
 //!    encoders' counts: a scenario file (`jdbb_core::scenario`);
 //! 3. the QEMU build of the firmware plays the scenario as its encoders (read over semihosting,
 //!    as `scripts/qemu-run.sh --scenario` starts it), computes D on chip and streams over USART2;
 //! 4. `jdbb record --rate 5000` records the run until the operator's Ctrl-C (SIGINT);
-//! 5. `jdbb diagnose --record --plan --json` must name the backlash, within 5 % or 3σ, and no
-//!    other machine effect.
+//! 5. `jdbb diagnose --record --plan --json` must name the backlash and the squareness, each
+//!    within 5 % or 3σ, and no other machine effect.
 //!
 //! The record itself must be the scenario, exactly: at least 100 000 samples at 5 kHz, `seq` from
 //! 0 without a gap, `t_us` = 200 µs × `seq`, nothing lost or dropped, every count the scenario's,
@@ -21,12 +21,13 @@ use std::time::{Duration, Instant};
 
 use jdbb_core::geometry;
 use jdbb_core::Calibration;
-use jdbb_tests::gmachine::{Dialect, MachineErrors, SimConfig, Simulation};
+use jdbb_tests::gmachine::{Axis, Dialect, MachineErrors, SimConfig, Simulation, Squareness};
 use jdbb_tests::{jdbb_bin, qemu_available, qemu_elf, Qemu};
 
 const CENTRE: &str = "100,50,-20";
 const RATE_HZ: u32 = 5_000;
 const BACKLASH_X_UM: f64 = 6.0;
+const SQUARENESS_XY_UM_PER_M: f64 = 20.0;
 
 /// The `seq` of the last whole line of a growing record, if any.
 fn last_seq(file: &Path) -> Option<u64> {
@@ -41,7 +42,7 @@ fn last_seq(file: &Path) -> Option<u64> {
 }
 
 #[test]
-fn plan_scenario_qemu_record_diagnose_names_the_hidden_backlash() {
+fn plan_scenario_qemu_record_diagnose_names_the_hidden_effects() {
     let elf = qemu_elf("jdbb-firmware");
     if !qemu_available(&elf) {
         return;
@@ -68,6 +69,11 @@ fn plan_scenario_qemu_record_diagnose_names_the_hidden_backlash() {
     let mut cfg = SimConfig::new(Dialect::LinuxCnc, [100.0, 50.0, -20.0]);
     cfg.errors = MachineErrors {
         backlash_um: [BACKLASH_X_UM, 0.0, 0.0],
+        squareness: vec![Squareness {
+            axis: Axis::X,
+            by: Axis::Y,
+            um_per_m: SQUARENESS_XY_UM_PER_M,
+        }],
         setup_offset_um: [25.0, -15.0, 0.0],
         ..MachineErrors::default()
     };
@@ -198,21 +204,24 @@ fn plan_scenario_qemu_record_diagnose_names_the_hidden_backlash() {
         .iter()
         .filter(|e| e["setup"] == false)
         .collect();
-    let names: Vec<&str> = machine
+    let mut names: Vec<&str> = machine
         .iter()
         .map(|e| e["name"].as_str().unwrap())
         .collect();
-    assert_eq!(names, ["backlash_x"], "{json:#}");
-    let (value, sigma) = (
-        machine[0]["value"].as_f64().unwrap(),
-        machine[0]["sigma"].as_f64().unwrap(),
-    );
-    let err = (value - BACKLASH_X_UM).abs();
-    println!(
-        "backlash_x {value:.3} ± {sigma:.3} µm (hidden {BACKLASH_X_UM} µm); feed {measured:.3} %"
-    );
-    assert!(
-        err <= 0.05 * BACKLASH_X_UM || err <= 3.0 * sigma,
-        "backlash_x {value} ± {sigma} µm vs {BACKLASH_X_UM} µm"
-    );
+    names.sort_unstable();
+    assert_eq!(names, ["backlash_x", "squareness_xy"], "{json:#}");
+    for (name, truth) in [
+        ("backlash_x", BACKLASH_X_UM),
+        ("squareness_xy", SQUARENESS_XY_UM_PER_M),
+    ] {
+        let e = machine.iter().find(|e| e["name"] == name).unwrap();
+        let (value, sigma) = (e["value"].as_f64().unwrap(), e["sigma"].as_f64().unwrap());
+        let err = (value - truth).abs();
+        println!("{name} {value:.4} ± {sigma:.4} (hidden {truth})");
+        assert!(
+            err <= 0.05 * truth.abs() || err <= 3.0 * sigma,
+            "{name} {value} ± {sigma} vs {truth}"
+        );
+    }
+    println!("feed {measured:.3} % (truth {feed:.3} %)");
 }
