@@ -10,6 +10,8 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
+use crate::mechanism::Mechanism;
+
 use super::planner::SegmentKind;
 use super::{SimError, Simulation};
 
@@ -45,8 +47,9 @@ pub struct InstrumentConfig {
     /// The calibration in force: the counts are made with it and the device computes D with it.
     pub calibration: Calibration,
     /// The instrument as built, when it differs from the calibration in force (calibration
-    /// tests): the counts are made with this one (the core inverse model) while the device
-    /// computes D with `calibration`, as a J-DBB with unknown errors running a nominal
+    /// tests): the counts are made with this one — by the independent model of the instrument
+    /// as built ([`crate::mechanism`]), not the core model the calibration fits — while the
+    /// device computes D with `calibration`, as a J-DBB with unknown errors running a nominal
     /// calibration does. None: the instrument is exactly `calibration`.
     pub true_calibration: Option<Calibration>,
     /// Sample rate on the device's clock (Hz).
@@ -257,6 +260,8 @@ pub struct Samples<'a> {
     rng_noise: ChaCha8Rng,
     psi: f64,
     kernel: Kernel,
+    /// The instrument as built, when it differs from the calibration in force.
+    mechanism: Option<Mechanism>,
     failed: bool,
 }
 
@@ -274,6 +279,7 @@ impl<'a> Samples<'a> {
             },
             psi: ins.azimuth.start_rad,
             kernel: Kernel::new(&ins.calibration),
+            mechanism: ins.true_calibration.as_ref().map(Mechanism::new),
             failed: false,
         }
     }
@@ -332,7 +338,11 @@ impl Iterator for Samples<'_> {
         let block = (t_p >= 0.0 && t_p < traj.end_s).then(|| traj.segment_at(t_p));
         let counts = match &ins.true_calibration {
             None => geometry::counts_for_distance(&ins.calibration, d_ins, self.psi),
-            Some(truth) => true_counts(truth, d_ins, self.psi),
+            Some(_) => self
+                .mechanism
+                .as_ref()
+                .and_then(|m| m.counts_for_pose(d_ins, self.psi).ok())
+                .map(|[a, b]| (a, b)),
         };
         let Some((enc1, enc2)) = counts else {
             self.failed = true;
@@ -375,23 +385,4 @@ impl Iterator for Samples<'_> {
         let n = (self.sim.n_samples - self.k) as usize;
         (0, Some(n))
     }
-}
-
-/// Counts of the instrument as built `truth` at distance `d_mm` and lean `psi`: the core inverse
-/// is exact only for the nominal frames (errors such as eccentricity are inverted to first
-/// order), so the target is corrected until the forward model gives `d_mm` to a nanometre
-/// (fixed point, a few steps), so that the counts carry D and nothing of the inverse's
-/// approximation.
-fn true_counts(truth: &Calibration, d_mm: f64, psi: f64) -> Option<(i64, i64)> {
-    let mut target = d_mm;
-    let mut counts = geometry::counts_for_distance(truth, target, psi)?;
-    for _ in 0..4 {
-        let miss = d_mm - geometry::distance_mm(truth, counts.0, counts.1);
-        if miss.abs() < 1e-6 {
-            break;
-        }
-        target += miss;
-        counts = geometry::counts_for_distance(truth, target, psi)?;
-    }
-    Some(counts)
 }
