@@ -218,11 +218,11 @@ fn send_writes_the_calibration_and_reads_it_back_identical() {
     );
 }
 
-#[test]
-fn a_refusal_names_the_reason() {
+/// `jdbb calibration send` of the example file to a fake device that behaves as `b`.
+fn send_example_to(b: Behaviour) -> std::process::Output {
     let dir = tempfile::tempdir().unwrap();
     let file = cal_file(&dir, &example());
-    let dev = FakeDevice::start(Behaviour::Refuse);
+    let dev = FakeDevice::start(b);
     let o = run(&[
         "calibration",
         "send",
@@ -232,6 +232,12 @@ fn a_refusal_names_the_reason() {
         &file,
     ]);
     dev.finish();
+    o
+}
+
+#[test]
+fn a_refusal_names_the_reason() {
+    let o = send_example_to(Behaviour::Refuse);
     let (out, err) = text(&o);
     assert_eq!(o.status.code(), Some(1), "{out}\n{err}");
     assert!(err.contains("refused SetCalibration"), "{err}");
@@ -241,18 +247,7 @@ fn a_refusal_names_the_reason() {
 
 #[test]
 fn a_device_holding_another_calibration_is_an_error() {
-    let dir = tempfile::tempdir().unwrap();
-    let file = cal_file(&dir, &example());
-    let dev = FakeDevice::start(Behaviour::Alter);
-    let o = run(&[
-        "calibration",
-        "send",
-        "--port",
-        &dev.slave_path,
-        "--file",
-        &file,
-    ]);
-    dev.finish();
+    let o = send_example_to(Behaviour::Alter);
     let (out, err) = text(&o);
     assert_eq!(o.status.code(), Some(1), "{out}\n{err}");
     assert!(err.contains("reports holding another one"), "{err}");
@@ -262,19 +257,8 @@ fn a_device_holding_another_calibration_is_an_error() {
 
 #[test]
 fn a_device_that_does_not_answer_is_an_error() {
-    let dir = tempfile::tempdir().unwrap();
-    let file = cal_file(&dir, &example());
-    let dev = FakeDevice::start(Behaviour::Mute);
     let t0 = std::time::Instant::now();
-    let o = run(&[
-        "calibration",
-        "send",
-        "--port",
-        &dev.slave_path,
-        "--file",
-        &file,
-    ]);
-    dev.finish();
+    let o = send_example_to(Behaviour::Mute);
     let (_, err) = text(&o);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(

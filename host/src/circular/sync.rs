@@ -1094,33 +1094,27 @@ fn arc_motion(
     };
     let plausible = |a: f64| (0.1 * line_accel..=10.0 * line_accel).contains(&a);
     let (v_line, sigma_line) = line_speed;
-    let (v, sigma_v) = if accel_for(v_line).is_some_and(plausible) && sigma_line.is_finite() {
+    // The speed at which the runs, accelerating as the lines do, fill the arcs' time.
+    let v_accel = solve_speed(lengths, line_accel, avail);
+    let line_plausible = accel_for(v_line).is_some_and(plausible);
+    let (v, sigma_v) = if line_plausible && sigma_line.is_finite() {
         (v_line, sigma_line)
     } else {
         // Search around the lines' speed if the arcs could have run at it with a plausible
-        // acceleration, else around the speed the lines' acceleration gives (a feed-in too short
-        // to cruise can fit a speed the arcs' time rules out, or no speed at all).
-        let v0 = if accel_for(v_line).is_some_and(plausible) {
-            v_line
-        } else {
-            solve_speed(lengths, line_accel, avail)
-        };
-        let v_accel = solve_speed(lengths, line_accel, avail);
+        // acceleration, else around `v_accel` (a feed-in too short to cruise can fit a speed the
+        // arcs' time rules out, or no speed at all).
+        let v0 = if line_plausible { v_line } else { v_accel };
         match speed_from_data(plan, rec, items, lengths, t0, avail, v0, 0.2) {
             // The search's minimum has no standard error of its own worth trusting (the residual
-            // is not the machine's noise alone): its distance from the speed the lines'
-            // acceleration gives stands for it, at least 10⁻⁴.
+            // is not the machine's noise alone): its distance from `v_accel` stands for it, at
+            // least 10⁻⁴.
             Some(v) => (v, (1e-4 * v).max((v - v_accel).abs())),
-            None => {
-                let v = solve_speed(lengths, line_accel, avail);
-                (v, 1e-3 * v)
-            }
+            None => (v_accel, 1e-3 * v_accel),
         }
     };
     let Some(a) = accel_for(v) else {
-        let v = solve_speed(lengths, line_accel, avail);
         return ArcTiming {
-            speed_mm_s: v,
+            speed_mm_s: v_accel,
             accel_mm_s2: line_accel,
             timing_sigma_s: f64::INFINITY,
         };
