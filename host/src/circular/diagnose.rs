@@ -4,7 +4,7 @@
 //! Pipeline (see [`diagnose`]):
 //! 1. Baseline: the ideal machine predicts D = |p_nominal|; report RMS and peak-to-valley (µm).
 //! 2. Set-up: fit the table-ball offset c and the length offset e with the exact geometry
-//!    D = |p + c| + e. Set-up parameters the path cannot determine (c_z on a flat circle) are
+//!    D = |p − c| + e. Set-up parameters the path cannot determine (c_z on a flat circle) are
 //!    held at zero and reported as confounded.
 //! 3. Candidate search: every candidate effect of [`super::model`] becomes columns of a linear
 //!    model, linearised at the nominal path (seed 000 eq. 1: ΔR = u·δ, u = p/|p|), against the
@@ -109,6 +109,8 @@ pub struct NotSignificant {
     /// Its parameters in the exact refit, by name (a spike's decay shows why its height is
     /// undetermined: τ far below the sample period).
     pub params: Vec<(&'static str, f64)>,
+    /// Why it is not named, in words.
+    pub reason: String,
 }
 
 /// The result of [`diagnose`].
@@ -139,13 +141,13 @@ pub struct Diagnosis {
     /// timing σ); not named, and the rest refitted without them.
     pub not_significant: Vec<NotSignificant>,
     /// Per sample: angle (rad) in the main plane; measured deviation with the least-squares
-    /// set-up removed, D − (|p + c| + e) with c, e from [`Diagnosis::lsq_setup_um`] (µm); and the
+    /// set-up removed, D − (|p − c| + e) with c, e from [`Diagnosis::lsq_setup_um`] (µm); and the
     /// extended model's deviation after the same removal, i.e. its machine effects (µm).
     pub angle_rad: Vec<f64>,
     pub measured_dev_um: Vec<f64>,
     pub model_dev_um: Vec<f64>,
     /// The set-up removed from the plotted deviations: the least-squares centre and length of all
-    /// samples, D ≈ |p + c| + e, as [c_x, c_y, c_z, e] in µm (a component the path cannot
+    /// samples, D ≈ |p − c| + e, as [c_x, c_y, c_z, e] in µm (a component the path cannot
     /// determine is held at 0).
     pub lsq_setup_um: [f64; 4],
     /// Main plane (axis indices) of the angle.
@@ -163,6 +165,58 @@ pub struct Diagnosis {
     pub circle_zones: Vec<CircleZone>,
     /// The pitch per axis the diagnosis was given (mm), which the periodic effects refer to.
     pub pitch_mm: [Option<f64>; 3],
+}
+
+/// An effect of the exact refit and the selection steps it came from (two for a backlash whose
+/// ends differ).
+struct Chosen {
+    effect: Effect,
+    start: Vec<f64>,
+    held_lag: bool,
+    steps: Vec<usize>,
+    rms_after: f64,
+    rms_ratio: f64,
+    delta_bic: f64,
+}
+
+/// The axis of a backlash (uniform or by ends).
+fn backlash_axis(e: Effect) -> Option<Axis> {
+    match e {
+        Effect::Backlash(a) | Effect::BacklashEnds(a) => Some(a),
+        _ => None,
+    }
+}
+
+/// Why the data cannot carry a refitted effect, if they cannot: parameters the data do not
+/// determine (no finite σ), or a reversal spike whose decay time is shorter than one sample
+/// period `period_s` (it would be gone before the next sample).
+fn cannot_carry(f: &Found, period_s: f64) -> Option<String> {
+    if !f.value.is_finite()
+        || f.sigma.is_none_or(|s| !s.is_finite())
+        || f.param_sigma.iter().any(|s| s.is_none_or(|s| !s.is_finite()))
+    {
+        return Some("its parameters are not determined by the data".into());
+    }
+    if let Effect::ReversalSpike(_) = f.effect {
+        let tau_ms = f.params[1];
+        if tau_ms.is_nan() || tau_ms * 1e-3 < period_s {
+            return Some(format!(
+                "its decay time ({tau_ms:.3} ms) is shorter than one sample period ({:.3} ms): the data cannot show it",
+                period_s * 1e3
+            ));
+        }
+    }
+    None
+}
+
+/// Median time between samples (s); 0 for fewer than two.
+fn median_interval(t: &[f64]) -> f64 {
+    let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    if dts.is_empty() {
+        return 0.0;
+    }
+    let mid = dts.len() / 2;
+    *dts.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// A search column: which candidate, which of its search parameters.
@@ -247,6 +301,7 @@ impl Design {
         let eff = self.cands[cr.cand].effect;
         match (eff, cr.k) {
             (Effect::SetupOffset, k) => format!("setup_offset.{}", ['x', 'y', 'z'][k]),
+            (Effect::BacklashEnds(_), _) => format!("{}.ends", eff.name()),
             (Effect::ServoMismatch(_), 1) => format!("{}.lag", eff.name()),
             _ => eff.name(),
         }
@@ -288,9 +343,21 @@ pub fn candidate_effects(path: &Path) -> Vec<Effect> {
     for &a in &moving {
         v.push(Effect::Scale(a));
     }
+    // A bowed axis before the other axis's second-order scale: on one circle they are the same
+    // data, and a bow is the common cause; the selection names the other as confounded.
+    for &a in &moving {
+        for &b in &moving {
+            if a != b {
+                v.push(Effect::Straightness(a, b));
+            }
+        }
+    }
     for &a in &moving {
         v.push(Effect::Scale2(a));
         v.push(Effect::Backlash(a));
+        if !path.reversals[a.index()].is_empty() {
+            v.push(Effect::BacklashEnds(a));
+        }
         if path.pitch_mm[a.index()].is_some() {
             v.push(Effect::Cyclic(a));
             v.push(Effect::Interference(a));
@@ -312,15 +379,70 @@ pub fn candidate_effects(path: &Path) -> Vec<Effect> {
     v
 }
 
-/// The search forms of `effect`: one, or a spike at each trial decay time.
-fn search_forms(effect: Effect) -> Vec<Candidate> {
+/// The search forms of `effect`: one, a spike at each trial decay time, or a backlash with the
+/// dead band of its axis's trial gap (`gaps_um`, see [`trial_gaps_um`]).
+fn search_forms(effect: Effect, gaps_um: &[f64; 3]) -> Vec<Candidate> {
     match effect {
         Effect::ReversalSpike(a) => SPIKE_TRIAL_TAU_MS
             .iter()
             .map(|&t| Candidate::spike(a, t))
             .collect(),
+        Effect::Backlash(a) => vec![Candidate::backlash(a, false, gaps_um[a.index()])],
+        Effect::BacklashEnds(a) => vec![Candidate::backlash(a, true, gaps_um[a.index()])],
         e => vec![Candidate::of(e)],
     }
+}
+
+/// The family a search form belongs to (forms of one family are alternatives): the effect's
+/// name, and for the ends' difference of a backlash its own (it adds to the backlash).
+fn family_key(c: &Candidate) -> String {
+    match c.effect {
+        Effect::BacklashEnds(_) => format!("{}.ends", c.effect.name()),
+        e => e.name(),
+    }
+}
+
+/// Each axis's gap (µm) whose dead band shapes its backlash search column: the least-squares
+/// backlash of the set-up residual `y_um` alone, with the column made again at the estimate a few
+/// times (a fixed point; the dead band's window is a few per cent of a circle, so it converges
+/// in two or three passes). A step (0) where the estimate is not positive.
+fn trial_gaps_um(path: &Path, y_um: &[f64]) -> [f64; 3] {
+    let m = path.len();
+    let u: Vec<[f64; 3]> = path
+        .p_mm
+        .iter()
+        .map(|p| {
+            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+            [p[0] / r, p[1] / r, p[2] / r]
+        })
+        .collect();
+    let mut gaps = [0.0; 3];
+    let mut col = vec![0.0; m];
+    for a in Axis::ALL {
+        if !path.moves(a) || path.reversals[a.index()].is_empty() {
+            continue;
+        }
+        let mut g = 0.0;
+        for _ in 0..4 {
+            Candidate::backlash(a, false, g).columns_block(path, 0, &u, &mut col, 1, 0);
+            let cc: f64 = col.iter().map(|c| c * c).sum();
+            if cc <= 0.0 {
+                break;
+            }
+            let b = col.iter().zip(y_um).map(|(c, y)| c * y).sum::<f64>() / cc;
+            if !(b.is_finite() && b > 0.0) {
+                g = 0.0;
+                break;
+            }
+            if (b - g).abs() < 0.01 * b {
+                g = b;
+                break;
+            }
+            g = b;
+        }
+        gaps[a.index()] = g;
+    }
+    gaps
 }
 
 /// Diagnose a circular test: baseline, set-up, forward selection of machine effects, exact refit,
@@ -349,7 +471,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     let setup_free = setup_probe.independent(&[3, 0, 1, 2]);
     let mut confounded: Vec<Vec<String>> = setup_probe.confounded_names(&[0, 1, 2, 3]);
 
-    // 3. Exact set-up fit D = |p + c| + e on the determined set-up parameters.
+    // 3. Exact set-up fit D = |p − c| + e on the determined set-up parameters.
     // Start from the linearised solution (one Gauss–Newton step done already).
     let mut setup_start = [0.0; 4];
     if let Some((x, _, _)) = solve(
@@ -371,7 +493,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     let y: Vec<f64> = (0..m)
         .map(|i| {
             let p = path.p_mm[i];
-            let q = [p[0] + c_mm[0], p[1] + c_mm[1], p[2] + c_mm[2]];
+            let q = [p[0] - c_mm[0], p[1] - c_mm[1], p[2] - c_mm[2]];
             let dist = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() + setup_theta[3] * 1e-3;
             1e3 * (d_mm[i] - dist)
         })
@@ -388,7 +510,11 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         }
     }
     effects.extend(others.iter().filter(|e| !matches!(e, Effect::Scale(_))));
-    let cands: Vec<Candidate> = effects.iter().flat_map(|&e| search_forms(e)).collect();
+    let gaps_um = trial_gaps_um(path, &y);
+    let cands: Vec<Candidate> = effects
+        .iter()
+        .flat_map(|&e| search_forms(e, &gaps_um))
+        .collect();
     let design = Design::build(path, &y, cands);
     // If the isotropic scale is confounded with the set-up (one radius), the identifiable
     // candidates are the scale mismatches; otherwise the per-axis scales.
@@ -419,21 +545,29 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
 
     // 5. Linear forward selection on the Gram; a spike's trial decay times are one family.
     let free_setup = setup_free.clone();
-    let families: Vec<Effect> = {
-        let mut f: Vec<Effect> = candidates.iter().map(|&c| design.cands[c].effect).collect();
+    let families: Vec<String> = {
+        let mut f: Vec<String> = candidates
+            .iter()
+            .map(|&c| family_key(&design.cands[c]))
+            .collect();
         f.dedup();
         f
     };
     let groups: Vec<Group> = candidates
         .iter()
         .map(|&c| {
-            let effect = design.cands[c].effect;
+            let cand = design.cands[c];
             let cols = design.cols_of(c);
+            let key = family_key(&cand);
             Group {
                 peak: cols.iter().map(|&i| design.peak[i]).collect(),
+                // A spike's decay time costs a parameter although the search holds it.
+                cost: match cand.effect {
+                    Effect::BacklashEnds(_) => 1,
+                    e => e.n_params(),
+                },
                 cols,
-                cost: effect.n_params(),
-                family: families.iter().position(|&f| f == effect).unwrap_or(0),
+                family: families.iter().position(|f| *f == key).unwrap_or(0),
             }
         })
         .collect();
@@ -468,7 +602,52 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     // dropped and the rest refitted.
     let mut kept: Vec<usize> = (0..sel.steps.len()).collect();
     let mut not_significant: Vec<NotSignificant> = vec![];
+    let period_s = median_interval(&path.t_s);
     let (final_set, theta, final_ssr, mut found) = loop {
+        // The kept steps as effects with their start parameters; a backlash's uniform gap and
+        // the difference of its ends (two steps) become one `BacklashEnds`.
+        let mut chosen: Vec<Chosen> = vec![];
+        for &k in &kept {
+            let st = &sel.steps[k];
+            let c = candidates[st.group];
+            let cand = design.cands[c];
+            let coef: Vec<f64> = design.cols_of(c).into_iter().map(coef_of).collect();
+            let start = cand.start(&coef);
+            let held_lag = matches!(cand.effect, Effect::ServoMismatch(_)) && st.cols.len() < 2;
+            let twin = backlash_axis(cand.effect).and_then(|a| {
+                chosen
+                    .iter()
+                    .position(|ch| backlash_axis(ch.effect) == Some(a))
+            });
+            match twin {
+                Some(i) => {
+                    let ch = &mut chosen[i];
+                    // One is the uniform gap b, the other the ends' difference d = pos − neg.
+                    let (b, d) = if let Effect::Backlash(_) = ch.effect {
+                        (ch.start[0], start[0] - start[1])
+                    } else {
+                        (start[0], ch.start[0] - ch.start[1])
+                    };
+                    if let Some(a) = backlash_axis(cand.effect) {
+                        ch.effect = Effect::BacklashEnds(a);
+                    }
+                    ch.start = vec![b + 0.5 * d, b - 0.5 * d];
+                    ch.steps.push(k);
+                    ch.rms_after = st.rms_after;
+                    ch.rms_ratio *= st.rms_ratio;
+                    ch.delta_bic += st.delta_bic;
+                }
+                None => chosen.push(Chosen {
+                    effect: cand.effect,
+                    start,
+                    held_lag,
+                    steps: vec![k],
+                    rms_after: st.rms_after,
+                    rms_ratio: st.rms_ratio,
+                    delta_bic: st.delta_bic,
+                }),
+            }
+        }
         let mut final_effects = setup.to_vec();
         let mut start = setup_theta.clone();
         for (k, &col) in current.iter().enumerate() {
@@ -477,27 +656,18 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
             }
         }
         let mut free = free_setup.clone();
-        for st in kept.iter().map(|&k| &sel.steps[k]) {
-            let c = candidates[st.group];
-            let cand = design.cands[c];
-            let coef: Vec<f64> = design.cols_of(c).into_iter().map(coef_of).collect();
+        for ch in &chosen {
             let first = start.len();
-            final_effects.push(cand.effect);
-            start.extend(cand.start(&coef));
-            let held_lag = matches!(cand.effect, Effect::ServoMismatch(_)) && st.cols.len() < 2;
-            for k in 0..cand.effect.n_params() {
-                if !(held_lag && k == 1) {
+            final_effects.push(ch.effect);
+            start.extend(&ch.start);
+            for k in 0..ch.effect.n_params() {
+                if !(ch.held_lag && k == 1) {
                     free.push(first + k);
                 }
             }
         }
         let final_set = EffectSet::new(final_effects.clone());
         let (theta, sig, cov, final_ssr) = fit_exact(path, d_mm, &final_set, &free, &start, 1e-6)?;
-        let chosen: Vec<(f64, f64, f64)> = kept
-            .iter()
-            .map(|&k| &sel.steps[k])
-            .map(|st| (st.rms_after, st.rms_ratio, st.delta_bic))
-            .collect();
         // Report.
         let mut found = vec![];
         for (ei, eff) in final_effects.iter().enumerate() {
@@ -522,7 +692,8 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
             let (rms_after_um, rms_ratio, delta_bic) = if ei < 2 {
                 (setup_rms, baseline_rms_um / setup_rms.max(1e-300), f64::NAN)
             } else {
-                chosen[ei - 2]
+                let ch = &chosen[ei - 2];
+                (ch.rms_after, ch.rms_ratio, ch.delta_bic)
             };
             found.push(Found {
                 effect: *eff,
@@ -537,16 +708,37 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                 share: f64::NAN,
             });
         }
+        // What the data cannot carry is not named: first an effect whose parameters the data do
+        // not determine or whose decay is shorter than a sample period, then the one whose value
+        // its σ tells least from zero (|value| < 2σ, possible only where σ counts more than the
+        // fit's noise: a spike's height with the timing uncertainty).
         let weak = found
             .iter()
             .enumerate()
             .skip(2)
-            .filter(|(_, f)| f.sigma.is_some_and(|s| f.value.abs() < 2.0 * s))
-            .min_by(|a, b| {
-                let z = |f: &Found| f.value.abs() / f.sigma.unwrap_or(f64::INFINITY);
-                z(a.1).total_cmp(&z(b.1))
+            .find_map(|(ei, f)| cannot_carry(f, period_s).map(|r| (ei, r)))
+            .or_else(|| {
+                found
+                    .iter()
+                    .enumerate()
+                    .skip(2)
+                    .filter(|(_, f)| f.sigma.is_some_and(|s| f.value.abs() < 2.0 * s))
+                    .min_by(|a, b| {
+                        let z = |f: &Found| f.value.abs() / f.sigma.unwrap_or(f64::INFINITY);
+                        z(a.1).total_cmp(&z(b.1))
+                    })
+                    .map(|(ei, f)| {
+                        let reason = format!(
+                            "its value is within 2σ of zero ({:.3} ± {:.3} {})",
+                            f.value,
+                            f.sigma.unwrap_or(f64::NAN),
+                            f.effect.unit()
+                        );
+                        (ei, reason)
+                    })
             })
-            .map(|(ei, f)| {
+            .map(|(ei, reason)| {
+                let f = &found[ei];
                 let weak = NotSignificant {
                     name: f.effect.name(),
                     unit: f.effect.unit(),
@@ -559,13 +751,15 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                         .copied()
                         .zip(f.params.iter().copied())
                         .collect(),
+                    reason,
                 };
                 (ei, weak)
             });
         match weak {
             Some((ei, weak)) => {
                 not_significant.push(weak);
-                kept.remove(ei - 2);
+                let drop = &chosen[ei - 2].steps;
+                kept.retain(|k| !drop.contains(k));
             }
             None => break (final_set, theta, final_ssr, found),
         }
@@ -662,17 +856,18 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     })
 }
 
-/// The set-up's distance |p + c| + e (mm) for `setup_um` = [c_x, c_y, c_z, e] in µm.
+/// The set-up's distance |p − c| + e (mm) for `setup_um` = [c_x, c_y, c_z, e] in µm (c: where
+/// the table ball is relative to where it was assumed).
 fn setup_distance_mm(p: [f64; 3], setup_um: &[f64]) -> f64 {
     let q = [
-        p[0] + 1e-3 * setup_um[0],
-        p[1] + 1e-3 * setup_um[1],
-        p[2] + 1e-3 * setup_um[2],
+        p[0] - 1e-3 * setup_um[0],
+        p[1] - 1e-3 * setup_um[1],
+        p[2] - 1e-3 * setup_um[2],
     ];
     (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() + 1e-3 * setup_um[3]
 }
 
-/// D = |p + c| + e with only the set-up parameters `free` (indices into c_x, c_y, c_z, e)
+/// D = |p − c| + e with only the set-up parameters `free` (indices into c_x, c_y, c_z, e)
 /// varying, from `start`; returns [c_x, c_y, c_z, e] in µm.
 fn fit_setup(path: &Path, d_mm: &[f64], free: &[usize], start: &[f64; 4]) -> Result<Vec<f64>> {
     struct Setup<'a> {
@@ -695,12 +890,12 @@ fn fit_setup(path: &Path, d_mm: &[f64], free: &[usize], start: &[f64; 4]) -> Res
             let mut g = [0.0; 4];
             for (i, (q0, d)) in self.path.p_mm.iter().zip(self.d_mm).enumerate() {
                 let q = [
-                    q0[0] + 1e-3 * full[0],
-                    q0[1] + 1e-3 * full[1],
-                    q0[2] + 1e-3 * full[2],
+                    q0[0] - 1e-3 * full[0],
+                    q0[1] - 1e-3 * full[1],
+                    q0[2] - 1e-3 * full[2],
                 ];
                 let r = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
-                let all = [q[0] / r, q[1] / r, q[2] / r, 1.0];
+                let all = [-q[0] / r, -q[1] / r, -q[2] / r, 1.0];
                 for (a, &k) in self.free.iter().enumerate() {
                     g[a] = all[k];
                 }

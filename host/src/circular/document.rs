@@ -13,6 +13,10 @@ use serde::Deserialize;
 use super::model::{Axis, Effect};
 use crate::{Error, Result};
 
+fn first_conventions() -> u32 {
+    1
+}
+
 /// One effect of the file.
 #[derive(Debug, Clone, Deserialize)]
 pub struct EffectDoc {
@@ -38,7 +42,13 @@ pub struct EffectDoc {
 impl EffectDoc {
     /// The effect this entry names, if it is one this version knows.
     pub fn effect(&self) -> Option<Effect> {
-        Effect::parse(&self.name)
+        match Effect::parse(&self.name)? {
+            // A backlash whose two ends differ carries `pos_um`/`neg_um`.
+            Effect::Backlash(a) if self.params.contains_key("pos_um") => {
+                Some(Effect::BacklashEnds(a))
+            }
+            e => Some(e),
+        }
     }
 
     /// The effect's parameters in [`Effect::param_names`] order (a missing or null one is 0).
@@ -101,9 +111,17 @@ pub struct Figures {
     pub h_um: Option<f64>,
 }
 
+/// The sign conventions a diagnosis file is written in (`sign_conventions`): 2 = backlash
+/// positive for play and the set-up offset as where the table ball is; a file without the field
+/// is of version 1 and is migrated on reading ([`DiagnosisDoc::parse`]).
+pub const SIGN_CONVENTIONS: u32 = 2;
+
 /// A diagnosis file (see the module docs and [`super::report`] for the fields).
 #[derive(Debug, Clone, Deserialize)]
 pub struct DiagnosisDoc {
+    /// See [`SIGN_CONVENTIONS`]; 1 when absent.
+    #[serde(default = "first_conventions")]
+    pub sign_conventions: u32,
     pub samples: usize,
     #[serde(default)]
     pub baseline: Figures,
@@ -151,7 +169,7 @@ impl DiagnosisDoc {
 
     /// Parse the text of a diagnosis file named `path` (for messages).
     pub fn parse(path: &FsPath, text: &str) -> Result<DiagnosisDoc> {
-        let doc: DiagnosisDoc = serde_json::from_str(text).map_err(|e| {
+        let mut doc: DiagnosisDoc = serde_json::from_str(text).map_err(|e| {
             Error::input(
                 path,
                 e.line(),
@@ -172,7 +190,39 @@ impl DiagnosisDoc {
                 });
             }
         }
+        if doc.sign_conventions < SIGN_CONVENTIONS {
+            doc.migrate_signs();
+        }
         Ok(doc)
+    }
+
+    /// Bring a file written before [`SIGN_CONVENTIONS`] 2 to today's signs, so that its numbers
+    /// keep their meaning: its `backlash_k` was f = −b (positive = the axis runs ahead, parameter
+    /// `f_um`) and its `setup_offset` was the spindle ball's shift, −c.
+    fn migrate_signs(&mut self) {
+        for e in &mut self.effects {
+            let negate = |x: &mut Option<f64>| *x = x.map(|v| -v);
+            match Effect::parse(&e.name) {
+                Some(Effect::Backlash(_)) => {
+                    negate(&mut e.value);
+                    if let Some(f) = e.params.remove("f_um") {
+                        e.params.insert("b_um".into(), f.map(|v| -v));
+                    }
+                    if let Some(s) = e.params_sigma.remove("f_um") {
+                        e.params_sigma.insert("b_um".into(), s);
+                    }
+                }
+                Some(Effect::SetupOffset) => {
+                    for k in ["x_um", "y_um", "z_um"] {
+                        if let Some(v) = e.params.get_mut(k) {
+                            negate(v);
+                        }
+                    }
+                }
+                _ => {}
+            }
+        }
+        self.sign_conventions = SIGN_CONVENTIONS;
     }
 
     /// The machine effects (not the set-up), in the file's order.
@@ -233,8 +283,11 @@ mod tests {
         let d = DiagnosisDoc::parse(FsPath::new("d.json"), old).unwrap();
         let eff: Vec<_> = d.machine_effects().collect();
         assert_eq!(eff.len(), 1);
+        // Version 1 signs: f = −6 µm was lost motion; today that is b = +6 µm (play).
         assert_eq!(eff[0].1, Effect::Backlash(Axis::X));
-        assert_eq!(eff[0].0.param_values(eff[0].1), vec![-6.0]);
+        assert_eq!(eff[0].0.param_values(eff[0].1), vec![6.0]);
+        assert_eq!(eff[0].0.value, Some(6.0));
+        assert_eq!(d.effects[0].params["x_um"], Some(-1.0), "set-up offset migrated");
         assert!(eff[0].0.significant(3.0));
         assert!(d.circles.is_empty() && d.machine.is_none() && d.g_um().is_none());
 

@@ -1,5 +1,5 @@
 //! `--report DIR`: a ballbar-style polar plot (SVG and PNG) with the set-up removed, as ballbar
-//! software does: the measured deviation D − (|p + c| + e) with the least-squares centre c and
+//! software does: the measured deviation D − (|p − c| + e) with the least-squares centre c and
 //! length offset e of all samples, the ideal machine (the zero-deviation circle) and the extended
 //! model's prediction after the same removal (its machine effects), with ISO 230-4 style circular
 //! deviation G and hysteresis H of the plotted curve; plus the JSON of the diagnosis.

@@ -41,9 +41,9 @@
 //! harmonics_um[]           amplitude of residual harmonics 1..8 against the angle in the plane
 //!                          of the two axes with the largest travel, µm
 //! lsq_setup                {x_um, y_um, z_um, e_um}: least-squares centre and length offset of
-//!                          all samples (D ≈ |p + c| + e), the set-up removed before G, H and
+//!                          all samples (D ≈ |p − c| + e), the set-up removed before G, H and
 //!                          the polar plot
-//! circular_deviation_g_um  ISO 230-4 style G of D − (|p + c| + e) with lsq_setup: largest
+//! circular_deviation_g_um  ISO 230-4 style G of D − (|p − c| + e) with lsq_setup: largest
 //!                          peak-to-valley of one circle in one direction, µm
 //! hysteresis_h_um          ISO 230-4 style H: largest ccw − cw difference of one circle in a
 //!                          1° bin, µm
@@ -232,6 +232,7 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
         })
         .collect();
     let mut v = json!({
+        "sign_conventions": super::document::SIGN_CONVENTIONS,
         "samples": d.samples,
         "baseline": {"rms_um": num(d.baseline_rms_um), "pv_um": num(d.baseline_pv_um)},
         "effects": effects,

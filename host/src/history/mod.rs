@@ -457,12 +457,13 @@ mod tests {
         date: Option<&str>,
     ) -> (DiagnosisDoc, String) {
         let text = serde_json::json!({
+            "sign_conventions": 2,
             "samples": 1000,
             "effects": [
                 {"name": "setup_offset", "value": 1.0, "unit": "um", "sigma": 0.1, "setup": true,
                  "params": {"x_um": 1.0, "y_um": 0.0, "z_um": 0.0}},
                 {"name": "backlash_x", "value": effect_value, "unit": "um", "sigma": 0.01,
-                 "params": {"f_um": effect_value}}
+                 "params": {"b_um": effect_value}}
             ],
             "final": {"rms_um": 0.3},
             "plane": "xy",
