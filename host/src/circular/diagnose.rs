@@ -193,7 +193,9 @@ fn backlash_axis(e: Effect) -> Option<Axis> {
 fn cannot_carry(f: &Found, period_s: f64) -> Option<String> {
     if !f.value.is_finite()
         || f.sigma.is_none_or(|s| !s.is_finite())
-        || f.param_sigma.iter().any(|s| s.is_none_or(|s| !s.is_finite()))
+        || f.param_sigma
+            .iter()
+            .any(|s| s.is_none_or(|s| !s.is_finite()))
     {
         return Some("its parameters are not determined by the data".into());
     }
@@ -349,6 +351,16 @@ pub fn candidate_effects(path: &Path) -> Vec<Effect> {
         for &b in &moving {
             if a != b {
                 v.push(Effect::Straightness(a, b));
+            }
+        }
+    }
+    for &a in &moving {
+        if path.reversals[a.index()].is_empty() {
+            continue;
+        }
+        for &b in &moving {
+            if a != b {
+                v.push(Effect::LateralPlay(a, b));
             }
         }
     }
@@ -535,10 +547,34 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         }
     }
     confounded.retain(|g| !g.is_empty());
+    // A second-order scale of j that a bow of another axis towards j already explains (one
+    // circle: i² = R² − j²) is not searched; the bow is named, with the pair said.
+    let mut twin_of_bow = vec![false; design.cands.len()];
+    for (c2, cand2) in design.cands.iter().enumerate() {
+        let Effect::Scale2(j) = cand2.effect else {
+            continue;
+        };
+        for (cs, cands) in design.cands.iter().enumerate() {
+            if !matches!(cands.effect, Effect::Straightness(_, b) if b == j) {
+                continue;
+            }
+            let mut block = setup_free.clone();
+            block.extend(design.cols_of(cs));
+            block.extend(design.cols_of(c2));
+            if design.independent(&block).len() < block.len() {
+                twin_of_bow[c2] = true;
+                let g = vec![cands.effect.name(), cand2.effect.name()];
+                if !confounded.contains(&g) {
+                    confounded.push(g);
+                }
+            }
+        }
+    }
     let candidates: Vec<usize> = (2..design.cands.len())
         .filter(|&c| match design.cands[c].effect {
             Effect::Scale(_) => !isotropic_confounded,
             Effect::ScaleMismatch(_) => isotropic_confounded,
+            Effect::Scale2(_) => !twin_of_bow[c],
             _ => true,
         })
         .collect();
@@ -683,8 +719,29 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                 sigma = None;
             }
             // A spike's height h·e^(−δt/τ) moves by h·δt/τ when the reversal's time is off by δt.
-            if let (Effect::ReversalSpike(_), true) = (eff, path.timing_sigma_s > 0.0) {
-                let extra = params[0] * 1e3 * path.timing_sigma_s / params[1].max(MIN_TAU_MS);
+            // And a dead band on the same axis, taken up over Δθ ≈ √(2b/R) after the reversal,
+            // ends when the axis moves at v·√(2b/R): mistimed by δt, it leaves a misfit of about
+            // v·√(2b/R)·δt in the window, which is where the spike lives.
+            if let (Effect::ReversalSpike(a), true) = (eff, path.timing_sigma_s > 0.0) {
+                let mut extra = params[0] * 1e3 * path.timing_sigma_s / params[1].max(MIN_TAU_MS);
+                let k = a.index();
+                let gap_um = final_effects
+                    .iter()
+                    .zip(&final_set.offsets)
+                    .filter(|(e, _)| backlash_axis(**e) == Some(*a))
+                    .map(|(e, &o)| {
+                        theta[o..o + e.n_params()]
+                            .iter()
+                            .cloned()
+                            .fold(0.0, f64::max)
+                    })
+                    .fold(0.0, f64::max);
+                let radius_mm = 0.5 * path.range_mm[k];
+                if gap_um > 0.0 && radius_mm > 0.0 {
+                    let v_mm_s = path.v_mm_s.iter().map(|v| v[k].abs()).fold(0.0, f64::max);
+                    let window = v_mm_s * (2e-3 * gap_um / radius_mm).sqrt();
+                    extra = extra.hypot(1e3 * window * path.timing_sigma_s);
+                }
                 let add = |s: Option<f64>| s.map(|s| s.hypot(extra));
                 psig[0] = add(psig[0]);
                 sigma = add(sigma);

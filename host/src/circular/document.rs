@@ -287,7 +287,11 @@ mod tests {
         assert_eq!(eff[0].1, Effect::Backlash(Axis::X));
         assert_eq!(eff[0].0.param_values(eff[0].1), vec![6.0]);
         assert_eq!(eff[0].0.value, Some(6.0));
-        assert_eq!(d.effects[0].params["x_um"], Some(-1.0), "set-up offset migrated");
+        assert_eq!(
+            d.effects[0].params["x_um"],
+            Some(-1.0),
+            "set-up offset migrated"
+        );
         assert!(eff[0].0.significant(3.0));
         assert!(d.circles.is_empty() && d.machine.is_none() && d.g_um().is_none());
 

@@ -51,6 +51,11 @@ pub enum Effect {
     /// (centre i_mid) relative to the line through its ends, positive towards +j. On one circle
     /// i² = R² − j², so it is the same data as `scale2_j` with a set-up offset.
     Straightness(Axis, Axis),
+    /// Lateral play of axis i in direction j (a guideway clearance across its travel): when i
+    /// reverses, friction turns and the carriage shifts across the clearance, so
+    /// δ_j = (l/2)·s_i with s_i the direction of i, l in µm (positive: towards +j while i moves
+    /// in +i). A step where i reverses, seen in j; on a circle ∓(l/2)·|u_j| by direction.
+    LateralPlay(Axis, Axis),
     /// δ_k = A·sin(2πk/p + φ), A in µm (seed 000 eq. 8, periodic error).
     Cyclic(Axis),
     /// δ_k = b·v_k·sin(2πk/p + φ), b in µm per mm/s (seed 000 eq. 11, interference).
@@ -122,6 +127,13 @@ impl Effect {
                 }
             }
         }
+        for a in Axis::ALL {
+            for b in Axis::ALL {
+                if a != b {
+                    v.push(Effect::LateralPlay(a, b));
+                }
+            }
+        }
         v.push(Effect::Drift);
         v
     }
@@ -135,6 +147,7 @@ impl Effect {
             Effect::Scale2(a) => format!("scale2_{}", a.letter()),
             Effect::Backlash(a) | Effect::BacklashEnds(a) => format!("backlash_{}", a.letter()),
             Effect::Straightness(a, b) => format!("straightness_{}_{}", a.letter(), b.letter()),
+            Effect::LateralPlay(a, b) => format!("lateral_play_{}_{}", a.letter(), b.letter()),
             Effect::Cyclic(a) => format!("cyclic_{}", a.letter()),
             Effect::Interference(a) => format!("interference_{}", a.letter()),
             Effect::Squareness(p) => format!("squareness_{}", p.name()),
@@ -153,10 +166,18 @@ impl Effect {
             "drift" => return Some(Effect::Drift),
             _ => {}
         }
-        if let Some(rest) = name.strip_prefix("straightness_") {
-            let (a, b) = rest.split_once('_')?;
-            let (a, b) = (Axis::parse(a)?, Axis::parse(b)?);
-            return (a != b).then_some(Effect::Straightness(a, b));
+        for (prefix, make) in [
+            (
+                "straightness_",
+                Effect::Straightness as fn(Axis, Axis) -> Effect,
+            ),
+            ("lateral_play_", Effect::LateralPlay),
+        ] {
+            if let Some(rest) = name.strip_prefix(prefix) {
+                let (a, b) = rest.split_once('_')?;
+                let (a, b) = (Axis::parse(a)?, Axis::parse(b)?);
+                return (a != b).then_some(make(a, b));
+            }
         }
         let (head, tail) = name.rsplit_once('_')?;
         match head {
@@ -188,7 +209,8 @@ impl Effect {
             | Effect::BacklashEnds(_)
             | Effect::Cyclic(_)
             | Effect::ReversalSpike(_)
-            | Effect::Straightness(..) => "um",
+            | Effect::Straightness(..)
+            | Effect::LateralPlay(..) => "um",
             Effect::Interference(_) => "um/(mm/s)",
             Effect::ServoMismatch(_) => "ms",
             Effect::Drift => "um/min",
@@ -205,6 +227,7 @@ impl Effect {
             Effect::Backlash(_) => &["b_um"],
             Effect::BacklashEnds(_) => &["pos_um", "neg_um"],
             Effect::Straightness(..) => &["bow_um"],
+            Effect::LateralPlay(..) => &["l_um"],
             Effect::Cyclic(_) => &["sin_um", "cos_um"],
             Effect::Interference(_) => &["sin_um_per_mm_s", "cos_um_per_mm_s"],
             Effect::Squareness(_) => &["s_um_per_m"],
@@ -257,6 +280,11 @@ impl Effect {
             Effect::BacklashEnds(a) => format!(
                 "{} axis lost motion that differs between the two ends of the travel: local wear of the ball screw or nut (a single backlash setting can only take the mean)",
                 a.letter().to_ascii_uppercase()
+            ),
+            Effect::LateralPlay(a, b) => format!(
+                "{} axis lateral play: its carriage shifts in {} when it reverses (guideway clearance: gibs or rollers loose or worn)",
+                a.letter().to_ascii_uppercase(),
+                b.letter().to_ascii_uppercase()
             ),
             Effect::Straightness(a, b) => format!(
                 "{} axis is not straight: it bows in {} (guideway bent, worn or badly supported); on one circle the same as a second-order scale of {}",
@@ -386,6 +414,13 @@ impl Effect {
                 let w = 1e-3 * theta[0];
                 for (qk, pk) in q.iter_mut().zip(p) {
                     qk[j] += w * bow_shape(path, i, pk[i]);
+                }
+            }
+            Effect::LateralPlay(a, b) => {
+                let (i, j) = (a.index(), b.index());
+                let half = 0.5e-3 * theta[0];
+                for (qk, dk) in q.iter_mut().zip(&path.dir[i0..i0 + n]) {
+                    qk[j] += half * f64::from(dk[i]);
                 }
             }
             Effect::Cyclic(a) => {
@@ -804,6 +839,13 @@ impl Candidate {
                     out[o] = u[j][jx] * bow_shape(path, i, p[j][i]);
                 }
             }
+            Effect::LateralPlay(a, b) => {
+                let (i, jx) = (a.index(), b.index());
+                let dir = &path.dir[i0..i0 + n];
+                for (j, o) in rows.enumerate() {
+                    out[o] = 0.5 * u[j][jx] * f64::from(dir[j][i]);
+                }
+            }
             Effect::Cyclic(a) | Effect::Interference(a) => {
                 let k = a.index();
                 let cyclic = matches!(self.effect, Effect::Cyclic(_));
@@ -1035,7 +1077,7 @@ mod tests {
             Effect::parse("straightness_x_y"),
             Some(Effect::Straightness(Axis::X, Axis::Y))
         );
-        assert_eq!(Effect::all().len(), 2 + 5 * 3 + 2 * 3 + 3 + 6 + 1);
+        assert_eq!(Effect::all().len(), 2 + 5 * 3 + 2 * 3 + 3 + 6 + 6 + 1);
     }
 
     #[test]

@@ -230,9 +230,10 @@ pub fn distances_mm(path: &Path, effects: &[EffectValue]) -> Result<Vec<f64>> {
             Effect::Scale2(a) => m.axes[a.index()].scale2_um_per_m2 += p[0],
             // Dead bands and bows need the path's reversals and travel: the model's own
             // evaluation (a round trip with the fit, not an independent truth).
-            Effect::Backlash(_) | Effect::BacklashEnds(_) | Effect::Straightness(..) => {
-                path_effects.push(ev.clone())
-            }
+            Effect::Backlash(_)
+            | Effect::BacklashEnds(_)
+            | Effect::Straightness(..)
+            | Effect::LateralPlay(..) => path_effects.push(ev.clone()),
             Effect::Cyclic(a) => {
                 let ax: &mut AxisErrors = &mut m.axes[a.index()];
                 ax.pitch_mm = pitch(a.index())?;

@@ -199,7 +199,7 @@ impl MachineErrors {
                     }
                     m.backlash_um[a.index()] = Some(measured)
                 }
-                Effect::Straightness(..) => m.tuning.push(measured),
+                Effect::Straightness(..) | Effect::LateralPlay(..) => m.tuning.push(measured),
                 Effect::Scale(a) => m.scale_um_per_m[a.index()] = Some((p[0], measured)),
                 Effect::ScaleMismatch(pair) => {
                     let (i, j) = pair.axes();
@@ -422,6 +422,18 @@ fn tuning_advice(t: &Measured, c: Controller) -> Cannot {
                 instead: format!(
                     "check {a}'s guideway straightness (level, foundation bolts, a straightedge along its travel) and realign or regrind it; a second radius about the same table ball confirms it against a second-order scale of {b}"
                 ),
+            }
+        }
+        Effect::LateralPlay(a, b) => {
+            let (a, b) = (a.letter().to_ascii_uppercase(), b.letter().to_ascii_uppercase());
+            Cannot {
+                effect: t.text(),
+                why: format!(
+                    "{a}'s carriage shifts {:.1} µm in {b} each time {a} reverses: clearance across its guideway; {} has no setting for it",
+                    t.value.abs(),
+                    c.name()
+                ),
+                instead: format!("adjust {a}'s gibs or roller preload, or renew worn guideway pads, and test again"),
             }
         }
         Effect::Drift => Cannot {
