@@ -353,7 +353,8 @@ fn svg_polylines(svg: &str) -> Vec<(String, Vec<(f64, f64)>)> {
 #[test]
 fn polar_plot_has_no_chord_and_states_the_removed_setup() {
     // A ccw circle, then the cw circle starts at 180°: drawn as one polyline this would be a
-    // chord through the centre. Set-up: centring (20, −10) µm, bar 5 µm long; a 2 µm ellipse.
+    // chord through the centre. Set-up: the table ball at (−20, +10) µm from where assumed (the
+    // spindle ball is at p − c from it), bar 5 µm long; a 2 µm ellipse.
     let dir = tempfile::tempdir().unwrap();
     let mut csv = String::from("t_s,x_mm,y_mm,z_mm,d_mm\n");
     let r = 60.0f64;
@@ -386,7 +387,7 @@ fn polar_plot_has_no_chord_and_states_the_removed_setup() {
     );
     assert!(
         svg.contains("least-squares centre and length")
-            && svg.contains("x = 20.00 µm, y = -10.00 µm")
+            && svg.contains("x = -20.00 µm, y = 10.00 µm")
             && svg.contains("length offset e = 5.00 µm"),
         "caption must give the removed set-up"
     );

@@ -522,100 +522,127 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         }
     }
     effects.extend(others.iter().filter(|e| !matches!(e, Effect::Scale(_))));
-    let gaps_um = trial_gaps_um(path, &y);
-    let cands: Vec<Candidate> = effects
-        .iter()
-        .flat_map(|&e| search_forms(e, &gaps_um))
-        .collect();
-    let design = Design::build(path, &y, cands);
-    // If the isotropic scale is confounded with the set-up (one radius), the identifiable
-    // candidates are the scale mismatches; otherwise the per-axis scales.
-    let scale_cols: Vec<usize> = (0..design.cands.len())
-        .filter(|&c| matches!(design.cands[c].effect, Effect::Scale(_)))
-        .map(|c| design.offsets[c])
-        .collect();
-    let mut block: Vec<usize> = setup_free.clone();
-    block.extend(&scale_cols);
-    let isotropic_confounded = design.independent(&block).len() < block.len();
-    if isotropic_confounded {
-        let mut with_all_setup = vec![0, 1, 2, 3];
-        with_all_setup.extend(&scale_cols);
-        for g in design.confounded_names(&with_all_setup) {
-            if g.iter().any(|n| n.starts_with("scale_")) && !confounded.contains(&g) {
-                confounded.push(g);
-            }
-        }
-    }
-    confounded.retain(|g| !g.is_empty());
-    // A second-order scale of j that a bow of another axis towards j already explains (one
-    // circle: i² = R² − j²) is not searched; the bow is named, with the pair said.
-    let mut twin_of_bow = vec![false; design.cands.len()];
-    for (c2, cand2) in design.cands.iter().enumerate() {
-        let Effect::Scale2(j) = cand2.effect else {
-            continue;
-        };
-        for (cs, cands) in design.cands.iter().enumerate() {
-            if !matches!(cands.effect, Effect::Straightness(_, b) if b == j) {
-                continue;
-            }
-            let mut block = setup_free.clone();
-            block.extend(design.cols_of(cs));
-            block.extend(design.cols_of(c2));
-            if design.independent(&block).len() < block.len() {
-                twin_of_bow[c2] = true;
-                let g = vec![cands.effect.name(), cand2.effect.name()];
-                if !confounded.contains(&g) {
+    // The search, made again at the gaps it finds: a dead band's column depends on its gap, and
+    // the first estimate (a step fitted alone) is pulled by whatever else the data hold.
+    let confounded_before = confounded.clone();
+    let mut gaps_um = trial_gaps_um(path, &y);
+    let mut pass = 0;
+    let (design, candidates, sel) = loop {
+        confounded = confounded_before.clone();
+        let cands: Vec<Candidate> = effects
+            .iter()
+            .flat_map(|&e| search_forms(e, &gaps_um))
+            .collect();
+        let design = Design::build(path, &y, cands);
+        // If the isotropic scale is confounded with the set-up (one radius), the identifiable
+        // candidates are the scale mismatches; otherwise the per-axis scales.
+        let scale_cols: Vec<usize> = (0..design.cands.len())
+            .filter(|&c| matches!(design.cands[c].effect, Effect::Scale(_)))
+            .map(|c| design.offsets[c])
+            .collect();
+        let mut block: Vec<usize> = setup_free.clone();
+        block.extend(&scale_cols);
+        let isotropic_confounded = design.independent(&block).len() < block.len();
+        if isotropic_confounded {
+            let mut with_all_setup = vec![0, 1, 2, 3];
+            with_all_setup.extend(&scale_cols);
+            for g in design.confounded_names(&with_all_setup) {
+                if g.iter().any(|n| n.starts_with("scale_")) && !confounded.contains(&g) {
                     confounded.push(g);
                 }
             }
         }
-    }
-    let candidates: Vec<usize> = (2..design.cands.len())
-        .filter(|&c| match design.cands[c].effect {
-            Effect::Scale(_) => !isotropic_confounded,
-            Effect::ScaleMismatch(_) => isotropic_confounded,
-            Effect::Scale2(_) => !twin_of_bow[c],
-            _ => true,
-        })
-        .collect();
-
-    // 5. Linear forward selection on the Gram; a spike's trial decay times are one family.
-    let free_setup = setup_free.clone();
-    let families: Vec<String> = {
-        let mut f: Vec<String> = candidates
-            .iter()
-            .map(|&c| family_key(&design.cands[c]))
-            .collect();
-        f.dedup();
-        f
-    };
-    let groups: Vec<Group> = candidates
-        .iter()
-        .map(|&c| {
-            let cand = design.cands[c];
-            let cols = design.cols_of(c);
-            let key = family_key(&cand);
-            Group {
-                peak: cols.iter().map(|&i| design.peak[i]).collect(),
-                // A spike's decay time costs a parameter although the search holds it.
-                cost: match cand.effect {
-                    Effect::BacklashEnds(_) => 1,
-                    e => e.n_params(),
-                },
-                cols,
-                family: families.iter().position(|f| *f == key).unwrap_or(0),
+        confounded.retain(|g| !g.is_empty());
+        // A second-order scale of j that a bow of another axis towards j already explains (one
+        // circle: i² = R² − j²) is not searched; the bow is named, with the pair said.
+        let mut twin_of_bow = vec![false; design.cands.len()];
+        for (c2, cand2) in design.cands.iter().enumerate() {
+            let Effect::Scale2(j) = cand2.effect else {
+                continue;
+            };
+            for (cs, cands) in design.cands.iter().enumerate() {
+                if !matches!(cands.effect, Effect::Straightness(_, b) if b == j) {
+                    continue;
+                }
+                // Each alone adds to the set-up; together they do not.
+                let with = |cols: &[usize]| {
+                    let mut block = setup_free.clone();
+                    block.extend(cols);
+                    design.independent(&block).len() == block.len()
+                };
+                let (cols_s, cols_2) = (design.cols_of(cs), design.cols_of(c2));
+                let both: Vec<usize> = cols_s.iter().chain(&cols_2).copied().collect();
+                if with(&cols_s) && with(&cols_2) && !with(&both) {
+                    twin_of_bow[c2] = true;
+                    let g = vec![cands.effect.name(), cand2.effect.name()];
+                    if !confounded.contains(&g) {
+                        confounded.push(g);
+                    }
+                }
             }
-        })
-        .collect();
-    let sel = forward_select(&design.gram, m, &free_setup, &groups, &opts.select, &|i| {
-        design.col_name(i)
-    })?;
-    for mut g in sel.confounded {
-        g.dedup();
-        if !confounded.contains(&g) {
-            confounded.push(g);
         }
-    }
+        let candidates: Vec<usize> = (2..design.cands.len())
+            .filter(|&c| match design.cands[c].effect {
+                Effect::Scale(_) => !isotropic_confounded,
+                Effect::ScaleMismatch(_) => isotropic_confounded,
+                Effect::Scale2(_) => !twin_of_bow[c],
+                _ => true,
+            })
+            .collect();
+
+        // 5. Linear forward selection on the Gram; a spike's trial decay times are one family.
+        let families: Vec<String> = {
+            let mut f: Vec<String> = candidates
+                .iter()
+                .map(|&c| family_key(&design.cands[c]))
+                .collect();
+            f.dedup();
+            f
+        };
+        let groups: Vec<Group> = candidates
+            .iter()
+            .map(|&c| {
+                let cand = design.cands[c];
+                let cols = design.cols_of(c);
+                let key = family_key(&cand);
+                Group {
+                    peak: cols.iter().map(|&i| design.peak[i]).collect(),
+                    // A spike's decay time costs a parameter although the search holds it.
+                    cost: match cand.effect {
+                        Effect::BacklashEnds(_) => 1,
+                        e => e.n_params(),
+                    },
+                    cols,
+                    family: families.iter().position(|f| *f == key).unwrap_or(0),
+                }
+            })
+            .collect();
+        let sel = forward_select(&design.gram, m, &setup_free, &groups, &opts.select, &|i| {
+            design.col_name(i)
+        })?;
+        for mut g in sel.confounded.clone() {
+            g.dedup();
+            if !confounded.contains(&g) {
+                confounded.push(g);
+            }
+        }
+        pass += 1;
+        let mut found = gaps_um;
+        for st in &sel.steps {
+            let c = candidates[st.group];
+            if let Effect::Backlash(a) = design.cands[c].effect {
+                let col = design.offsets[c];
+                if let Some(k) = sel.current.iter().position(|&x| x == col) {
+                    found[a.index()] = sel.coef[k].max(0.0);
+                }
+            }
+        }
+        let close = (0..3).all(|k| (found[k] - gaps_um[k]).abs() <= 0.05 * found[k] + 0.02);
+        if close || pass == 3 {
+            break (design, candidates, sel);
+        }
+        gaps_um = found;
+    };
     let below_floor: Vec<(String, f64)> = sel
         .below_floor
         .iter()
@@ -691,7 +718,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                 start[col] += sel.coef[k];
             }
         }
-        let mut free = free_setup.clone();
+        let mut free = setup_free.clone();
         for ch in &chosen {
             let first = start.len();
             final_effects.push(ch.effect);
