@@ -194,67 +194,6 @@ impl Effect {
         !matches!(self, Effect::ServoMismatch(_) | Effect::ReversalSpike(_))
     }
 
-    /// The physical cause, in words.
-    pub fn cause(&self) -> String {
-        match *self {
-            Effect::SetupOffset => "the table ball is not where assumed (set-up offset)".into(),
-            Effect::LengthOffset => "the bar length differs from its assumed value".into(),
-            Effect::Scale(a) => format!(
-                "{} axis scale error: uniform contraction/expansion of its ball screw or scale, usually thermal (seed 000 eq. 2)",
-                a.letter().to_ascii_uppercase()
-            ),
-            Effect::Scale2(a) => format!(
-                "{} axis second-order contraction: screw or scale fixed at both ends and heated (seed 000 eq. 5)",
-                a.letter().to_ascii_uppercase()
-            ),
-            Effect::Backlash(a) => format!(
-                "{} axis backlash (opposite clearance): lost motion at reversal (seed 000 eq. 14)",
-                a.letter().to_ascii_uppercase()
-            ),
-            Effect::Cyclic(a) => format!(
-                "{} axis periodic error of the ball screw or scale at its pitch (seed 000 eq. 8)",
-                a.letter().to_ascii_uppercase()
-            ),
-            Effect::Interference(a) => format!(
-                "{} axis interference of the detection device: periodic error growing with speed (seed 000 eq. 11)",
-                a.letter().to_ascii_uppercase()
-            ),
-            Effect::Squareness(p) => {
-                let (i, j) = p.axes();
-                format!(
-                    "squareness error between {} and {}: {} moves by s per metre of {}",
-                    i.letter().to_ascii_uppercase(),
-                    j.letter().to_ascii_uppercase(),
-                    i.letter().to_ascii_uppercase(),
-                    j.letter().to_ascii_uppercase()
-                )
-            }
-            Effect::ServoMismatch(p) => {
-                let (i, j) = p.axes();
-                format!(
-                    "servo mismatch: {} follows its command dtau later than {} (position-loop gains or time constants differ; tuning, not a setting)",
-                    i.letter().to_ascii_uppercase(),
-                    j.letter().to_ascii_uppercase()
-                )
-            }
-            Effect::ReversalSpike(a) => format!(
-                "{} axis reversal spike: at each reversal the axis sticks by h and catches up with time constant tau (friction, stick-slip, lost motion taken up by the servo)",
-                a.letter().to_ascii_uppercase()
-            ),
-            Effect::Drift => "the ball distance drifts with time during the test (warm-up of the machine or the instrument)".into(),
-            Effect::ScaleMismatch(p) => {
-                let (i, j) = p.axes();
-                format!(
-                    "scale mismatch between {} and {} (scale_{} − scale_{}); their common part cannot be told from length_offset at one radius",
-                    i.letter().to_ascii_uppercase(),
-                    j.letter().to_ascii_uppercase(),
-                    i.letter(),
-                    j.letter()
-                )
-            }
-        }
-    }
-
     /// Add this effect's δ (mm) for parameters `theta` to `q[j]` and its direct change of D (mm)
     /// to `dd[j]` for samples i0 + j, j < q.len(). Effect by effect over a block of samples,
     /// because the exact fit evaluates every effect on every sample on every pass.
