@@ -43,7 +43,15 @@ pub fn decimals_for(sigma: f64) -> usize {
 /// with the noise σ of the test).
 pub fn format_to(value: f64, sigma: f64) -> String {
     let d = decimals_for(sigma);
-    format!("{value:.d$}")
+    no_negative_zero(format!("{value:.d$}"))
+}
+
+/// `-0.00` (a small negative value rounded away) as `0.00`.
+fn no_negative_zero(text: String) -> String {
+    match text.strip_prefix('-') {
+        Some(rest) if rest.chars().all(|c| c == '0' || c == '.') => rest.to_string(),
+        _ => text,
+    }
 }
 
 /// Whole percentages of `shares` (fractions of one whole, NaN counting as 0) that add up to
@@ -79,7 +87,8 @@ pub fn format_estimate(value: f64, sigma: Option<f64>) -> String {
     match sigma {
         Some(s) if s > 0.0 && s.is_finite() => {
             let decimals = decimals_for(s);
-            format!("{value:.decimals$} ± {s:.decimals$}")
+            let v = no_negative_zero(format!("{value:.decimals$}"));
+            format!("{v} ± {s:.decimals$}")
         }
         Some(_) => format!("{value} ± 0"),
         None => format!("{value:.3} (undetermined)"),
@@ -111,6 +120,8 @@ mod tests {
         assert_eq!(format_to(7.2951, 0.201), "7.30");
         assert_eq!(format_to(7.2951, 0.0034), "7.2951");
         assert_eq!(format_to(1234.4, 31.0), "1234");
+        assert_eq!(format_to(-0.000_04, 0.2), "0.00");
+        assert_eq!(format_estimate(-0.000_04, Some(0.2)), "0.00 ± 0.20");
     }
 
     #[test]

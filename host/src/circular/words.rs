@@ -31,10 +31,11 @@ pub fn cause(effect: Effect, value: f64) -> String {
     let neg = value < 0.0;
     match effect {
         Effect::SetupOffset => {
-            "set-up: the table ball is not where it was assumed (centring); not a machine error".into()
+            "the table ball is not where it was assumed (centring) — set-up, not a machine error"
+                .into()
         }
         Effect::LengthOffset => {
-            "set-up: the bar is longer or shorter than its assumed length (bar calibration, ball seating); not a machine error".into()
+            "the bar is longer or shorter than its assumed length — bar calibration or ball seating; set-up, not a machine error".into()
         }
         Effect::Scale(a) => format!(
             "{}: travels {} than commanded (scale error) — steps/mm or pitch setting, or the screw or scale is warm",
@@ -161,7 +162,7 @@ mod tests {
                 for bad in ["seed", "eq.", "dtau", "BIC", "tau", "δ"] {
                     assert!(!c.contains(bad), "{e}: `{bad}` in `{c}`");
                 }
-                assert!(c.contains(" — ") || e.is_setup() || e == Effect::Drift, "{c}");
+                assert!(c.contains(" — "), "{c}");
             }
             for k in e.param_names() {
                 let l = param_label(k);
