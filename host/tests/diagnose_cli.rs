@@ -463,7 +463,13 @@ fn every_output_shows_one_g_per_circle_and_direction_shares_of_100_and_plain_wor
         ],
     );
     let rep = dir.path().join("rep");
-    let o = jdbb(&["diagnose", "--samples", &file, "--report", rep.to_str().unwrap()]);
+    let o = jdbb(&[
+        "diagnose",
+        "--samples",
+        &file,
+        "--report",
+        rep.to_str().unwrap(),
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8_lossy(&o.stdout).to_string();
     let v: serde_json::Value =
@@ -491,19 +497,26 @@ fn every_output_shows_one_g_per_circle_and_direction_shares_of_100_and_plain_wor
             text.contains(&format!("circle {} (r ", k + 1)) && text.contains(&line),
             "text lacks `{line}`:\n{text}"
         );
-        assert!(svg.contains(&format!("G ccw {ccw} µm, cw {cw} µm")), "polar.svg lacks {line}");
+        assert!(
+            svg.contains(&format!("G ccw {ccw} µm, cw {cw} µm")),
+            "polar.svg lacks {line}"
+        );
         assert!(
             html.contains(&format!("G ccw {ccw} µm, cw {cw} µm, H")),
             "report plot title lacks {line}"
         );
         assert!(
-            html.contains(&format!("<td class=\"num\">{ccw}</td><td class=\"num\">{cw}</td>")),
+            html.contains(&format!(
+                "<td class=\"num\">{ccw}</td><td class=\"num\">{cw}</td>"
+            )),
             "report table lacks {line}"
         );
     }
     assert_eq!(v["circular_deviation_g_um"].as_f64().unwrap(), largest);
     assert_eq!(v["minimum_zone"]["g_um"].as_f64().unwrap(), largest);
-    assert!(html.contains(&format!("largest circular deviation G = {largest:.decimals$} µm")));
+    assert!(html.contains(&format!(
+        "largest circular deviation G = {largest:.decimals$} µm"
+    )));
     assert!(svg.contains(&format!("G = {largest:.decimals$} µm (largest)")));
 
     // Shares: the JSON's add up to 1 with the residual's; the printed whole percentages add

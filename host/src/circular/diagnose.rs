@@ -36,9 +36,7 @@ use nalgebra::DMatrix;
 
 use super::input::MIN_SAMPLES;
 use super::model::{Axis, Candidate, Effect, EffectSet, ExactModel, Pair, Path, MIN_TAU_MS};
-use super::runs::{
-    angles, harmonics, main_plane, split_runs_at, Circle, Run, MAX_RUN_STEP_RAD,
-};
+use super::runs::{angles, harmonics, main_plane, split_runs_at, Circle, Run, MAX_RUN_STEP_RAD};
 use super::zone::{circle_zones, CircleZone};
 use crate::numerics::lsq::{least_squares, GramAccumulator, LsqOptions, Problem, Subset};
 use crate::numerics::select::{
@@ -882,13 +880,21 @@ mod tests {
         // Shares of the error: the backlash and the residual, adding up to 1; the backlash's
         // share is its mean square over that of the whole (it alone, 3 µm each way, against
         // 0.3 µm noise: about 99 %).
-        let machine: Vec<&Found> = diag.effects.iter().filter(|f| !f.effect.is_setup()).collect();
+        let machine: Vec<&Found> = diag
+            .effects
+            .iter()
+            .filter(|f| !f.effect.is_setup())
+            .collect();
         assert_eq!(machine.len(), 1);
         let sum: f64 = machine.iter().map(|f| f.share).sum::<f64>() + diag.residual_share;
         assert!((sum - 1.0).abs() < 1e-12, "{sum}");
         let b = machine[0];
         let want = b.contribution_rms_um.powi(2)
             / (b.contribution_rms_um.powi(2) + diag.final_rms_um.powi(2));
-        assert!((b.share - want).abs() < 1e-12 && b.share > 0.95, "{}", b.share);
+        assert!(
+            (b.share - want).abs() < 1e-12 && b.share > 0.95,
+            "{}",
+            b.share
+        );
     }
 }

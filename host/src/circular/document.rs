@@ -291,7 +291,11 @@ pub fn upgrade(v: &mut serde_json::Value) -> bool {
         .collect();
     if let Some(effects) = v.get_mut("effects").and_then(Value::as_array_mut) {
         for e in effects.iter_mut() {
-            let Some(effect) = e.get("name").and_then(Value::as_str).and_then(Effect::parse) else {
+            let Some(effect) = e
+                .get("name")
+                .and_then(Value::as_str)
+                .and_then(Effect::parse)
+            else {
                 continue;
             };
             match effect {
@@ -448,18 +452,30 @@ mod tests {
         assert!(upgrade(&mut v));
         assert_eq!(v["format"], FORMAT);
         let b = &v["effects"][1];
-        assert_eq!((b["value"].as_f64(), b["params"]["b_um"].as_f64()), (Some(8.0), Some(8.0)));
+        assert_eq!(
+            (b["value"].as_f64(), b["params"]["b_um"].as_f64()),
+            (Some(8.0), Some(8.0))
+        );
         assert!(b["params"].get("f_um").is_none());
         assert_eq!(b["params_sigma"]["b_um"].as_f64(), Some(0.01));
-        assert!(b["cause"].as_str().unwrap().starts_with("X: lost motion (play)"));
+        assert!(b["cause"]
+            .as_str()
+            .unwrap()
+            .starts_with("X: lost motion (play)"));
         assert!(!v["effects"][0]["cause"].as_str().unwrap().contains("seed"));
         let s = &v["effects"][0]["params"];
-        assert_eq!((s["x_um"].as_f64(), s["y_um"].as_f64()), (Some(-12.0), Some(7.0)));
+        assert_eq!(
+            (s["x_um"].as_f64(), s["y_um"].as_f64()),
+            (Some(-12.0), Some(7.0))
+        );
         assert_eq!(v["lsq_setup"]["x_um"].as_f64(), Some(-12.0));
         assert_eq!(v["lsq_setup"]["e_um"].as_f64(), Some(0.1));
         // The zone's table-ball position: −(12 + 0.5) along x, −(−7 + 0) along y.
         let c = &v["circles"][0]["ccw"]["centre"];
-        assert_eq!((c["x_um"].as_f64(), c["y_um"].as_f64()), (Some(-12.5), Some(7.0)));
+        assert_eq!(
+            (c["x_um"].as_f64(), c["y_um"].as_f64()),
+            (Some(-12.5), Some(7.0))
+        );
         assert_eq!(v["circular_deviation_g_um"].as_f64(), Some(8.8));
         assert_eq!(v["lsq_circular_deviation_g_um"].as_f64(), Some(9.1));
         // Shares: 16 and 4 of 16 + 4 + 1 µm².

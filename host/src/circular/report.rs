@@ -50,7 +50,9 @@
 //!   .sigma                 standard error of value (delta method), null if undetermined
 //!   .params                {parameter: value}: setup_offset {x_um,y_um,z_um}, length_offset
 //!                          {e_um}, scale/scale_mismatch {a_um_per_m}, scale2 {b_um_per_m2},
-//!                          backlash {b_um: the lost motion}, cyclic {sin_um,cos_um}
+//!                          backlash {b_um: the lost motion; pos_um, neg_um: at the reversal
+//!                          at the + and − end of the travel, when they differ}, cyclic
+//!                          {sin_um,cos_um}
 //!                          (A·sin(w+φ) = sin_um·sin w + cos_um·cos w, w = 2πk/pitch),
 //!                          interference {sin_um_per_mm_s, cos_um_per_mm_s}, squareness
 //!                          {s_um_per_m}, servo_mismatch {dtau_ms: how much later the first

@@ -615,11 +615,15 @@ mod tests {
                     .unwrap();
             }
         }
-        let mut h = History::open(&path).unwrap();
+        let h = History::open(&path).unwrap();
         assert_eq!(h.version().unwrap(), 3);
         let runs = h.runs("mill").unwrap();
         let value = |n: &str| runs[0].effects.iter().find(|e| e.name == n).unwrap().value;
-        assert_eq!(value("backlash_x"), Some(8.0), "lost motion is positive now");
+        assert_eq!(
+            value("backlash_x"),
+            Some(8.0),
+            "lost motion is positive now"
+        );
         assert_eq!(value("squareness_xy"), Some(25.0));
         assert_eq!(runs[0].g_um, Some(14.1));
         // The stored file reads as today's: backlash +8 as b_um, the table ball at (−12, 7).
@@ -645,16 +649,24 @@ mod tests {
         let other = old_text.replace("\"samples\":1000", "\"samples\":1001");
         let d = DiagnosisDoc::parse(Path::new("oct.json"), &other).unwrap();
         let added = h
-            .add("mill", &d, &other, "oct.json", Some("2026-10-01T00:00:00Z".into()))
+            .add(
+                "mill",
+                &d,
+                &other,
+                "oct.json",
+                Some("2026-10-01T00:00:00Z".into()),
+            )
             .unwrap();
         assert!(added.new);
         let runs = h.runs("mill").unwrap();
         assert_eq!(runs[1].effects[0].value, Some(8.0));
         let stored: String = h
             .conn
-            .query_row("SELECT diagnosis FROM runs WHERE id = ?1", [added.run_id], |r| {
-                r.get(0)
-            })
+            .query_row(
+                "SELECT diagnosis FROM runs WHERE id = ?1",
+                [added.run_id],
+                |r| r.get(0),
+            )
             .unwrap();
         assert!(stored.contains("\"format\": 2"), "{stored}");
     }

@@ -18,7 +18,8 @@ pub enum Migration {
 /// The migrations, in order; `MIGRATIONS[k]` takes `user_version` from k to k + 1.
 pub const MIGRATIONS: &[Migration] = &[
     // 1: machines, their runs (one diagnosis each, kept whole), the runs' effects.
-    Migration::Sql("CREATE TABLE machines (
+    Migration::Sql(
+        "CREATE TABLE machines (
         id INTEGER PRIMARY KEY,
         name TEXT NOT NULL UNIQUE,
         created_utc TEXT NOT NULL
@@ -47,7 +48,8 @@ pub const MIGRATIONS: &[Migration] = &[
         sigma REAL,
         unit TEXT NOT NULL,
         PRIMARY KEY (run_id, name)
-    );"),
+    );",
+    ),
     // 2: the per-machine listing by date; which jdbb added a run.
     Migration::Sql(
         "CREATE INDEX runs_by_machine_date ON runs (machine_id, date_utc);
