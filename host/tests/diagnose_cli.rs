@@ -550,6 +550,22 @@ fn every_output_shows_one_g_per_circle_and_direction_shares_of_100_and_plain_wor
             assert!(!out.contains(bad), "{what} says `{bad}`");
         }
     }
+    // Digits from σ: each machine effect's value and σ are printed to two significant digits
+    // of σ, in the text and in the report.
+    for e in &effects[2..] {
+        let (value, sigma) = (e["value"].as_f64().unwrap(), e["sigma"].as_f64().unwrap());
+        let d = (1 - sigma.log10().floor() as i32).max(0) as usize;
+        let shown = format!("{value:.d$} ± {sigma:.d$}");
+        let name = e["name"].as_str().unwrap();
+        assert!(
+            text.contains(&format!("{name} = {shown} ")),
+            "{shown}:\n{text}"
+        );
+        assert!(
+            html.contains(&format!("<td class=\"num\">{shown} ")),
+            "{shown}"
+        );
+    }
     let b = effects.iter().find(|e| e["name"] == "backlash_x").unwrap();
     let words = if b["value"].as_f64().unwrap() > 0.0 {
         "X: lost motion (play) at reversal"
