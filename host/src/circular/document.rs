@@ -270,8 +270,9 @@ pub fn upgraded_text(text: &str) -> Option<String> {
 /// - `backlash_k`: value and parameter negated (positive = lost motion), `f_um` renamed `b_um`;
 /// - `setup_offset` parameters and `lsq_setup` x, y, z negated (where the table ball is), and each
 ///   zone centre made the table-ball position of that zone (−(c + zone centre));
-/// - `circular_deviation_g_um` and `hysteresis_h_um` become the minimum-zone ones
-///   (`minimum_zone`), the least-squares G kept as `lsq_circular_deviation_g_um`;
+/// - `circular_deviation_g_um` becomes the minimum zone's (`minimum_zone.g_um`, null without
+///   it), the least-squares G kept as `lsq_circular_deviation_g_um`; `hysteresis_h_um` the
+///   minimum zone's where the file has it;
 /// - shares recomputed from `contribution_rms_um` and `final.rms_um` so they add up to 1;
 /// - causes rewritten in the current words ([`words::cause`]).
 pub fn upgrade(v: &mut serde_json::Value) -> bool {
@@ -355,13 +356,17 @@ pub fn upgrade(v: &mut serde_json::Value) -> bool {
             }
         }
     }
-    if let Some(mz) = v.get("minimum_zone").cloned() {
-        let old_g = v.get("circular_deviation_g_um").cloned();
-        if let Some(g) = old_g.filter(|g| !g.is_null()) {
+    // Format 1's G was taken about the least-squares centre: kept under its own name, and the
+    // test's G is the minimum zone's (null where the file has none). H did not depend on the
+    // centre (the same 1° bins), so it stays unless the file has the minimum zone's.
+    if let Some(g) = v.get("circular_deviation_g_um").cloned() {
+        if !g.is_null() {
             v["lsq_circular_deviation_g_um"] = g;
         }
-        v["circular_deviation_g_um"] = mz.get("g_um").cloned().unwrap_or(Value::Null);
-        v["hysteresis_h_um"] = mz.get("h_um").cloned().unwrap_or(Value::Null);
+        v["circular_deviation_g_um"] = v["minimum_zone"]["g_um"].clone();
+    }
+    if let Some(h) = v.get("minimum_zone").and_then(|z| z.get("h_um")).cloned() {
+        v["hysteresis_h_um"] = h;
     }
     let rms = v["final"]["rms_um"].as_f64();
     if let (Some(rms), Some(effects)) = (rms, v.get_mut("effects").and_then(Value::as_array_mut)) {

@@ -89,6 +89,8 @@
 //! circular_deviation_g_um  the test's G: the largest minimum-zone G of a circle in one
 //!                          direction (= minimum_zone.g_um), µm
 //! hysteresis_h_um          the test's H: the largest H of a circle (= minimum_zone.h_um), µm
+//! lsq_circular_deviation_g_um  only in files upgraded from format 1: their G about the
+//!                          least-squares centre, kept (not written by this version)
 //! candidates[]             the candidate effects that were tried
 //! ```
 //!
