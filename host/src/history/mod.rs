@@ -210,9 +210,20 @@ impl History {
         conn.busy_timeout(BUSY_TIMEOUT).map_err(db)?;
         // journal_mode returns the mode in force; anything but wal means the file system
         // cannot share memory between processes (then SQLite's default locking still serialises).
-        let _mode: String = conn
-            .query_row("PRAGMA journal_mode = WAL", [], |r| r.get(0))
-            .map_err(db)?;
+        // Switching a new file to WAL while another process does the same can be refused as busy
+        // without the busy handler being asked: retry, within the same timeout.
+        let started = std::time::Instant::now();
+        let _mode: String = loop {
+            match conn.query_row("PRAGMA journal_mode = WAL", [], |r| r.get(0)) {
+                Err(rusqlite::Error::SqliteFailure(e, _))
+                    if e.code == rusqlite::ErrorCode::DatabaseBusy
+                        && started.elapsed() < BUSY_TIMEOUT =>
+                {
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+                other => break other.map_err(db)?,
+            }
+        };
         conn.pragma_update(None, "foreign_keys", true).map_err(db)?;
         match schema::migrate_to(&mut conn, target) {
             Ok(_) => {}
@@ -669,6 +680,30 @@ mod tests {
             )
             .unwrap();
         assert!(stored.contains("\"format\": 2"), "{stored}");
+    }
+
+    #[test]
+    fn many_first_opens_of_a_new_file_at_once_all_succeed() {
+        // Six connections open the same new file at once, sixty times over: each must get it
+        // (switching a new file to WAL can be refused as busy without the busy handler).
+        let dir = tempfile::tempdir().unwrap();
+        for round in 0..60 {
+            let path = dir.path().join(format!("h{round}.sqlite"));
+            let start = std::sync::Arc::new(std::sync::Barrier::new(6));
+            let handles: Vec<_> = (0..6)
+                .map(|_| {
+                    let (path, start) = (path.clone(), start.clone());
+                    std::thread::spawn(move || {
+                        start.wait();
+                        History::open(&path).map(|h| h.version().unwrap())
+                    })
+                })
+                .collect();
+            for h in handles {
+                let v = h.join().unwrap();
+                assert_eq!(v.ok(), Some(schema::latest()), "round {round}");
+            }
+        }
     }
 
     #[test]
