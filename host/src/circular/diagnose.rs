@@ -36,9 +36,7 @@ use nalgebra::DMatrix;
 
 use super::input::MIN_SAMPLES;
 use super::model::{Axis, Candidate, Effect, EffectSet, ExactModel, Pair, Path, MIN_TAU_MS};
-use super::runs::{
-    angles, circularity, harmonics, main_plane, split_runs_at, Circle, Run, MAX_RUN_STEP_RAD,
-};
+use super::runs::{angles, harmonics, main_plane, split_runs_at, Circle, Run, MAX_RUN_STEP_RAD};
 use super::zone::{circle_zones, CircleZone};
 use crate::numerics::lsq::{least_squares, GramAccumulator, LsqOptions, Problem, Subset};
 use crate::numerics::select::{
@@ -90,8 +88,9 @@ pub struct Found {
     /// RMS (µm) of the radial deviation this effect alone makes along the path, after the same
     /// set-up removal as the plotted curve; NaN for the set-up itself.
     pub contribution_rms_um: f64,
-    /// This effect's share of the error: contribution_rms_um² / (RMS of the plotted measured
-    /// deviation)². Shares of correlated effects need not add up to 1; NaN for the set-up.
+    /// This effect's share of the error: contribution_rms_um² over the sum of every machine
+    /// effect's contribution_rms_um² and the residual's mean square (final_rms_um²), so the
+    /// shares and [`Diagnosis::residual_share`] add up to 1; NaN for the set-up.
     pub share: f64,
 }
 
@@ -125,6 +124,9 @@ pub struct Diagnosis {
     /// tell apart.
     pub confounded: Vec<Vec<String>>,
     pub final_rms_um: f64,
+    /// The residual's share of the error (what no named effect explains: noise and the rest):
+    /// final_rms_um² over the same sum as [`Found::share`].
+    pub residual_share: f64,
     /// baseline RMS / final RMS.
     pub gain: f64,
     /// Amplitude (µm) of residual harmonics 1..=n against the angle in the main plane.
@@ -141,14 +143,15 @@ pub struct Diagnosis {
     /// timing σ); not named, and the rest refitted without them.
     pub not_significant: Vec<NotSignificant>,
     /// Per sample: angle (rad) in the main plane; measured deviation with the least-squares
-    /// set-up removed, D − (|p − c| + e) with c, e from [`Diagnosis::lsq_setup_um`] (µm); and the
+    /// set-up removed, D − (|p − t| + e) with t, e from [`Diagnosis::lsq_setup_um`] (µm); and the
     /// extended model's deviation after the same removal, i.e. its machine effects (µm).
     pub angle_rad: Vec<f64>,
     pub measured_dev_um: Vec<f64>,
     pub model_dev_um: Vec<f64>,
     /// The set-up removed from the plotted deviations: the least-squares centre and length of all
-    /// samples, D ≈ |p − c| + e, as [c_x, c_y, c_z, e] in µm (a component the path cannot
-    /// determine is held at 0).
+    /// samples, D ≈ |p − t| + e, as [t_x, t_y, t_z, e] in µm, t being where the table ball is
+    /// relative to where it was assumed (the one sign of a set-up offset in every command) and
+    /// e the bar's length offset (a component the path cannot determine is held at 0).
     pub lsq_setup_um: [f64; 4],
     /// Main plane (axis indices) of the angle.
     pub plane: (usize, usize),
@@ -156,9 +159,11 @@ pub struct Diagnosis {
     pub circles: Vec<Circle>,
     /// The samples cut into runs of one circle in one direction without gaps (see [`split_runs`]).
     pub runs: Vec<Run>,
-    /// ISO 230-4 style circular deviation G and hysteresis H (µm) of the plotted measured
-    /// deviation, see [`circularity`].
+    /// The test's circular deviation G (µm): the largest of the circles' G, each the radial width
+    /// of the minimum zone (ISO 230-4, minimum-zone centre) of one circle in one direction
+    /// ([`Diagnosis::circle_zones`]). The one G every output shows.
     pub circular_deviation_g_um: f64,
+    /// The test's hysteresis H (µm): the largest of the circles' H.
     pub hysteresis_h_um: f64,
     /// Per circle: conditions (radius, height, feed) and ISO 230-4 G and H with the
     /// minimum-zone centre ([`super::zone`]).
@@ -874,6 +879,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
             setup_theta[3],
         ],
     )?;
+    // fit_setup's t is where the table ball is: D = |p − t| + e.
     let lsq_setup_um = [
         setup_theta[0],
         setup_theta[1],
@@ -892,10 +898,10 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     }
     let harmonics_um = harmonics(&angle, &resid, opts.harmonics);
     let (circles, runs) = split_runs_at(&path.t_s, &path.p_mm, &angle, plane, MAX_RUN_STEP_RAD);
-    let (g, h) = circularity(&angle, &meas, &runs);
     let zones = circle_zones(path, &angle, &meas, &circles, &runs)?;
+    let g = zones.iter().map(CircleZone::g_um).fold(0.0, f64::max);
+    let h = zones.iter().map(|z| z.h_um).fold(0.0, f64::max);
     // Each machine effect alone, with the plotted curve's set-up removal: its share of the error.
-    let meas_ms = meas.iter().map(|x| x * x).sum::<f64>() / m as f64;
     for f in found.iter_mut().filter(|f| !f.effect.is_setup()) {
         let alone = EffectSet::new(vec![f.effect]).distances_mm(path, &f.params);
         let its_setup = fit_setup(path, &alone, &setup_free, &[0.0; 4])?;
@@ -907,11 +913,23 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
             .sum::<f64>()
             / m as f64;
         f.contribution_rms_um = ms.sqrt();
-        f.share = if meas_ms > 0.0 {
-            ms / meas_ms
+    }
+    let residual_ms = final_rms_um * final_rms_um;
+    let total_ms = residual_ms
+        + found
+            .iter()
+            .filter(|f| !f.effect.is_setup())
+            .map(|f| f.contribution_rms_um.powi(2))
+            .sum::<f64>();
+    let share = |ms: f64| {
+        if total_ms > 0.0 {
+            ms / total_ms
         } else {
             f64::NAN
-        };
+        }
+    };
+    for f in found.iter_mut().filter(|f| !f.effect.is_setup()) {
+        f.share = share(f.contribution_rms_um.powi(2));
     }
     Ok(Diagnosis {
         samples: m,
@@ -920,6 +938,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         effects: found,
         confounded,
         final_rms_um,
+        residual_share: share(residual_ms),
         gain: baseline_rms_um / final_rms_um.max(1e-300),
         harmonics_um,
         candidates: candidates_tried,
@@ -1078,7 +1097,7 @@ mod tests {
 
     #[test]
     fn plotted_deviation_has_the_setup_removed() {
-        // Only set-up (centring 40, −25 µm; bar 15 µm long) and noise: the plotted measured
+        // Only set-up (table ball 40, −25 µm off; bar 15 µm long) and noise: the plotted measured
         // deviation is noise around zero, not the 47 µm eccentricity.
         let setup = [
             ev(Effect::SetupOffset, vec![40.0, -25.0, 0.0]),
@@ -1092,10 +1111,20 @@ mod tests {
         let h1 = harmonics(&diag.angle_rad, meas, 1)[0];
         assert!(h1 < 0.05, "first harmonic (eccentricity) {h1} µm");
         assert!(rms(meas) < 0.4, "RMS {} µm", rms(meas));
+        // The table ball simulated at (40, −25) µm from where it was assumed: the least-squares
+        // set-up and the set-up offset both say where it is.
         for (k, truth) in [40.0, -25.0, 0.0, 15.0].into_iter().enumerate() {
             assert!(
                 (diag.lsq_setup_um[k] - truth).abs() < 0.1,
                 "{:?}",
+                diag.lsq_setup_um
+            );
+        }
+        for k in 0..3 {
+            assert!(
+                (diag.effects[0].params[k] - diag.lsq_setup_um[k]).abs() < 0.1,
+                "setup_offset {:?} vs lsq_setup {:?}",
+                diag.effects[0].params,
                 diag.lsq_setup_um
             );
         }
@@ -1121,5 +1150,37 @@ mod tests {
             .collect();
         assert!(rms(&diff) < 0.4, "measured − model RMS {}", rms(&diff));
         assert!(diag.circular_deviation_g_um > 5.0);
+        // The one G: the largest minimum-zone width of a circle in one direction.
+        let widths: Vec<f64> = diag
+            .circle_zones
+            .iter()
+            .flat_map(|z| [z.ccw, z.cw])
+            .flatten()
+            .map(|z| z.width_um)
+            .collect();
+        assert_eq!(widths.len(), 2);
+        assert_eq!(
+            diag.circular_deviation_g_um,
+            widths.iter().cloned().fold(0.0, f64::max)
+        );
+        // Shares of the error: the backlash and the residual, adding up to 1; the backlash's
+        // share is its mean square over that of the whole (it alone, 3 µm each way, against
+        // 0.3 µm noise: about 99 %).
+        let machine: Vec<&Found> = diag
+            .effects
+            .iter()
+            .filter(|f| !f.effect.is_setup())
+            .collect();
+        assert_eq!(machine.len(), 1);
+        let sum: f64 = machine.iter().map(|f| f.share).sum::<f64>() + diag.residual_share;
+        assert!((sum - 1.0).abs() < 1e-12, "{sum}");
+        let b = machine[0];
+        let want = b.contribution_rms_um.powi(2)
+            / (b.contribution_rms_um.powi(2) + diag.final_rms_um.powi(2));
+        assert!(
+            (b.share - want).abs() < 1e-12 && b.share > 0.95,
+            "{}",
+            b.share
+        );
     }
 }

@@ -599,7 +599,8 @@ mod tests {
                 serde_json::json!({"name": n, "value": v, "sigma": s, "unit": "um", "params": params})
             })
             .collect();
-        let text = serde_json::json!({"sign_conventions": 2, "samples": 1000, "effects": effects,
+        // Format 2: the values as given (an older file would be upgraded as it is read).
+        let text = serde_json::json!({"format": 2, "samples": 1000, "effects": effects,
             "circles": [{"radius_mm": 50.0, "height_mm": 0.0, "feed_mm_min": 1000.0}]})
         .to_string();
         DiagnosisDoc::parse(Path::new("d.json"), &text).unwrap()
