@@ -208,7 +208,7 @@ fn cannot_carry(f: &Found, period_s: f64) -> Option<String> {
         let tau_ms = f.params[1];
         if tau_ms.is_nan() || tau_ms * 1e-3 < period_s {
             return Some(format!(
-                "its decay time ({tau_ms:.3} ms) is shorter than one sample period ({:.3} ms): the data cannot show it",
+                "its decay time is shorter than one sample period ({:.3} ms): the data cannot show it",
                 period_s * 1e3
             ));
         }
@@ -651,7 +651,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     let below_floor: Vec<(String, f64)> = sel
         .below_floor
         .iter()
-        .map(|&(g, bound)| (design.cands[candidates[g]].effect.name(), bound))
+        .map(|&(g, bound)| (family_key(&design.cands[candidates[g]]), bound))
         .collect();
     let setup_rms = (sel.base_ssr / m as f64).sqrt();
     let current = &sel.current;
@@ -816,14 +816,9 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                         let z = |f: &Found| f.value.abs() / f.sigma.unwrap_or(f64::INFINITY);
                         z(a.1).total_cmp(&z(b.1))
                     })
-                    .map(|(ei, f)| {
-                        let reason = format!(
-                            "its value is within 2σ of zero ({:.3} ± {:.3} {})",
-                            f.value,
-                            f.sigma.unwrap_or(f64::NAN),
-                            f.effect.unit()
-                        );
-                        (ei, reason)
+                    .map(|(ei, _)| {
+                        let reason = "its value is within 2σ of zero (σ with the timing uncertainty)";
+                        (ei, reason.to_string())
                     })
             })
             .map(|(ei, reason)| {

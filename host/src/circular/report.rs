@@ -76,8 +76,10 @@
 //!                          anywhere is not named (µm)
 //! below_floor[]            {name, peak_um}: effects the data support but that stay under the
 //!                          floor (peak_um bounds their largest contribution to D)
-//! not_significant[]        {name, value, sigma, unit, params}: effects the selection chose whose value
-//!                          is within 2σ of zero once σ counts the timing uncertainty (not named)
+//! not_significant[]        {name, value, sigma, unit, params, reason}: effects the selection
+//!                          chose that the data cannot carry, not named: parameters not
+//!                          determined, a spike decaying within one sample period, or a value
+//!                          within 2σ of zero once σ counts the timing uncertainty
 //! final.rms_um             RMS of the residual of the exact refit, µm (the test's noise)
 //! residual_share           the residual's share of the error (see *Shares*)
 //! gain                     baseline.rms_um / final.rms_um
@@ -219,11 +221,12 @@ pub fn summary(d: &Diagnosis) -> String {
             .collect();
         let _ = writeln!(
             s,
-            "not significant (|value| < 2σ, σ with the timing uncertainty): {} = {} {} ({}) — not named",
+            "not named: {} = {} {} ({}) — {}",
             w.name,
             format_estimate(w.value, Some(w.sigma_value)),
             crate::units::human(w.unit),
-            params.join(", ")
+            params.join(", "),
+            w.reason
         );
     }
     let _ = writeln!(
@@ -348,6 +351,7 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
         "not_significant": d.not_significant.iter().map(|w| json!({
             "name": w.name, "value": num(w.value), "sigma": num(w.sigma_value), "unit": w.unit,
             "params": w.params.iter().map(|(n, v)| (n.to_string(), num(*v))).collect::<serde_json::Map<_, _>>(),
+            "reason": w.reason,
         })).collect::<Vec<_>>(),
         "final": {"rms_um": num(d.final_rms_um)},
         "residual_share": num(d.residual_share),
