@@ -5,9 +5,11 @@
 //!
 //! # Overruns
 //!
-//! The sample task is handed, with the counts, a 16-bit count of sample-clock ticks kept by the
-//! hardware (the real board: TIM4 counting TIM3's update events; QEMU: the pacer's count of pended
-//! ticks). If it ran late by more than a period, the count has moved by more than one: the ticks in
+//! The sample task is handed, with the counts, a 32-bit count of sample-clock ticks kept by the
+//! hardware (the real board: TIM4 counting TIM3's update events and TIM1 counting TIM4's
+//! overflows; QEMU: the pacer's count of the periods elapsed). 32 bits, so that no stall can hide:
+//! a 16-bit count wraps after 65 536 periods (3.3 s at 20 kHz, less than a 128 KiB flash erase),
+//! and a stall that long would have shifted seq and t_us silently by 65 536 periods. If it ran late by more than a period, the count has moved by more than one: the ticks in
 //! between are *overruns*. Their samples are lost (on the real board the counters are latched at
 //! every tick and the later latch overwrote them), so they are counted as dropped, their sequence
 //! numbers and time stamps are skipped (the time base stays exact, and the host sees the gap), and
@@ -108,7 +110,7 @@ pub struct Sampler {
     next_seq: u32,
     dropped: u32,
     overruns: u32,
-    last_tick: u16,
+    last_tick: u32,
     run: u32,
     base_status: u8,
     batch: SampleBatch,
@@ -137,7 +139,7 @@ impl Sampler {
         }
     }
 
-    /// The sample of sample-clock tick `tick` (the hardware's 16-bit tick count, see the module
+    /// The sample of sample-clock tick `tick` (the hardware's 32-bit tick count, see the module
     /// docs; the tick count was 0 at [`Self::restart`]): `read(t_us)` gives the two counters' raw
     /// values at that tick, which is at `t_us`. Returns a batch when one is sealed: full, or cut
     /// short by overruns (the new sample then starts the next batch). A tick count that has not
@@ -145,7 +147,7 @@ impl Sampler {
     #[inline]
     pub fn sample_at_tick(
         &mut self,
-        tick: u16,
+        tick: u32,
         read: impl FnOnce(u64) -> [u32; 2],
     ) -> Option<SampleBatch> {
         let elapsed = tick.wrapping_sub(self.last_tick);
@@ -154,7 +156,7 @@ impl Sampler {
         }
         self.last_tick = tick;
         if elapsed > 1 {
-            return self.sample_after_overrun(u32::from(elapsed - 1), read);
+            return self.sample_after_overrun(elapsed - 1, read);
         }
         let raw = read(self.clock.now_us());
         self.push(raw)
@@ -441,10 +443,10 @@ mod tests {
 
     /// Runs the sampler as the sample task does, on a list of tick counts read at successive
     /// interrupts; counts are `tick × 10` so each sample shows which tick it was taken at.
-    fn at_ticks(s: &mut Sampler, ticks: &[u16]) -> std::vec::Vec<SampleBatch> {
+    fn at_ticks(s: &mut Sampler, ticks: &[u32]) -> std::vec::Vec<SampleBatch> {
         let mut out = std::vec::Vec::new();
         for &tick in ticks {
-            let raw = [u32::from(tick) * 10, 0];
+            let raw = [tick.wrapping_mul(10), 0];
             out.extend(s.sample_at_tick(tick, |_| raw));
         }
         out.extend(s.take_batch());
@@ -484,17 +486,35 @@ mod tests {
     }
 
     #[test]
-    fn tick_count_wraps_at_16_bits() {
+    fn a_stall_longer_than_16_bits_of_ticks_is_counted_exactly() {
+        // A 128 KiB flash erase stalls the CPU for up to 4 s: 80 000 periods at 20 kHz. With a
+        // 16-bit tick count the task would have seen 80 000 − 65 536 = 14 464 missed ticks and
+        // stamped the next sample 65 536 periods too early; the 32-bit count sees them all.
+        let mut s = Sampler::new(
+            [0, 0],
+            &Calibration::DEFAULT,
+            SampleClock::new(96_000_000, 4_800), // 20 kHz: 50 µs
+            false,
+        );
+        let batches = at_ticks(&mut s, &[1, 2, 3, 80_004, 80_005]);
+        assert_eq!(s.overruns(), 80_000);
+        assert_eq!(s.dropped(), 80_000);
+        let after = &batches[1];
+        assert_eq!(after.seq, 80_003, "seq = tick − 1");
+        assert_eq!(after.dropped, 80_000, "the stream reports the stall");
+        assert_eq!(after.samples[0].t_us, 50 * 80_003);
+        assert_eq!(after.samples[1].t_us, 50 * 80_004);
+    }
+
+    #[test]
+    fn tick_count_wraps_at_32_bits() {
         let mut s = sampler();
-        let mut ticks: std::vec::Vec<u16> = (1..=u16::MAX).collect();
-        ticks.extend([0u16, 1, 3]); // wraps, then one missed
-        let n: usize = at_ticks(&mut s, &ticks)
-            .iter()
-            .map(|b| b.samples.len())
-            .sum();
-        assert_eq!(n, 65_535 + 3);
+        // Sampling for 49.7 days at 1 kHz: the count wraps through 0, one tick missed after.
+        s.last_tick = u32::MAX - 2;
+        let b = at_ticks(&mut s, &[u32::MAX - 1, u32::MAX, 0, 2]);
+        assert_eq!(b.iter().map(|b| b.samples.len()).sum::<usize>(), 4);
         assert_eq!(s.overruns(), 1);
-        assert_eq!(s.next_t_us(), 1000 * (65_535 + 4));
+        assert_eq!(s.next_t_us(), 1000 * 5);
     }
 
     #[test]

@@ -5,11 +5,13 @@
 //!
 //! | task      | priority | trigger                    | does |
 //! |-----------|----------|----------------------------|------|
-//! | `sample`  | 3        | TIM3 update (sample clock) | tick count + counts latched at the tick → `Sampler` (overruns counted as drops, counts → D → batch); a full batch goes to the queue with `try_send`, or is dropped and counted; applies a rate change at the period boundary |
+//! | `sample`  | 3        | TIM3 update (sample clock) | 32-bit tick count + counts latched at the tick; a pending rate change written (before D is computed); → `Sampler` (overruns counted as drops, counts → D → batch); a full batch goes to the queue with `try_send`, or is dropped and counted |
 //! | `pace`    | 3        | SysTick monotonic (qemu only) | pends TIM3 once per sample period and counts the tick: QEMU's TIM3 is not periodic |
 //! | `index1/2`| 3        | TIM2/TIM5 CC3 (board only) | index edge latched in hardware → `Encoder::on_index_edge` |
 //! | `usb_rx` / `uart_rx` | 2 | OTG_FS (board) / USART2 (qemu) | services the link, greets a host that configured the device, decodes commands, replies through the queue |
 //! | `writer`  | 1        | queue (async)              | frames each message and writes it to the link without blocking the others; discards (and counts) while no host reads |
+//! | `upkeep`  | 1        | spawned by `Stop`          | erases the calibration store's spare block ahead while not sampling |
+//! | idle      | 0        | —                          | feeds the watchdog, sets the status LED, sleeps (`wfi`) |
 //! | SysTick   | 1 (board) / 3 (qemu) | monotonic tick | time base of the writer's waits (and of the qemu pacer); below the sample task on the board |
 //!
 //! The queue holds [`QUEUE_LEN`] messages, of which sample batches may take [`BATCH_QUOTA`], so a
@@ -194,11 +196,33 @@ mod app {
         )
     }
 
+    /// The idle loop feeds the watchdog: a task that never lets the CPU idle (a hang, a spin that
+    /// does not end) resets the chip (board; see `board::f411`), and sets the status LED.
     #[idle]
     fn idle(_: idle::Context) -> ! {
         loop {
+            board::feed_watchdog();
+            let now_ms = Mono::now().ticks() as u64 * 1_000 / super::MONO_HZ as u64;
+            board::indicate(now_ms as u32);
             cortex_m::asm::wfi();
         }
+    }
+
+    /// While not sampling: erase the calibration store's spare block ahead (on the board up to
+    /// 4 s with the whole CPU stalled), so that no store while sampling has to. Spawned by `Stop`.
+    #[task(priority = 1, shared = [timer, control])]
+    async fn upkeep(cx: upkeep::Context) {
+        let upkeep::SharedResources {
+            mut timer,
+            mut control,
+            ..
+        } = cx.shared;
+        // Under the control lock no command (a Start) can come between the check and the erase.
+        control.lock(|c| {
+            if !timer.lock(|t| t.is_running()) {
+                c.state.cal_memory.erase_ahead();
+            }
+        });
     }
 
     /// One tick of the sample clock: the whole on-chip sample path.
@@ -209,8 +233,13 @@ mod app {
         let tx = cx.local.batch_tx;
         (timer, sampler).lock(|t, s| {
             t.clear_update();
-            let batch = encoders.sample(s);
-            if let Some(ticks) = t.apply_pending_rate() {
+            let latch = encoders.latch();
+            // A pending rate change is written first, before this tick's sample is computed, so
+            // that it always lands in the period that just began (see `SampleTimer`).
+            let new_period = t.apply_pending_rate(latch.tick());
+            let batch = encoders.sample(latch, s);
+            if let Some(ticks) = new_period {
+                // After this tick's sample: the period now running keeps its old length.
                 s.set_period(t.clock_hz(), ticks);
             }
             if let Some(batch) = batch {
@@ -240,7 +269,8 @@ mod app {
     /// sample task's interrupt once for every period elapsed on the lossless TIM2 µs count (up to
     /// [`PACE_BURST`] per wake-up, yielding in between so each pend runs the sample task), so the
     /// samples keep their rate on average even though QEMU delivers SysTick ticks irregularly.
-    /// Every pended tick is counted (`board::count_tick`), as TIM4 counts them on the board.
+    /// Every elapsed period is counted (`board::count_ticks`), as TIM4 and TIM1 count them on the
+    /// board; those beyond a burst are overruns.
     #[cfg(feature = "qemu")]
     #[task(priority = 3)]
     async fn pace(_: pace::Context) {
@@ -256,17 +286,25 @@ mod app {
                 continue;
             }
             let mut burst = 0;
-            while now_us() >= next_us && burst < PACE_BURST {
+            while now_us() >= next_us {
+                if burst == PACE_BURST {
+                    // More periods elapsed than a burst catches up: the emulated CPU stalled (a
+                    // flash erase, or QEMU starved by its host). Count them all, as the board's
+                    // tick counter counts ticks while its CPU stalls, and sample once: the sample
+                    // task sees the overrun, the stream the gap.
+                    let missed = (now_us() - next_us) / period_us + 1;
+                    next_us += missed * period_us;
+                    board::count_ticks(missed as u32);
+                    rtic::pend(stm32f4xx_hal::pac::Interrupt::TIM3);
+                    yield_now().await;
+                    break;
+                }
                 next_us += period_us;
-                board::count_tick();
+                board::count_ticks(1);
                 rtic::pend(stm32f4xx_hal::pac::Interrupt::TIM3);
                 yield_now().await;
                 burst += 1;
             }
-            // After a stall of the emulator (host busy) longer than a burst, resume from now: the
-            // skipped periods are simply not sampled (sequence numbers stay contiguous; only the
-            // simulated time runs slower than the host's clock) instead of flooding the queue.
-            next_us = next_us.max(now_us().saturating_sub(PACE_BURST as u64 * period_us));
         }
     }
 
@@ -540,6 +578,8 @@ mod app {
             }
             Command::Stop => {
                 timer.lock(|t| t.stop());
+                // Not sampling: the time to erase the calibration store's spare block, if due.
+                upkeep::spawn().ok();
                 let rest = sampler.lock(|s| s.take_batch().map(|b| (s.run(), b)));
                 if let Some((run, rest)) = rest {
                     let n = rest.samples.len() as u32;
