@@ -108,7 +108,10 @@ mod tests {
             assert_eq!(rises as u32, 3 * flashes, "{flashes} flashes");
             // Each flash is 150 ms, the gap after the last one at least 400 ms.
             assert_eq!(lit.iter().filter(|&&l| l).count() as u32, 3 * flashes * 150);
-            let last_off = (0..BLINK_PERIOD_MS).rev().find(|&t| blink(flashes, t)).unwrap();
+            let last_off = (0..BLINK_PERIOD_MS)
+                .rev()
+                .find(|&t| blink(flashes, t))
+                .unwrap();
             assert!(BLINK_PERIOD_MS - last_off > 400, "{flashes}: {last_off}");
         }
         assert!((0..BLINK_PERIOD_MS).all(|t| !blink(0, t)));

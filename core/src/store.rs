@@ -477,7 +477,10 @@ mod tests {
         // and does.
         let mut s = reopen(RamFlash::new(8 * ERASE));
         for k in 0..2 * slots {
-            assert!(!s.store_would_erase().unwrap(), "store {k}: both blocks start blank");
+            assert!(
+                !s.store_would_erase().unwrap(),
+                "store {k}: both blocks start blank"
+            );
             s.store(&cal(k)).unwrap();
         }
         assert!(s.store_would_erase().unwrap());

@@ -112,7 +112,10 @@ fn stores_erase_ahead_and_an_erase_while_sampling_shows_as_an_exact_gap() {
         (skipped + 1) * PERIOD_US,
         "time skips exactly the missed periods"
     );
-    assert_eq!(stats.device_dropped, skipped, "the device reports the gap: {stats}");
+    assert_eq!(
+        stats.device_dropped, skipped,
+        "the device reports the gap: {stats}"
+    );
     assert_eq!(stats.lost, skipped, "{stats}");
     assert_eq!(u64::from(info.overruns), skipped, "DeviceInfo.overruns");
     println!(
@@ -125,7 +128,10 @@ fn stores_erase_ahead_and_an_erase_while_sampling_shows_as_an_exact_gap() {
     );
 
     // 3. Stop erases block 1 ahead; then four stores (the last moves to block 1) lose nothing.
-    stream.request(&Command::Stop, Duration::from_secs(10)).unwrap().unwrap();
+    stream
+        .request(&Command::Stop, Duration::from_secs(10))
+        .unwrap()
+        .unwrap();
     // The erase runs after the reply (the upkeep task); a ping answered means it is over.
     assert!(stream.handshake(Duration::from_secs(30)).unwrap());
     stream.send(&Command::Start).unwrap();
@@ -135,7 +141,12 @@ fn stores_erase_ahead_and_an_erase_while_sampling_shows_as_an_exact_gap() {
         store(&mut stream, k, &mut run);
     }
     assert!(gaps(&run).is_empty(), "{:?}", gaps(&run));
-    assert_eq!(stream.stats().device_dropped, dropped_before, "{}", stream.stats());
+    assert_eq!(
+        stream.stats().device_dropped,
+        dropped_before,
+        "{}",
+        stream.stats()
+    );
     assert_eq!(run[0].seq, 0, "a new run");
     println!(
         "after Stop (spare erased ahead): stores 10–13, {} samples, no gap",

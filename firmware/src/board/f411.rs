@@ -175,7 +175,10 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
     // Started from the ROM DFU bootloader (`dfu-util ... :leave`) the PLL may still run, and then
     // VOS and PLLCFGR cannot be written (RM0383 §5.1.3, §6.3.2): back to the reset state first.
     if !clocks_to_reset_state(&dp.RCC) {
-        clock_failure("the internal oscillator (HSI) or the clock switch did not answer", 4);
+        clock_failure(
+            "the internal oscillator (HSI) or the clock switch did not answer",
+            4,
+        );
     }
     // Voltage scale 1 before the PLL starts (RM0383 §5.1.3): the reset value, scale 2, allows
     // HCLK ≤ 84 MHz only. VOS can be written only while the PLL is off and takes effect when it
@@ -216,8 +219,10 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
     // SAFETY: a reset pulse on the OTG FS peripheral, before anything uses it.
     unsafe {
         let rcc = &*pac::RCC::ptr();
-        rcc.ahb2rstr().modify(|r, w| w.bits(r.bits() | AHB2RSTR_OTGFSRST));
-        rcc.ahb2rstr().modify(|r, w| w.bits(r.bits() & !AHB2RSTR_OTGFSRST));
+        rcc.ahb2rstr()
+            .modify(|r, w| w.bits(r.bits() | AHB2RSTR_OTGFSRST));
+        rcc.ahb2rstr()
+            .modify(|r, w| w.bits(r.bits() & !AHB2RSTR_OTGFSRST));
     }
     let gpioa = dp.GPIOA.split();
     let gpiob = dp.GPIOB.split();
@@ -357,7 +362,8 @@ fn clocks_to_reset_state(rcc: &pac::RCC) -> bool {
     let cr = || rcc.cr().read().bits();
     // SAFETY (all register writes below): bit patterns from RM0383 §6.3; nothing else uses the
     // clocks yet.
-    rcc.cr().modify(|r, w| unsafe { w.bits(r.bits() | CR_HSION) });
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() | CR_HSION) });
     let mut ok = wait(WAIT_HSI, || cr() & CR_HSIRDY != 0);
     // SW = HSI, AHB/APB prescalers 1, MCOs off.
     rcc.cfgr().write(|w| unsafe { w.bits(0) });
@@ -365,21 +371,25 @@ fn clocks_to_reset_state(rcc: &pac::RCC) -> bool {
     rcc.cr()
         .modify(|r, w| unsafe { w.bits(r.bits() & !(CR_PLLON | CR_PLLI2SON)) });
     ok &= wait(WAIT_PLL, || cr() & (CR_PLLRDY | CR_PLLI2SRDY) == 0);
-    rcc.cr().modify(|r, w| unsafe { w.bits(r.bits() & !CR_HSEON) });
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !CR_HSEON) });
     ok &= wait(WAIT_HSE, || cr() & CR_HSERDY == 0);
     // HSEBYP is writable only with the crystal off.
-    rcc.cr().modify(|r, w| unsafe { w.bits(r.bits() & !CR_HSEBYP) });
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !CR_HSEBYP) });
     ok
 }
 
 /// Start the crystal; whether it was ready within [`WAIT_HSE`] (if not, it is switched off again).
 fn hse_start(rcc: &pac::RCC) -> bool {
     // SAFETY: HSEON, RM0383 §6.3.1.
-    rcc.cr().modify(|r, w| unsafe { w.bits(r.bits() | CR_HSEON) });
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() | CR_HSEON) });
     if wait(WAIT_HSE, || rcc.cr().read().bits() & CR_HSERDY != 0) {
         return true;
     }
-    rcc.cr().modify(|r, w| unsafe { w.bits(r.bits() & !CR_HSEON) });
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !CR_HSEON) });
     false
 }
 
@@ -390,12 +400,14 @@ fn hse_start(rcc: &pac::RCC) -> bool {
 fn pll_locks(rcc: &pac::RCC, hse: bool, src_hz: u32) -> bool {
     let m = src_hz / 1_000_000;
     let fields = m | (192 << 6) | (u32::from(hse) << 22) | (4 << 24); // PLLP = 00: /2
-                                                                       // SAFETY: RM0383 §6.3.2, with the PLL off (`clocks_to_reset_state`).
+                                                                      // SAFETY: RM0383 §6.3.2, with the PLL off (`clocks_to_reset_state`).
     rcc.pllcfgr()
         .modify(|r, w| unsafe { w.bits(r.bits() & PLLCFGR_RESERVED | fields) });
-    rcc.cr().modify(|r, w| unsafe { w.bits(r.bits() | CR_PLLON) });
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() | CR_PLLON) });
     let locked = wait(WAIT_PLL, || rcc.cr().read().bits() & CR_PLLRDY != 0);
-    rcc.cr().modify(|r, w| unsafe { w.bits(r.bits() & !CR_PLLON) });
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !CR_PLLON) });
     let stopped = wait(WAIT_PLL, || rcc.cr().read().bits() & CR_PLLRDY == 0);
     locked && stopped
 }
@@ -403,7 +415,11 @@ fn pll_locks(rcc: &pac::RCC, hse: bool, src_hz: u32) -> bool {
 /// The clocks cannot run USB: say why (RTT), flash the LED `flashes` times every 2 s, forever
 /// (the watchdog fed: no reset loop). Nothing else runs; power-cycle after fixing the board.
 fn clock_failure(why: &str, flashes: u32) -> ! {
-    defmt::error!("clock start failed: {=str}; LED flashes {=u32} times every 2 s", why, flashes);
+    defmt::error!(
+        "clock start failed: {=str}; LED flashes {=u32} times every 2 s",
+        why,
+        flashes
+    );
     let mut t_ms: u32 = 0;
     loop {
         feed_watchdog();
@@ -442,7 +458,10 @@ fn led(on: bool) {
 
 /// The status LED at `t_ms` (called from the idle loop): see [`LED_FLASHES`].
 pub fn indicate(t_ms: u32) {
-    led(jdbb_core::reset::blink(LED_FLASHES.load(Ordering::Relaxed), t_ms));
+    led(jdbb_core::reset::blink(
+        LED_FLASHES.load(Ordering::Relaxed),
+        t_ms,
+    ));
 }
 
 /// IWDG prescaler /64 (`PR = 4`) and reload 4095: the watchdog resets the chip after
