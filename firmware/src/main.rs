@@ -80,8 +80,8 @@ mod app {
     use jdbb_core::geometry::Kernel;
     use jdbb_core::link::{Outgoing, Presence, ProbeStep};
     use jdbb_core::protocol::{
-        self, Command, CommandError, Decoder, DeviceInfo, DeviceMsg, FrameError, Hello, ResetCause,
-        SampleBatch, MAX_FRAME_LEN, MAX_SAMPLE_RATE_HZ, PROTOCOL_VERSION,
+        self, ClockSource, Command, CommandError, Decoder, DeviceInfo, DeviceMsg, FrameError,
+        Hello, ResetCause, SampleBatch, MAX_FRAME_LEN, MAX_SAMPLE_RATE_HZ, PROTOCOL_VERSION,
     };
     use jdbb_core::sampler::{SampleClock, Sampler};
     use jdbb_core::Calibration;
@@ -124,6 +124,7 @@ mod app {
         reply_tx: Tx,
         chip_id: [u8; 12],
         reset_cause: ResetCause,
+        clock: ClockSource,
     }
 
     #[init]
@@ -160,6 +161,7 @@ mod app {
                 reply_tx: reply_tx.clone(),
                 chip_id: parts.chip_id,
                 reset_cause: parts.reset_cause,
+                clock: parts.clock,
             },
         };
         if board::LINK_UP_AT_START {
@@ -492,6 +494,7 @@ mod app {
             reset_cause: control.reset_cause,
             index: sampler.index_status(),
             overruns: sampler.overruns(),
+            clock: control.clock,
         }
     }
 

@@ -17,11 +17,13 @@
 //! period running then completes with its old length and the new one starts at the next update
 //! event: the sample clock never restarts mid-period. The write is made only with the tick count
 //! unchanged since the tick and at least [`RATE_WRITE_MARGIN_US`] left in the period (interrupts
-//! masked for the two stores), so it always lands before the next update event; checked again
-//! after the write. Otherwise it waits for the next tick (one period later, and the sampler's clock
+//! masked for the two stores), so it always lands before the next update event
+//! (`jdbb_core::sampler::rate_write_lands`, host-tested against a model of the timer); checked
+//! again after the write. Otherwise it waits for the next tick (one period later, and the sampler's clock
 //! switches with it).
 //! (QEMU's TIM3 model cannot do this; the `qemu` board paces the same interrupt from SysTick.)
 
+use jdbb_core::sampler::rate_write_lands;
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::{Enable, Reset};
 
@@ -157,7 +159,7 @@ impl SampleTimer {
                 let r = self.tim.arr().read().bits() + 1 - self.tim.cnt().read().bits();
                 r * (self.tim.psc().read().bits() + 1)
             };
-            if tick_count() != tick || left < margin {
+            if !rate_write_lands(tick, tick_count(), left, margin) {
                 return None;
             }
             let ticks = self.write(psc, arr);

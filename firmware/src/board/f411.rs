@@ -44,7 +44,7 @@ use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use super::Parts;
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
-use jdbb_core::protocol::{Board, ResetCause, SampleBatch};
+use jdbb_core::protocol::{Board, ClockSource, ResetCause, SampleBatch};
 use jdbb_core::quadrature::IndexEdge;
 use jdbb_core::reset;
 use jdbb_core::sampler::Sampler;
@@ -305,6 +305,11 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
         chip_id,
         reset_cause,
         cal_memory,
+        clock: if crystal {
+            ClockSource::Crystal
+        } else {
+            ClockSource::Internal
+        },
     }
 }
 

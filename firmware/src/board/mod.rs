@@ -48,4 +48,6 @@ pub struct Parts {
     pub reset_cause: jdbb_core::protocol::ResetCause,
     /// The calibration kept across power cycles.
     pub cal_memory: CalMemory,
+    /// What the clocks run from (the crystal, or the internal oscillator when it did not start).
+    pub clock: jdbb_core::protocol::ClockSource,
 }

@@ -85,6 +85,7 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
             m.erase_ahead();
             m
         },
+        clock: jdbb_core::protocol::ClockSource::Emulated,
     }
 }
 
