@@ -7,7 +7,8 @@
 //! |-----------|----------|----------------------------|------|
 //! | `sample`  | 3        | TIM3 update (sample clock) | 32-bit tick count + counts latched at the tick; a pending rate change written (before D is computed); → `Sampler` (overruns counted as drops, counts → D → batch); a full batch goes to the queue with `try_send`, or is dropped and counted |
 //! | `pace`    | 3        | SysTick monotonic (qemu only) | pends TIM3 once per sample period and counts the tick: QEMU's TIM3 is not periodic |
-//! | `index1/2`| 3        | TIM2/TIM5 CC3 (board only) | index edge latched in hardware → `Encoder::on_index_edge` |
+//! | `index1/2`| 4        | TIM2/TIM5 CC3 (board only) | index edge latched in hardware, read before the pulse's other edge can overwrite it → a queue, `index_apply` pended |
+//! | `index_apply` | 3    | SPI4 vector, pended by `index1/2` (board only) | the queued index edges → `Encoder::on_index_edge` |
 //! | `usb_rx` / `uart_rx` | 2 | OTG_FS (board) / USART2 (qemu) | services the link, greets a host that configured the device, decodes commands, replies through the queue |
 //! | `writer`  | 1        | queue (async)              | frames each message and writes it to the link without blocking the others; discards (and counts) while no host reads |
 //! | `upkeep`  | 1        | spawned by `Stop`          | erases the calibration store's spare block ahead while not sampling |
@@ -83,6 +84,7 @@ mod app {
         self, ClockSource, Command, CommandError, Decoder, DeviceInfo, DeviceMsg, FrameError,
         Hello, ResetCause, SampleBatch, MAX_FRAME_LEN, MAX_SAMPLE_RATE_HZ, PROTOCOL_VERSION,
     };
+    use jdbb_core::quadrature::IndexEdge;
     use jdbb_core::sampler::{SampleClock, Sampler};
     use jdbb_core::Calibration;
     use jdbb_firmware::board::{self, SampleTimer};
@@ -93,6 +95,11 @@ mod app {
 
     type Tx = Sender<'static, Outgoing, QUEUE_LEN>;
     type Rx = Receiver<'static, Outgoing, QUEUE_LEN>;
+    /// Index edges captured (count at the edge, count after, which way), one queue per encoder.
+    const INDEX_QUEUE: usize = 8;
+    type IndexQueue = heapless::spsc::Queue<(u32, u32, IndexEdge), INDEX_QUEUE>;
+    type IndexTx = heapless::spsc::Producer<'static, (u32, u32, IndexEdge)>;
+    type IndexRx = heapless::spsc::Consumer<'static, (u32, u32, IndexEdge)>;
 
     #[shared]
     struct Shared {
@@ -108,6 +115,10 @@ mod app {
         encoders: board::Encoders,
         batch_tx: Tx,
         rx: Rx,
+        index_tx1: IndexTx,
+        index_tx2: IndexTx,
+        index_rx1: IndexRx,
+        index_rx2: IndexRx,
     }
 
     /// State of the command handler.
@@ -127,7 +138,7 @@ mod app {
         clock: ClockSource,
     }
 
-    #[init]
+    #[init(local = [index_q1: IndexQueue = IndexQueue::new(), index_q2: IndexQueue = IndexQueue::new()])]
     fn init(mut cx: init::Context) -> (Shared, Local) {
         let parts = board::init(cx.device, DEFAULT_RATE_HZ);
         Mono::start(cx.core.SYST, parts.systick_hz);
@@ -172,6 +183,9 @@ mod app {
         writer::spawn().ok();
         #[cfg(feature = "qemu")]
         pace::spawn().ok();
+        // (Unused in the QEMU build, which has no index interrupts.)
+        let (index_tx1, index_rx1) = cx.local.index_q1.split();
+        let (index_tx2, index_rx2) = cx.local.index_q2.split();
         defmt::info!(
             "jdbb firmware {}: {} Hz, sampling {}, reset cause {=u8:#x}",
             board::BOARD,
@@ -194,6 +208,10 @@ mod app {
                 encoders: parts.encoders,
                 batch_tx,
                 rx,
+                index_tx1,
+                index_tx2,
+                index_rx1,
+                index_rx2,
             },
         )
     }
@@ -331,25 +349,52 @@ mod app {
         .await
     }
 
-    /// Encoder 1's index edges (board only).
+    /// Encoder 1's index edges (board only), at the highest priority, above the sample task: the
+    /// edge's count is read from CCR3 before the pulse's other edge can overwrite it, and handed
+    /// to `index_apply` (see README, "Index pulses").
     #[cfg(feature = "board-f411")]
-    #[task(binds = TIM2, priority = 3, shared = [sampler])]
-    fn index1(mut cx: index1::Context) {
-        while let Some((at, now, edge)) = board::take_index(0) {
-            cx.shared
-                .sampler
-                .lock(|s| s.on_index_edge(0, at, now, edge));
+    #[task(binds = TIM2, priority = 4, local = [index_tx1])]
+    fn index1(cx: index1::Context) {
+        while let Some(edge) = board::take_index(0) {
+            hand_over(cx.local.index_tx1, 0, edge);
         }
     }
 
-    /// Encoder 2's index edges (board only).
+    /// Encoder 2's index edges (board only); as `index1`.
     #[cfg(feature = "board-f411")]
-    #[task(binds = TIM5, priority = 3, shared = [sampler])]
-    fn index2(mut cx: index2::Context) {
-        while let Some((at, now, edge)) = board::take_index(1) {
-            cx.shared
-                .sampler
-                .lock(|s| s.on_index_edge(1, at, now, edge));
+    #[task(binds = TIM5, priority = 4, local = [index_tx2])]
+    fn index2(cx: index2::Context) {
+        while let Some(edge) = board::take_index(1) {
+            hand_over(cx.local.index_tx2, 1, edge);
+        }
+    }
+
+    /// An index edge captured on encoder `ch` goes to `index_apply` (pended); one that finds the
+    /// queue full (more than [`INDEX_QUEUE`] − 1 edges before the sample task's priority could
+    /// run) is lost and logged.
+    #[cfg(feature = "board-f411")]
+    #[inline]
+    fn hand_over(tx: &mut IndexTx, ch: usize, (at, now, edge): (u32, u32, IndexEdge)) {
+        if tx.enqueue((at, now, edge)).is_err() {
+            defmt::warn!("index edge of encoder {} lost: queue full", ch + 1);
+        }
+        rtic::pend(stm32f4xx_hal::pac::Interrupt::SPI4);
+    }
+
+    /// The index edges to the sampler, at the sample task's priority (an unused interrupt vector,
+    /// pended by `index1/2`).
+    #[cfg(feature = "board-f411")]
+    #[task(binds = SPI4, priority = 3, shared = [sampler], local = [index_rx1, index_rx2])]
+    fn index_apply(mut cx: index_apply::Context) {
+        for (ch, rx) in [&mut *cx.local.index_rx1, &mut *cx.local.index_rx2]
+            .into_iter()
+            .enumerate()
+        {
+            while let Some((at, now, edge)) = rx.dequeue() {
+                cx.shared
+                    .sampler
+                    .lock(|s| s.on_index_edge(ch, at, now, edge));
+            }
         }
     }
 
