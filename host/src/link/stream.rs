@@ -1017,6 +1017,22 @@ pub(crate) mod tests {
     }
 
     #[test]
+    fn the_device_line_says_what_the_clocks_run_from() {
+        let DeviceMsg::Info(mut i) = info() else {
+            unreachable!()
+        };
+        assert!(describe_info(&i).ends_with(", clock emulated"));
+        i.clock = ClockSource::Crystal;
+        assert!(describe_info(&i).ends_with(", clock crystal"));
+        // A board whose crystal did not start runs on the internal oscillator: flagged, with
+        // what it costs.
+        i.clock = ClockSource::Internal;
+        let line = describe_info(&i);
+        assert!(line.contains("clock INTERNAL"), "{line}");
+        assert!(line.contains("off by up to 1 %"), "{line}");
+    }
+
+    #[test]
     fn clean_stream_in_any_split_loses_nothing() {
         let bytes = run(0, 10);
         for chunk in [1, 2, 7, 39, 1000, bytes.len()] {
