@@ -14,7 +14,8 @@
 # plugged in). `dfu-util -l` then lists "@Internal Flash /0x08000000/...". If it does not appear,
 # repeat with the board warm or press NRST again while holding BOOT0 (a known quirk of the F411's
 # bootloader with some USB hosts).
-# Exits nonzero, saying why, if a tool is missing or dfu-util fails.
+# Waits DFU_WAIT_S seconds (default 60) for the board. Exits nonzero, saying why, if a tool is
+# missing, no board appears or dfu-util fails.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -46,12 +47,12 @@ if ! command -v dfu-util >/dev/null; then
   exit 1
 fi
 echo "waiting for the board in DFU mode (hold BOOT0, tap NRST, release BOOT0)..."
-for _ in $(seq 60); do
+for _ in $(seq "${DFU_WAIT_S:-60}"); do
   dfu-util -l 2>/dev/null | grep -q '0483:df11' && break
   sleep 1
 done
 dfu-util -l 2>/dev/null | grep -q '0483:df11' || {
-  echo "fw-dfu.sh: no DFU device (0483:df11) after 60 s" >&2
+  echo "fw-dfu.sh: no DFU device (0483:df11) after ${DFU_WAIT_S:-60} s" >&2
   exit 1
 }
 dfu-util -d 0483:df11 -a 0 -s 0x08000000:leave -D "$BIN"
