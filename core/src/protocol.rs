@@ -185,7 +185,8 @@ impl ResetCause {
 pub enum ClockSource {
     /// The board's crystal, through the PLL: time as good as the crystal (tens of ppm).
     Crystal,
-    /// The crystal did not start: the chip's internal RC oscillator (the STM32F411's HSI,
+    /// The crystal did not start, or is not of the frequency the firmware was built for: the
+    /// chip's internal RC oscillator (the STM32F411's HSI,
     /// factory-trimmed to ±1 % at 25 °C). Time stamps and the sample rate are off by up to 1 %
     /// (1 % of D's time axis, not of D), and USB, which needs ±0.25 %, may fail.
     Internal,

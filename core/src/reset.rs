@@ -49,20 +49,6 @@ pub fn from_stm32f4(csr: u32, mark: u32) -> ResetCause {
     ResetCause(bits)
 }
 
-/// Length of one status-LED pattern (ms): `flashes` short flashes, then dark until the next.
-pub const BLINK_PERIOD_MS: u32 = 2_000;
-const FLASH_ON_MS: u32 = 150;
-const FLASH_PITCH_MS: u32 = 400;
-
-/// Whether the status LED is lit at `t_ms` in the pattern of `flashes` flashes every
-/// [`BLINK_PERIOD_MS`] (the board's LED: 1 = running, 2 = no crystal, running on the internal
-/// oscillator, 3 = the PLL did not lock, 4 = the internal oscillator did not answer). Counting
-/// the flashes must be easy by eye: 150 ms on, 250 ms off, at most 4 in a 2 s period.
-pub fn blink(flashes: u32, t_ms: u32) -> bool {
-    let t = t_ms % BLINK_PERIOD_MS;
-    t / FLASH_PITCH_MS < flashes.min(4) && t % FLASH_PITCH_MS < FLASH_ON_MS
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -95,26 +81,6 @@ mod tests {
         );
         // A brown-out during the reset: RAM is not trusted.
         assert!(!from_stm32f4(sw | CSR_BORRSTF, MARK_PANIC).crashed());
-    }
-
-    #[test]
-    fn blink_patterns_flash_the_number_of_times_and_repeat() {
-        for flashes in 1..=4u32 {
-            // Count the dark → lit transitions over 3 periods, at 1 ms steps.
-            let lit: std::vec::Vec<bool> = (0..3 * BLINK_PERIOD_MS)
-                .map(|t| blink(flashes, t))
-                .collect();
-            let rises = lit.windows(2).filter(|w| !w[0] && w[1]).count() + usize::from(lit[0]);
-            assert_eq!(rises as u32, 3 * flashes, "{flashes} flashes");
-            // Each flash is 150 ms, the gap after the last one at least 400 ms.
-            assert_eq!(lit.iter().filter(|&&l| l).count() as u32, 3 * flashes * 150);
-            let last_off = (0..BLINK_PERIOD_MS)
-                .rev()
-                .find(|&t| blink(flashes, t))
-                .unwrap();
-            assert!(BLINK_PERIOD_MS - last_off > 400, "{flashes}: {last_off}");
-        }
-        assert!((0..BLINK_PERIOD_MS).all(|t| !blink(0, t)));
     }
 
     #[test]

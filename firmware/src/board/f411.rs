@@ -34,8 +34,9 @@
 //! for USB), APB1 48 MHz, timer clock 96 MHz, with the regulator in voltage scale 1 (needed above
 //! 84 MHz). `init` first returns the clocks to their reset state (HSI, PLL off: the ROM DFU
 //! bootloader leaves its PLL running), then starts the crystal and locks the PLL once itself, every
-//! wait bounded, before the HAL (whose waits are not) programs them. No crystal: the firmware runs
-//! on HSI and the LED flashes twice every 2 s; a PLL that does not lock: nothing runs, the LED
+//! wait bounded, before the HAL (whose waits are not) programs them; the crystal is measured
+//! against HSI first (`crystal_measure`, `jdbb_core::clock`). No crystal, or not the build's: the
+//! firmware runs on HSI, `DeviceInfo.clock` says `Internal` and the LED flashes twice every 2 s; a PLL that does not lock: nothing runs, the LED
 //! flashes three times. The independent watchdog (started first, fed from the idle loop) resets a
 //! firmware that hangs, after 5.6–15.4 s; `DeviceInfo.reset_cause` then says `WATCHDOG`.
 
@@ -44,6 +45,7 @@ use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use super::Parts;
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
+use jdbb_core::clock::{crystal_check, crystal_hz};
 use jdbb_core::protocol::{Board, ClockSource, ResetCause, SampleBatch};
 use jdbb_core::quadrature::IndexEdge;
 use jdbb_core::reset;
@@ -175,10 +177,10 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
     // Started from the ROM DFU bootloader (`dfu-util ... :leave`) the PLL may still run, and then
     // VOS and PLLCFGR cannot be written (RM0383 §5.1.3, §6.3.2): back to the reset state first.
     if !clocks_to_reset_state(&dp.RCC) {
-        clock_failure(
-            "the internal oscillator (HSI) or the clock switch did not answer",
-            4,
+        defmt::error!(
+            "clock start failed: HSI or the clock switch did not answer (LED: 4 flashes)"
         );
+        clock_failure(4);
     }
     // Voltage scale 1 before the PLL starts (RM0383 §5.1.3): the reset value, scale 2, allows
     // HCLK ≤ 84 MHz only. VOS can be written only while the PLL is off and takes effect when it
@@ -186,10 +188,41 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
     dp.RCC.apb1enr().modify(|_, w| w.pwren().set_bit());
     cortex_m::asm::dsb();
     dp.PWR.cr().modify(|_, w| w.vos().scale1());
-    let crystal = hse_start(&dp.RCC);
+    let mut crystal = hse_start(&dp.RCC);
+    if crystal {
+        // Only a crystal of the build's frequency may drive the PLL (see `jdbb_core::clock`).
+        match crystal_measure(&dp.RCC) {
+            Reading::Hz(hz) if crystal_check(hz, HSE_HZ) => {
+                defmt::info!("crystal measured at {=u32} Hz against HSI", hz);
+            }
+            Reading::Hz(hz) => {
+                defmt::error!(
+                    "crystal measured at {=u32} Hz, the build is for {=u32} Hz: not used \
+                     (build with the matching hse-... feature)",
+                    hz,
+                    HSE_HZ
+                );
+                crystal = false;
+            }
+            Reading::TooFast => {
+                defmt::error!(
+                    "crystal far faster than the build's {=u32} Hz: not used",
+                    HSE_HZ
+                );
+                crystal = false;
+            }
+            Reading::NoEdges => {
+                defmt::warn!("the crystal could not be measured: used as built");
+            }
+        }
+        if !crystal {
+            hse_stop(&dp.RCC);
+        }
+    }
     let pll_src_hz = if crystal { HSE_HZ } else { HSI_HZ };
     if !pll_locks(&dp.RCC, crystal, pll_src_hz) {
-        clock_failure("the PLL did not lock", 3);
+        defmt::error!("clock start failed: the PLL did not lock (LED: 3 flashes)");
+        clock_failure(3);
     }
     if !crystal {
         LED_FLASHES.store(2, Ordering::Relaxed);
@@ -398,6 +431,92 @@ fn hse_start(rcc: &pac::RCC) -> bool {
     false
 }
 
+/// Switch the crystal off (it is not the build's).
+fn hse_stop(rcc: &pac::RCC) {
+    // SAFETY: HSEON, RM0383 §6.3.1; nothing runs from HSE.
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !CR_HSEON) });
+    wait(WAIT_HSE, || rcc.cr().read().bits() & CR_HSERDY == 0);
+}
+
+/// The crystal measured against HSI.
+enum Reading {
+    /// Its frequency (Hz).
+    Hz(u32),
+    /// Its divided edges came faster than they could be read: far above the build's frequency.
+    TooFast,
+    /// No edge within the bound: not measured.
+    NoEdges,
+}
+
+/// Edges of `HSE_RTC` per TIM11 capture (input prescaler /8), and captures measured.
+const EDGES_PER_CAPTURE: u32 = 8;
+const CAPTURES: u32 = 64;
+
+/// Measure the running crystal against HSI (SYSCLK = HSI, prescalers 1: TIM11 counts at 16 MHz):
+/// TIM11 CH1 captures every 8th edge of `HSE_RTC` (the crystal divided by RTCPRE, set for 1 MHz
+/// from the build's crystal: RM0383 TIM11_OR `TI1_RMP = 10`, "for measurement purposes") 64
+/// times, 512 µs with the right crystal. TIM11 and RTCPRE are left as at reset.
+fn crystal_measure(rcc: &pac::RCC) -> Reading {
+    const RTCPRE: u32 = 0x1f << 16;
+    const APB2ENR_TIM11EN: u32 = 1 << 18;
+    const SR_CC1IF: u32 = 1 << 1;
+    const SR_CC1OF: u32 = 1 << 9;
+    let divider = HSE_HZ / 1_000_000;
+    // SAFETY (all writes below): RCC_CFGR.RTCPRE and TIM11's registers, RM0383 §6.3.3 and §14.5;
+    // TIM11 is used for nothing else.
+    rcc.cfgr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !RTCPRE | (divider << 16)) });
+    rcc.apb2enr()
+        .modify(|r, w| unsafe { w.bits(r.bits() | APB2ENR_TIM11EN) });
+    cortex_m::asm::dsb();
+    let t = unsafe { &*pac::TIM11::ptr() };
+    unsafe {
+        t.or().write(|w| w.bits(0b10)); // TI1 = HSE_RTC
+        t.psc().write(|w| w.bits(0));
+        t.arr().write(|w| w.bits(0xffff));
+        t.ccmr1_input().write(|w| w.bits(0b01 | (0b11 << 2))); // IC1 on TI1, every 8th edge
+        t.ccer().write(|w| w.bits(1)); // CC1E, rising edges
+        t.sr().write(|w| w.bits(0));
+        t.cr1().write(|w| w.bits(1));
+    }
+    let capture = || -> Option<u16> {
+        wait(WAIT_PLL, || t.sr().read().bits() & SR_CC1IF != 0)
+            .then(|| t.ccr1().read().bits() as u16) // reading CCR1 clears CC1IF
+    };
+    let mut reading = Reading::NoEdges;
+    if let Some(mut prev) = capture() {
+        let mut cycles: u32 = 0;
+        let mut complete = true;
+        for _ in 0..CAPTURES {
+            let Some(c) = capture() else {
+                complete = false;
+                break;
+            };
+            cycles += u32::from(c.wrapping_sub(prev));
+            prev = c;
+        }
+        reading = if t.sr().read().bits() & SR_CC1OF != 0 {
+            Reading::TooFast
+        } else if !complete {
+            Reading::NoEdges
+        } else {
+            crystal_hz(cycles, CAPTURES * EDGES_PER_CAPTURE, divider, HSI_HZ)
+                .map_or(Reading::TooFast, Reading::Hz)
+        };
+    }
+    unsafe {
+        t.cr1().write(|w| w.bits(0));
+        t.ccer().write(|w| w.bits(0));
+        t.or().write(|w| w.bits(0));
+    }
+    rcc.apb2enr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !APB2ENR_TIM11EN) });
+    rcc.cfgr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !RTCPRE) });
+    reading
+}
+
 /// Lock the PLL once from the crystal (`hse`) or HSI at `src_hz` (a whole number of MHz) with the
 /// firmware's VCO (1 MHz in, 192 MHz, /2 = 96 MHz, /4 = 48 MHz), then switch it off again for the
 /// HAL to program (PLLCFGR may be written only while it is off). Whether it locked, and stopped,
@@ -417,18 +536,14 @@ fn pll_locks(rcc: &pac::RCC, hse: bool, src_hz: u32) -> bool {
     locked && stopped
 }
 
-/// The clocks cannot run USB: say why (RTT), flash the LED `flashes` times every 2 s, forever
-/// (the watchdog fed: no reset loop). Nothing else runs; power-cycle after fixing the board.
-fn clock_failure(why: &str, flashes: u32) -> ! {
-    defmt::error!(
-        "clock start failed: {=str}; LED flashes {=u32} times every 2 s",
-        why,
-        flashes
-    );
+/// The clocks cannot run USB (the caller logged why): flash the LED `flashes` times every 2 s,
+/// forever (the watchdog fed: no reset loop). Nothing else runs; power-cycle after fixing the
+/// board.
+fn clock_failure(flashes: u32) -> ! {
     let mut t_ms: u32 = 0;
     loop {
         feed_watchdog();
-        led(jdbb_core::reset::blink(flashes, t_ms));
+        led(jdbb_core::clock::blink(flashes, t_ms));
         // ≥ 1 ms at the 16 MHz HSI (`delay` waits at least that many cycles).
         cortex_m::asm::delay(HSI_HZ / 1000);
         t_ms = t_ms.wrapping_add(1);
@@ -463,7 +578,7 @@ fn led(on: bool) {
 
 /// The status LED at `t_ms` (called from the idle loop): see [`LED_FLASHES`].
 pub fn indicate(t_ms: u32) {
-    led(jdbb_core::reset::blink(
+    led(jdbb_core::clock::blink(
         LED_FLASHES.load(Ordering::Relaxed),
         t_ms,
     ));
@@ -584,11 +699,8 @@ impl CalMemory {
                 }
                 erased
             }
-            Err(e) => {
-                defmt::warn!(
-                    "calibration store: erasing the spare sector failed: {}",
-                    defmt::Debug2Format(&e)
-                );
+            Err(_) => {
+                defmt::warn!("calibration store: erasing the spare sector failed");
                 false
             }
         }
