@@ -243,7 +243,7 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
         defmt::info!("clocks from the {=u32} Hz crystal", HSE_HZ);
     } else {
         defmt::error!(
-            "the {=u32} Hz crystal did not start: running on the internal oscillator (HSI, ±1 %: \
+            "not running from the {=u32} Hz crystal: on the internal oscillator (HSI, ±1 %: \
              time stamps and the USB clock are off by up to 1 %; LED flashes twice)",
             HSE_HZ
         );
