@@ -38,7 +38,7 @@ use super::input::MIN_SAMPLES;
 use super::model::{Axis, Candidate, Effect, EffectSet, ExactModel, Pair, Path, MIN_TAU_MS};
 use super::runs::{angles, harmonics, main_plane, split_runs_at, Circle, Run, MAX_RUN_STEP_RAD};
 use super::zone::{circle_zones, CircleZone};
-use crate::numerics::lsq::{least_squares, GramAccumulator, LsqOptions, Problem, Subset};
+use crate::numerics::lsq::{least_squares, GramAccumulator, LsqOptions, Subset};
 use crate::numerics::select::{
     confounded_names, forward_select, null_space, solve, sub, Group, SelectOptions,
 };
@@ -471,6 +471,12 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
             "diagnose needs at least {MIN_SAMPLES} samples with a path each (got {m})"
         )));
     }
+    let __t0 = std::time::Instant::now();
+    let __p = |s: &str| {
+        if std::env::var("JDBB_PROF").is_ok() {
+            eprintln!("{s} {:.3} ms", __t0.elapsed().as_secs_f64() * 1e3)
+        }
+    };
     // 1. Baseline.
     let base: Vec<f64> = path
         .p_mm
@@ -817,7 +823,8 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                         z(a.1).total_cmp(&z(b.1))
                     })
                     .map(|(ei, _)| {
-                        let reason = "its value is within 2σ of zero (σ with the timing uncertainty)";
+                        let reason =
+                            "its value is within 2σ of zero (σ with the timing uncertainty)";
                         (ei, reason.to_string())
                     })
             })
@@ -966,56 +973,63 @@ fn setup_distance_mm(p: [f64; 3], setup_um: &[f64]) -> f64 {
 }
 
 /// D = |p − c| + e with only the set-up parameters `free` (indices into c_x, c_y, c_z, e)
-/// varying, from `start`; returns [c_x, c_y, c_z, e] in µm.
+/// varying, from `start` (the others held at 0); returns [c_x, c_y, c_z, e] in µm. Gauss–Newton
+/// on the normal equations (at most four parameters, one pass over the samples each step): the
+/// problem is linear but for the sphere's curvature over micrometres, so it converges in two or
+/// three steps.
 fn fit_setup(path: &Path, d_mm: &[f64], free: &[usize], start: &[f64; 4]) -> Result<Vec<f64>> {
-    struct Setup<'a> {
-        path: &'a Path,
-        d_mm: &'a [f64],
-        free: &'a [usize],
+    let k = free.len();
+    let mut full = [0.0; 4];
+    for &i in free {
+        full[i] = start[i];
     }
-    impl Problem for Setup<'_> {
-        fn n_params(&self) -> usize {
-            self.free.len()
-        }
-        fn n_residuals(&self) -> usize {
-            self.d_mm.len()
-        }
-        fn eval(&self, p: &[f64], visit: &mut dyn FnMut(usize, f64, &[f64])) {
-            let mut full = [0.0; 4];
-            for (a, &i) in self.free.iter().enumerate() {
-                full[i] = p[a];
+    if k == 0 {
+        return Ok(full.to_vec());
+    }
+    for _ in 0..30 {
+        let mut jtj = DMatrix::<f64>::zeros(k, k);
+        let mut jtr = nalgebra::DVector::<f64>::zeros(k);
+        let mut g = [0.0; 4];
+        for (q0, d) in path.p_mm.iter().zip(d_mm) {
+            let q = [
+                q0[0] - 1e-3 * full[0],
+                q0[1] - 1e-3 * full[1],
+                q0[2] - 1e-3 * full[2],
+            ];
+            let r = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
+            let all = [-q[0] / r, -q[1] / r, -q[2] / r, 1.0];
+            for (a, &c) in free.iter().enumerate() {
+                g[a] = all[c];
             }
-            let mut g = [0.0; 4];
-            for (i, (q0, d)) in self.path.p_mm.iter().zip(self.d_mm).enumerate() {
-                let q = [
-                    q0[0] - 1e-3 * full[0],
-                    q0[1] - 1e-3 * full[1],
-                    q0[2] - 1e-3 * full[2],
-                ];
-                let r = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
-                let all = [-q[0] / r, -q[1] / r, -q[2] / r, 1.0];
-                for (a, &k) in self.free.iter().enumerate() {
-                    g[a] = all[k];
+            let res = 1e3 * (r - d) + full[3];
+            for a in 0..k {
+                jtr[a] += g[a] * res;
+                for b in 0..=a {
+                    jtj[(a, b)] += g[a] * g[b];
                 }
-                visit(i, 1e3 * (r - d) + full[3], &g[..self.free.len()]);
             }
         }
+        for a in 0..k {
+            for b in 0..a {
+                jtj[(b, a)] = jtj[(a, b)];
+            }
+        }
+        let step = jtj.cholesky().map(|c| c.solve(&jtr)).ok_or_else(|| {
+            Error::Numerics("the set-up fit is singular: the path does not determine it".into())
+        })?;
+        let mut largest = 0.0f64;
+        for (a, &c) in free.iter().enumerate() {
+            full[c] -= step[a];
+            largest = largest.max(step[a].abs());
+        }
+        if !largest.is_finite() {
+            return Err(Error::Numerics("the set-up fit did not converge".into()));
+        }
+        if largest < 1e-9 {
+            break;
+        }
     }
-    let opts = LsqOptions {
-        max_iterations: 50,
-        // The final refit frees the set-up again: this fit only has to be good enough to
-        // linearise the candidates around.
-        tolerance: 1e-6,
-        ..Default::default()
-    };
-    let prob = Setup { path, d_mm, free };
-    let p0: Vec<f64> = free.iter().map(|&i| start[i]).collect();
-    let fit = least_squares(&prob, &p0, &opts)?;
-    let mut full = vec![0.0; 4];
-    for (a, &i) in free.iter().enumerate() {
-        full[i] = fit.params[a];
-    }
-    Ok(full)
+    Ok(full.to_vec())
 }
 
 /// Exact-geometry fit of `set` with only parameters `free` varying (others held at `start`).

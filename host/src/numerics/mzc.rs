@@ -69,23 +69,79 @@ pub fn minimum_zone(angle_rad: &[f64], dev_um: &[f64]) -> Result<MinimumZone> {
             "a minimum-zone circle needs finite angles and deviations".into(),
         ));
     }
-    let problem = Limacon {
-        trig: angle_rad.iter().map(|a| a.sin_cos()).collect(),
-        dev_um,
+    // Only points at the edges of the trace can touch the zone: solve on the highest and lowest
+    // point of each 1° of angle, then add every point the zone does not hold and solve again
+    // until it holds them all (the answer is that of all points; the subset only saves time).
+    let n = dev_um.len();
+    let mut subset: Vec<usize> = if n > 4 * EDGE_BINS {
+        let mut hi_of = vec![usize::MAX; EDGE_BINS];
+        let mut lo_of = vec![usize::MAX; EDGE_BINS];
+        for (i, (&a, &d)) in angle_rad.iter().zip(dev_um).enumerate() {
+            let bin = ((a.rem_euclid(std::f64::consts::TAU) / std::f64::consts::TAU)
+                * EDGE_BINS as f64) as usize;
+            let bin = bin.min(EDGE_BINS - 1);
+            if hi_of[bin] == usize::MAX || d > dev_um[hi_of[bin]] {
+                hi_of[bin] = i;
+            }
+            if lo_of[bin] == usize::MAX || d < dev_um[lo_of[bin]] {
+                lo_of[bin] = i;
+            }
+        }
+        let mut v: Vec<usize> = hi_of
+            .into_iter()
+            .chain(lo_of)
+            .filter(|&i| i != usize::MAX)
+            .collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    } else {
+        (0..n).collect()
     };
-    let lo = dev_um.iter().cloned().fold(f64::INFINITY, f64::min);
-    let hi = dev_um.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    let trig: Vec<(f64, f64)> = angle_rad.iter().map(|a| a.sin_cos()).collect();
+    loop {
+        let (p, t) = chebyshev(&trig, dev_um, &subset)?;
+        let held = |i: usize| {
+            let (s, c) = trig[i];
+            (dev_um[i] - p[0] - p[1] * c - p[2] * s).abs() <= t * (1.0 + 1e-9) + 1e-12
+        };
+        let outside: Vec<usize> = (0..n).filter(|&i| !held(i)).collect();
+        if outside.is_empty() || subset.len() == n {
+            return Ok(MinimumZone {
+                centre_um: [p[1], p[2]],
+                radius_offset_um: p[0],
+                width_um: 2.0 * t,
+            });
+        }
+        subset.extend(outside);
+        subset.sort_unstable();
+        subset.dedup();
+    }
+}
+
+/// The limaçon's Chebyshev fit on the points `subset`: ((r₀, a, b), the largest |residual|).
+fn chebyshev(trig: &[(f64, f64)], dev_um: &[f64], subset: &[usize]) -> Result<([f64; 3], f64)> {
+    let dev: Vec<f64> = subset.iter().map(|&i| dev_um[i]).collect();
+    let problem = Limacon {
+        trig: subset.iter().map(|&i| trig[i]).collect(),
+        dev_um: &dev,
+    };
+    let lo = dev.iter().cloned().fold(f64::INFINITY, f64::min);
+    let hi = dev.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
     let opts = MinimaxOptions {
         tolerance: 1e-12,
         ..Default::default()
     };
     let fit = minimax(&problem, &[0.5 * (lo + hi), 0.0, 0.0], &opts)?;
-    Ok(MinimumZone {
-        centre_um: [fit.params[1], fit.params[2]],
-        radius_offset_um: fit.params[0],
-        width_um: 2.0 * fit.max_abs_residual,
-    })
+    Ok((
+        [fit.params[0], fit.params[1], fit.params[2]],
+        fit.max_abs_residual,
+    ))
 }
+
+/// Bins of angle (1° each) whose highest and lowest points start [`minimum_zone`]'s search on a
+/// long trace.
+const EDGE_BINS: usize = 360;
 
 /// Peak-to-valley (µm) of the deviations about a given centre shift (a, b) µm: the zone width
 /// that centre gives. The minimum zone minimises this over (a, b).
@@ -215,6 +271,37 @@ mod tests {
             }
         }
         assert!(changes >= 4, "contacts {contacts:?}");
+    }
+
+    #[test]
+    fn a_long_trace_gives_the_zone_of_all_its_points() {
+        // 20 000 points (the edges-first search): the same zone as the fit on every point, and
+        // every point inside it.
+        let mut rng = rand::rngs::StdRng::seed_from_u64(9);
+        let n = 20_000;
+        let angle: Vec<f64> = (0..n)
+            .map(|i| std::f64::consts::TAU * i as f64 / n as f64)
+            .collect();
+        let dev: Vec<f64> = angle
+            .iter()
+            .map(|&a| {
+                3.0 * (2.0 * a).cos() + 1.5 * a.cos() - 0.7 * a.sin()
+                    + 0.4 * rng.gen_range(-1.0..1.0)
+            })
+            .collect();
+        let z = minimum_zone(&angle, &dev).unwrap();
+        let trig: Vec<(f64, f64)> = angle.iter().map(|a| a.sin_cos()).collect();
+        let all: Vec<usize> = (0..n).collect();
+        let (p, t) = chebyshev(&trig, &dev, &all).unwrap();
+        assert!(
+            (z.width_um - 2.0 * t).abs() < 1e-9,
+            "{} vs {}",
+            z.width_um,
+            2.0 * t
+        );
+        assert!((z.centre_um[0] - p[1]).abs() < 1e-6 && (z.centre_um[1] - p[2]).abs() < 1e-6);
+        let w = zone_width_about(&angle, &dev, z.centre_um);
+        assert!((w - z.width_um).abs() < 1e-9, "{w} vs {}", z.width_um);
     }
 
     #[test]
