@@ -471,12 +471,6 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
             "diagnose needs at least {MIN_SAMPLES} samples with a path each (got {m})"
         )));
     }
-    let __t0 = std::time::Instant::now();
-    let __p = |s: &str| {
-        if std::env::var("JDBB_PROF").is_ok() {
-            eprintln!("{s} {:.3} ms", __t0.elapsed().as_secs_f64() * 1e3)
-        }
-    };
     // 1. Baseline.
     let base: Vec<f64> = path
         .p_mm
