@@ -37,7 +37,8 @@ use nalgebra::DMatrix;
 use super::input::MIN_SAMPLES;
 use super::model::{Axis, Candidate, Effect, EffectSet, ExactModel, Pair, Path, MIN_TAU_MS};
 use super::runs::{
-    angles, circularity, harmonics, main_plane, split_runs_at, Circle, Run, MAX_RUN_STEP_RAD,
+    angles, arc_cover, circularity, harmonics, main_plane, split_runs_at, ArcCover, Circle, Run,
+    MAX_RUN_STEP_RAD,
 };
 use super::zone::{circle_zones, CircleZone};
 use crate::numerics::lsq::{least_squares, GramAccumulator, LsqOptions, Problem, Subset};
@@ -163,6 +164,10 @@ pub struct Diagnosis {
     pub circle_zones: Vec<CircleZone>,
     /// The pitch per axis the diagnosis was given (mm), which the periodic effects refer to.
     pub pitch_mm: [Option<f64>; 3],
+    /// The arc each circle's samples cover (in `circles`' order): 360° on a full circle. On a
+    /// partial arc the candidates it cannot tell from the set-up are not tried and named in
+    /// `confounded` ([`PARTIAL_ARC_MIN_FREE`]), and `harmonics_um` is empty.
+    pub arcs: Vec<ArcCover>,
 }
 
 /// A search column: which candidate, which of its search parameters.
@@ -377,6 +382,13 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         })
         .collect();
 
+    // The circles and the arc each covers: a partial arc limits what can be told apart.
+    let plane = main_plane(path);
+    let angle = angles(&path.p_mm, plane);
+    let (circles, runs) = split_runs_at(&path.t_s, &path.p_mm, &angle, plane, MAX_RUN_STEP_RAD);
+    let arcs = arc_cover(&angle, &runs, circles.len());
+    let partial = arcs.iter().any(ArcCover::is_partial);
+
     // 4. One pass: Gram of [set-up, scale_k, scale_mismatch_ij, other candidates, y].
     let others = candidate_effects(path);
     let mut effects = setup.to_vec();
@@ -409,13 +421,21 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         }
     }
     confounded.retain(|g| !g.is_empty());
-    let candidates: Vec<usize> = (2..design.cands.len())
+    let mut candidates: Vec<usize> = (2..design.cands.len())
         .filter(|&c| match design.cands[c].effect {
             Effect::Scale(_) => !isotropic_confounded,
             Effect::ScaleMismatch(_) => isotropic_confounded,
             _ => true,
         })
         .collect();
+    if partial {
+        for (c, group) in undetermined_on_arc(&design, &candidates, &setup_free) {
+            candidates.retain(|&k| design.cands[k].effect != design.cands[c].effect);
+            if !confounded.contains(&group) {
+                confounded.push(group);
+            }
+        }
+    }
 
     // 5. Linear forward selection on the Gram; a spike's trial decay times are one family.
     let free_setup = setup_free.clone();
@@ -583,7 +603,6 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     // Residual structure, G and H. The plotted deviations have the least-squares set-up of step 3
     // removed (the ballbar convention: centring and bar length are set-up, not machine); the
     // model's prediction gets the same treatment, so both curves show the same quantity.
-    let plane = main_plane(path);
     let full_mm = final_set.distances_mm(path, &theta);
     let model_setup = fit_setup(
         path,
@@ -602,7 +621,6 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         setup_theta[2],
         setup_theta[3],
     ];
-    let angle = angles(&path.p_mm, plane);
     let mut meas = Vec::with_capacity(m);
     let mut model = Vec::with_capacity(m);
     let mut resid = Vec::with_capacity(m);
@@ -612,8 +630,13 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         model.push(1e3 * (full_mm[i] - setup_distance_mm(p, &model_setup)));
         resid.push(1e3 * (d_mm[i] - full_mm[i]));
     }
-    let harmonics_um = harmonics(&angle, &resid, opts.harmonics);
-    let (circles, runs) = split_runs_at(&path.t_s, &path.p_mm, &angle, plane, MAX_RUN_STEP_RAD);
+    // Harmonics against the angle need the whole circle: on part of one they are not
+    // orthogonal, and a fit of eight of them to half a circle blows up.
+    let harmonics_um = if partial {
+        vec![]
+    } else {
+        harmonics(&angle, &resid, opts.harmonics)
+    };
     let (g, h) = circularity(&angle, &meas, &runs);
     let zones = circle_zones(path, &angle, &meas, &circles, &runs)?;
     // Each machine effect alone, with the plotted curve's set-up removal: its share of the error.
@@ -659,7 +682,93 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         hysteresis_h_um: h,
         circle_zones: zones,
         pitch_mm: path.pitch_mm,
+        arcs,
     })
+}
+
+/// On a partial arc, a candidate keeps at least this fraction of its column's norm² once the
+/// set-up's columns (table-ball offset, length offset) and, for all but the scales, the scale
+/// candidates' columns are projected out, or it is not tried: the arc cannot tell it from the
+/// set-up and the scale. On a full circle every candidate keeps 10 % or more (a bowed axis,
+/// u_k·p_k² ∝ cos³θ, keeps its cos 3θ part, 10 %). On the 220° vertical-plane test's 180° of
+/// data (0° to 180°), the bow of the axis that reverses mid-arc keeps 0.13 % (sin³θ there is
+/// nearly 1, sin θ and cos 2θ: set-up and scale mismatch), so it is not tried; the bow of the
+/// axis that reverses at the data arc's ends keeps its 10 %, the scale mismatch 4.9 % (its σ
+/// about 4.5 times a full circle's), squareness 28 %, backlash 100 %.
+pub const PARTIAL_ARC_MIN_FREE: f64 = 0.01;
+
+/// The candidates (of `candidates`, by index into `design.cands`; a spike's trial decay times
+/// count as one) that a partial arc cannot tell from the set-up (columns `setup`) and the
+/// scale ([`PARTIAL_ARC_MIN_FREE`]), each with the confounded group to report: its name and
+/// the columns that carry it (each at least a tenth of the largest part of the projection), or
+/// its name alone where it does not move on the data.
+fn undetermined_on_arc(
+    design: &Design,
+    candidates: &[usize],
+    setup: &[usize],
+) -> Vec<(usize, Vec<String>)> {
+    let mut out: Vec<(usize, Vec<String>)> = vec![];
+    let is_scale = |c: usize| {
+        matches!(
+            design.cands[c].effect,
+            Effect::Scale(_) | Effect::ScaleMismatch(_)
+        )
+    };
+    let scale_cols: Vec<usize> = candidates
+        .iter()
+        .filter(|&&c| is_scale(c))
+        .flat_map(|&c| design.cols_of(c))
+        .collect();
+    for &c in candidates {
+        let effect = design.cands[c].effect;
+        if out.iter().any(|(k, _)| design.cands[*k].effect == effect) {
+            continue;
+        }
+        let mut base = setup.to_vec();
+        if !is_scale(c) {
+            base.extend(&scale_cols);
+        }
+        let setup = &base[..];
+        let mut worst: Option<(f64, Vec<String>)> = None;
+        // The first column: the effect's own (a cyclic error's sine and cosine are alike; a
+        // servo delay's second, the common lag, is held where one circle cannot carry it).
+        for col in design.cols_of(c).into_iter().take(1) {
+            let norm2 = design.gram[(col, col)];
+            let (free, names) = if norm2 <= 0.0 {
+                (0.0, vec![])
+            } else {
+                match solve(&design.gram, setup, norm2, col) {
+                    Some((beta, ssr, _)) => {
+                        let parts: Vec<f64> = setup
+                            .iter()
+                            .zip(&beta)
+                            .map(|(&j, b)| (b * b * design.gram[(j, j)]).sqrt())
+                            .collect();
+                        let big = parts.iter().copied().fold(0.0, f64::max);
+                        let names = setup
+                            .iter()
+                            .zip(&parts)
+                            .filter(|(_, &p)| p >= 0.1 * big)
+                            .map(|(&j, _)| design.col_name(j))
+                            .collect();
+                        ((ssr / norm2).max(0.0), names)
+                    }
+                    None => (1.0, vec![]),
+                }
+            };
+            if worst.as_ref().is_none_or(|(w, _)| free < *w) {
+                worst = Some((free, names));
+            }
+        }
+        if let Some((free, names)) = worst {
+            if free < PARTIAL_ARC_MIN_FREE {
+                let mut group = vec![effect.name()];
+                group.extend(names);
+                out.push((c, group));
+            }
+        }
+    }
+    out
 }
 
 /// The set-up's distance |p + c| + e (mm) for `setup_um` = [c_x, c_y, c_z, e] in µm.

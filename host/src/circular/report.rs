@@ -48,6 +48,11 @@
 //! hysteresis_h_um          ISO 230-4 style H: largest ccw − cw difference of one circle in a
 //!                          1° bin, µm
 //! candidates[]             the candidate effects that were tried
+//! arcs[]                   per circle (as `circles`): {start_deg, sweep_deg, partial}, the arc
+//!                          its samples cover in the plane, degrees from the plane's first axis
+//!                          (360 a full circle); on a partial arc `harmonics_um` is empty and
+//!                          the candidates the arc cannot tell from the set-up and the scale are
+//!                          in `confounded` and not tried
 //! ```
 //!
 //! Added for acting on a diagnosis (issue 10); every field is optional to a reader, so a file
@@ -186,13 +191,36 @@ pub fn summary(d: &Diagnosis) -> String {
         "circular deviation G {:.3} µm, hysteresis H {:.3} µm (ISO 230-4 style, least-squares centre and length removed)",
         d.circular_deviation_g_um, d.hysteresis_h_um
     );
-    let h: Vec<String> = d
-        .harmonics_um
+    let partial: Vec<String> = d
+        .arcs
         .iter()
         .enumerate()
-        .map(|(k, a)| format!("{}:{:.3}", k + 1, a))
+        .filter(|(_, a)| a.is_partial())
+        .map(|(k, a)| {
+            format!(
+                "circle {} covers {:.0}° ({:.0}° to {:.0}°)",
+                k + 1,
+                a.sweep_deg,
+                a.start_deg,
+                a.start_deg + a.sweep_deg
+            )
+        })
         .collect();
-    let _ = writeln!(s, "residual harmonics vs angle (order:µm): {}", h.join(" "));
+    if partial.is_empty() {
+        let h: Vec<String> = d
+            .harmonics_um
+            .iter()
+            .enumerate()
+            .map(|(k, a)| format!("{}:{:.3}", k + 1, a))
+            .collect();
+        let _ = writeln!(s, "residual harmonics vs angle (order:µm): {}", h.join(" "));
+    } else {
+        let _ = writeln!(
+            s,
+            "partial arc: {}; what it cannot tell from the set-up and the scale is listed as confounded and not tried, the set-up and scale are less sure than on a full circle (their σ says by how much), and residual harmonics are not shown (they need the whole circle)",
+            partial.join(", ")
+        );
+    }
     s
 }
 
@@ -254,6 +282,9 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
         "circular_deviation_g_um": num(d.circular_deviation_g_um),
         "hysteresis_h_um": num(d.hysteresis_h_um),
         "candidates": d.candidates,
+        "arcs": d.arcs.iter().map(|a| json!({
+            "start_deg": num(a.start_deg), "sweep_deg": num(a.sweep_deg), "partial": a.is_partial(),
+        })).collect::<Vec<_>>(),
     });
     add_zones_and_shares(&mut v, d);
     v
