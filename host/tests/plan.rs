@@ -1019,7 +1019,11 @@ fn a_partial_arc_stays_on_its_arc_and_runs_it_both_ways() {
                     ..
                 } if *circle == k => Some((
                     *sense,
-                    serde_json::to_value(role).unwrap().as_str().unwrap().to_string(),
+                    serde_json::to_value(role)
+                        .unwrap()
+                        .as_str()
+                        .unwrap()
+                        .to_string(),
                     *start_deg,
                     *sweep_deg,
                 )),
@@ -1071,7 +1075,10 @@ fn a_partial_arc_stays_on_its_arc_and_runs_it_both_ways() {
             }
             for end in [from_mm, to_mm] {
                 for x in end {
-                    assert!(((x * 1000.0) - (x * 1000.0).round()).abs() < 1e-6, "{end:?}");
+                    assert!(
+                        ((x * 1000.0) - (x * 1000.0).round()).abs() < 1e-6,
+                        "{end:?}"
+                    );
                 }
                 let r = d(&circle.centre_mm, end);
                 assert!((r - circle.radius_mm).abs() <= 0.71e-3, "{end:?}: r {r}");
@@ -1085,7 +1092,10 @@ fn a_partial_arc_stays_on_its_arc_and_runs_it_both_ways() {
     };
     assert!((a + 20.0).abs() < 1e-3, "{a}");
     // Time: 2 × 220° per circle at 1000 mm/min, take-up, feed-ins and feed-outs, dwells.
-    let arcs_mm: f64 = [90.0, 85.0].iter().map(|r| 2.0 * 220f64.to_radians() * r).sum();
+    let arcs_mm: f64 = [90.0, 85.0]
+        .iter()
+        .map(|r| 2.0 * 220f64.to_radians() * r)
+        .sum();
     let lines_mm: f64 = p
         .segments
         .iter()
@@ -1108,7 +1118,10 @@ fn a_partial_arc_stays_on_its_arc_and_runs_it_both_ways() {
     let p = plan(&s, &Calibration::DEFAULT).unwrap();
     let (lo, hi) = p.travel_mm();
     let below = p.centre_mm[2] - lo[2];
-    assert!((below - 90.0 * 20f64.to_radians().sin()).abs() < 2e-3, "{below}");
+    assert!(
+        (below - 90.0 * 20f64.to_radians().sin()).abs() < 2e-3,
+        "{below}"
+    );
     assert!((hi[2] - p.centre_mm[2] - 90.0).abs() < 1e-3);
     assert!((hi[1] - lo[1] - 180.0).abs() < 1e-3);
 }
@@ -1204,7 +1217,7 @@ fn command_plans_the_vertical_plane_test() {
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(
-        stdout.contains("arc:                 220.0° from -20.0° to 200.0° of the plane's first axis (y), not beyond: lead-in 20.0°, data 0.0° to 180.0°, overshoot 20.0°, each way"),
+        stdout.contains("arc:                 220° from -20° to 200° of the plane's first axis (y), not beyond: lead-in 20°, data 0° to 180°, overshoot 20°, each way"),
         "{stdout}"
     );
     assert!(

@@ -20,8 +20,15 @@ const CENTRE: [f64; 3] = [100.0, 50.0, -20.0];
 
 /// The vertical-plane test: one circle of 90 mm in `plane`, 220° from −20°, at 1000 mm/min.
 fn arc_plan(plane: Plane) -> Plan {
-    let spec = PlanSpec::machine_test(&[90.0], &[0.0], plane, 1000.0, CENTRE, PlanDialect::Linuxcnc)
-        .with_arc(220.0);
+    let spec = PlanSpec::machine_test(
+        &[90.0],
+        &[0.0],
+        plane,
+        1000.0,
+        CENTRE,
+        PlanDialect::Linuxcnc,
+    )
+    .with_arc(220.0);
     let spec = PlanSpec {
         start_deg: -20.0,
         ..spec
@@ -87,7 +94,11 @@ fn assert_partial_arc_reported(d: &Diagnosis, plane: Plane) {
     assert!((178.0..=180.0).contains(&a.sweep_deg), "{a:?}");
     let (_, j, _) = plane.axes();
     let bow = format!("scale2_{}", ["x", "y", "z"][j]);
-    assert!(!d.candidates.contains(&bow), "{bow} tried: {:?}", d.candidates);
+    assert!(
+        !d.candidates.contains(&bow),
+        "{bow} tried: {:?}",
+        d.candidates
+    );
     let group = d
         .confounded
         .iter()
@@ -100,7 +111,9 @@ fn assert_partial_arc_reported(d: &Diagnosis, plane: Plane) {
     );
     assert!(d.harmonics_um.is_empty());
     assert!(text.contains("partial arc: circle 1 covers"), "{text}");
-    assert!(text.contains(&format!("confounded (this test cannot tell apart): {bow}, ")));
+    assert!(text.contains(&format!(
+        "confounded (this test cannot tell apart): {bow}, "
+    )));
 }
 
 fn machine_names(d: &Diagnosis) -> Vec<String> {

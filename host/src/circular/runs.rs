@@ -357,6 +357,31 @@ mod tests {
     }
 
     #[test]
+    fn arc_cover_finds_the_arc_a_circle_covers() {
+        // A full circle both ways; a 180° arc from 0° both ways; an arc across 0°, from 300°
+        // over 120°, with a 0.5° gap (a reversal guard) inside it.
+        let mut t = vec![];
+        let mut p = vec![];
+        let mut add = |(tt, pp): (Vec<f64>, Vec<[f64; 3]>)| {
+            t.extend(tt);
+            p.extend(pp);
+        };
+        add(arc(50.0, 0.0, 0.0, 0.5, 720, 0.0));
+        add(arc(60.0, 0.0, 0.25, 0.5, 360, 8.0));
+        add(arc(60.0, 0.0, 179.75, -0.5, 360, 12.0));
+        add(arc(70.0, 0.0, 300.25, 0.5, 120, 20.0));
+        add(arc(70.0, 0.0, 0.75, 0.5, 120, 21.2));
+        let (circles, runs) = split_runs(&t, &p, (0, 1), MAX_RUN_STEP_RAD);
+        let a = arc_cover(&angles(&p, (0, 1)), &runs, circles.len());
+        assert_eq!(a.len(), 3);
+        assert_eq!((a[0].start_deg, a[0].sweep_deg), (0.0, 360.0));
+        assert!(!a[0].is_partial());
+        assert_eq!((a[1].start_deg, a[1].sweep_deg), (0.0, 180.0));
+        assert!(a[1].is_partial());
+        assert_eq!((a[2].start_deg, a[2].sweep_deg), (300.0, 121.0));
+    }
+
+    #[test]
     fn harmonics_recover_amplitudes() {
         let a: Vec<f64> = (0..720).map(|i| (i as f64).to_radians() * 0.5).collect();
         let r: Vec<f64> = a

@@ -9,8 +9,7 @@ use crate::circular::plan::build::{
 };
 use crate::circular::plan::{
     calibration_circles, default_calibration_distances, default_lead_in_overshoot, gcode,
-    instrument, machine_test_circles, plan, write_program, Dialect, Plan, PlanSpec, Plane,
-    Purpose,
+    instrument, machine_test_circles, plan, write_program, Dialect, Plan, PlanSpec, Plane, Purpose,
 };
 use crate::{Error, Result};
 
@@ -205,16 +204,25 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
     );
     let arc = &plan.arc;
     if arc.is_partial() {
+        // Degrees to the millidegree, without trailing zeros (220, -20, 37.5).
+        let deg = |x: f64| {
+            let r = (x * 1000.0).round() / 1000.0;
+            if r == 0.0 {
+                0.0
+            } else {
+                r
+            }
+        };
         t += &format!(
             "arc:                 {}° from {}° to {}° of the plane's first axis ({}), not beyond: lead-in {}°, data {}° to {}°, overshoot {}°, each way\n",
-            gcode::number(arc.sweep_deg),
-            gcode::number(arc.start_deg),
-            gcode::number(arc.start_deg + arc.sweep_deg),
+            deg(arc.sweep_deg),
+            deg(arc.start_deg),
+            deg(arc.start_deg + arc.sweep_deg),
             ["x", "y", "z"][plan.plane.axes().0],
-            gcode::number(arc.lead_in_deg),
-            gcode::number(arc.data_start_deg),
-            gcode::number(arc.data_start_deg + arc.data_sweep_deg),
-            gcode::number(arc.overshoot_deg),
+            deg(arc.lead_in_deg),
+            deg(arc.data_start_deg),
+            deg(arc.data_start_deg + arc.data_sweep_deg),
+            deg(arc.overshoot_deg),
         );
     }
     t += &format!("table ball centre:   {}\n", point(&plan.centre_mm));
