@@ -24,7 +24,9 @@
 //!    against each other. If the isotropic scale is confounded with the length offset (one radius),
 //!    the scale candidates become `scale_mismatch_ij` = scale_i − scale_j and the confounded group
 //!    is named; a candidate that lies in the span of the current model is skipped and named with
-//!    what it is confounded with.
+//!    what it is confounded with. On a partial arc (the samples of a circle leave a gap, e.g. the
+//!    220° vertical-plane test) a candidate the arc cannot tell from the set-up and the scale
+//!    ([`PARTIAL_ARC_MIN_FREE`]) is not tried and named as confounded with them.
 //! 6. The selected effects are refitted with the exact geometry ([`super::model::ExactModel`]),
 //!    giving the reported values ± standard errors, then the residual's harmonics against angle.
 //!

@@ -40,7 +40,10 @@
 //!    feed override), the acceleration, and the data arcs used with their sample counts.
 //!
 //! Only the data arcs go to the diagnosis; the lead-in and overshoot arcs, the ramps and the
-//! dwells are left out. The axis reversals of the whole motion (including those in the lead-in,
+//! dwells are left out. A partial arc (`jdbb plan --arc-deg`) is the same to all of this: its
+//! runs are the arc counter-clockwise and the same arc back clockwise, each from rest to rest,
+//! with the reversal dwell between them, and its data arcs the part of each between the lead-in
+//! and the overshoot (`tests/tests/arc_hidden.rs` runs the 220° test). The axis reversals of the whole motion (including those in the lead-in,
 //! overshoot and at the sense reversal) are handed to the path, for the reversal spike.
 //!
 //! May use: [`super::plan`], [`super::path`], [`crate::numerics::lsq`], [`crate::table`].
