@@ -899,6 +899,16 @@ fn command_refuses_what_cannot_be_meant() {
     );
     fails(
         &with(&[
+            "--calibration-test",
+            "--centre",
+            "0,0,0",
+            "--arc-deg",
+            "220",
+        ]),
+        "cannot be used with",
+    );
+    fails(
+        &with(&[
             "--radius",
             "90",
             "--centre",

@@ -696,7 +696,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
 /// data (0° to 180°), the bow of the axis that reverses mid-arc keeps 0.13 % (sin³θ there is
 /// nearly 1, sin θ and cos 2θ: set-up and scale mismatch), so it is not tried; the bow of the
 /// axis that reverses at the data arc's ends keeps its 10 %, the scale mismatch 4.9 % (its σ
-/// about 4.5 times a full circle's), squareness 28 %, backlash 100 %.
+/// 4.5 times a full circle's per sample), squareness 28 %, backlash 100 %.
 pub const PARTIAL_ARC_MIN_FREE: f64 = 0.01;
 
 /// The candidates (of `candidates`, by index into `design.cands`; a spike's trial decay times

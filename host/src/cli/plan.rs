@@ -51,7 +51,7 @@ pub struct PlanArgs {
     /// The arc each circle runs, degrees (above 0, at most 360): below 360 the machine stays on
     /// the arc from --start-deg over this many degrees (the vertical-plane test: --arc-deg 220
     /// --start-deg -20), runs it ccw, then back cw.
-    #[arg(long, default_value_t = DEFAULT_ARC_DEG, allow_negative_numbers = true, value_parser = super::args::finite)]
+    #[arg(long, default_value_t = DEFAULT_ARC_DEG, allow_negative_numbers = true, value_parser = super::args::finite, conflicts_with = "calibration_test")]
     pub arc_deg: f64,
     /// Lead-in arc before the data arc, degrees (default 180; on a partial arc 20, taken from
     /// inside the arc).
