@@ -76,8 +76,21 @@ fn diagnose_record(plan: &Plan, rec: &Recording, pitch: [Option<f64>; 3]) -> Dia
         "cycle start {start_us} µs vs {} µs",
         t.cycle_start_us
     );
-    // Two data arcs per circle (ccw, cw), each the 180° of data.
-    assert_eq!(sync.circles[0].data.len(), 2);
+    // Every data arc of the plan found: the data arc ccw and back cw.
+    let planned = plan
+        .segments
+        .iter()
+        .filter(|s| {
+            matches!(
+                s,
+                jdbb::circular::plan::Segment::Arc {
+                    role: jdbb::circular::plan::ArcRole::Data,
+                    ..
+                }
+            )
+        })
+        .count();
+    assert_eq!(sync.circles[0].data.len(), planned);
     let (path, d) = data_path(plan, &r, &sync, pitch).unwrap();
     diagnose(&path, &d, &Options::default()).unwrap()
 }
@@ -110,7 +123,11 @@ fn assert_partial_arc_reported(d: &Diagnosis, plane: Plane) {
         "{group:?}"
     );
     assert!(d.harmonics_um.is_empty());
+    let (i, _, _) = plane.axes();
+    let names = ["x", "y", "z"];
+    let from = format!("from {} towards {}", names[i], names[j]);
     assert!(text.contains("partial arc: circle 1 covers"), "{text}");
+    assert!(text.contains(&from), "{text}");
     assert!(text.contains(&format!(
         "confounded (this test cannot tell apart): {bow}, "
     )));

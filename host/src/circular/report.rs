@@ -197,12 +197,20 @@ pub fn summary(d: &Diagnosis) -> String {
         .enumerate()
         .filter(|(_, a)| a.is_partial())
         .map(|(k, a)| {
+            // From −180° up, so an arc across the first axis reads −20° to 200°.
+            let start = if a.start_deg > 180.0 {
+                a.start_deg - 360.0
+            } else {
+                a.start_deg
+            };
             format!(
-                "circle {} covers {:.0}° ({:.0}° to {:.0}°)",
+                "circle {} covers {:.0}° ({:.0}° to {:.0}° from {} towards {})",
                 k + 1,
                 a.sweep_deg,
-                a.start_deg,
-                a.start_deg + a.sweep_deg
+                start,
+                start + a.sweep_deg,
+                ["x", "y", "z"][d.plane.0],
+                ["x", "y", "z"][d.plane.1]
             )
         })
         .collect();
