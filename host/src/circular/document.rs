@@ -85,6 +85,16 @@ pub struct CircleDoc {
     pub bidirectional: Option<ZoneDoc>,
 }
 
+/// The arc one circle's samples cover (`arcs[]`: degrees from the plane's first axis).
+#[derive(Debug, Clone, Deserialize)]
+pub struct ArcDoc {
+    pub start_deg: f64,
+    pub sweep_deg: f64,
+    /// Whether it is a partial arc (the diagnosis' own verdict).
+    #[serde(default)]
+    pub partial: bool,
+}
+
 /// `tolerance` of the file: the limit on G and the verdict.
 #[derive(Debug, Clone, Deserialize)]
 pub struct ToleranceDoc {
@@ -121,6 +131,9 @@ pub struct DiagnosisDoc {
     pub pitch_mm: BTreeMap<String, Option<f64>>,
     #[serde(default)]
     pub circles: Vec<CircleDoc>,
+    /// Per circle, the arc its samples cover (absent before partial arcs: full circles).
+    #[serde(default)]
+    pub arcs: Vec<ArcDoc>,
     #[serde(default)]
     pub minimum_zone: Option<Figures>,
     #[serde(default)]

@@ -334,6 +334,21 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
             escape(&g.join(", "))
         );
     }
+    for (k, a) in doc.arcs.iter().enumerate().filter(|(_, a)| a.partial) {
+        let start = if a.start_deg > 180.0 {
+            a.start_deg - 360.0
+        } else {
+            a.start_deg
+        };
+        let _ = writeln!(
+            h,
+            "<p class=\"note\">Partial arc: circle {} covers {:.0}° ({:.0}° to {:.0}°). What part of a circle cannot tell from the set-up and the scale is listed above as not told apart and was not tried; the set-up and the scale are less sure than on a full circle (their ± says by how much).</p>",
+            k + 1,
+            a.sweep_deg,
+            start,
+            start + a.sweep_deg
+        );
+    }
 
     // G and H.
     let _ = writeln!(
