@@ -131,6 +131,17 @@ fn assert_partial_arc_reported(d: &Diagnosis, plane: Plane) {
     assert!(text.contains(&format!(
         "confounded (this test cannot tell apart): {bow}, "
     )));
+    // The JSON and report.html say it too.
+    let json = jdbb::circular::report::to_json(d);
+    assert_eq!(json["arcs"][0]["partial"], true);
+    assert!(json["candidates"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|c| c != bow.as_str()));
+    let doc: jdbb::circular::document::DiagnosisDoc = serde_json::from_value(json).unwrap();
+    let html = jdbb::circular::html::report_html(d, &doc).unwrap();
+    assert!(html.contains("Partial arc: circle 1 covers"), "{html}");
 }
 
 fn machine_names(d: &Diagnosis) -> Vec<String> {
