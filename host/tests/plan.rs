@@ -1234,8 +1234,34 @@ fn command_plans_the_vertical_plane_test() {
         stdout.contains("note: the arc passes 30.782 mm below the table ball's centre"),
         "{stdout}"
     );
+    assert!(!stdout.contains("must reach it"), "{stdout}");
     let p = Plan::read(&out.join("plan.json")).unwrap();
     assert!(p.arc.is_partial());
     let program = std::fs::read_to_string(out.join(&p.program)).unwrap();
     check_program(&p, &program, Dialect::Fanuc);
+    // At 2000 mm/min the 2 mm feed-in is too short to reach the feed, which the synchronisation
+    // of a partial arc needs: (33.3 mm/s)² / 300 mm/s² / 0.8 = 4.63 mm.
+    let o = jdbb(&[
+        "plan",
+        "--radius",
+        "90",
+        "--plane",
+        "yz",
+        "--arc-deg",
+        "220",
+        "--start-deg",
+        "-20",
+        "--feed",
+        "2000",
+        "--centre",
+        "100,50,-20",
+        "--out",
+        dir.path().join("fast").to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success());
+    assert!(
+        stdout.contains("needs a feed-in of 4.7 mm or more (--feed-in-mm), this one is 2.0 mm"),
+        "{stdout}"
+    );
 }

@@ -9,8 +9,10 @@ use crate::circular::plan::build::{
 };
 use crate::circular::plan::{
     calibration_circles, default_calibration_distances, default_lead_in_overshoot, gcode,
-    instrument, machine_test_circles, plan, write_program, Dialect, Plan, PlanSpec, Plane, Purpose,
+    instrument, machine_test_circles, plan, write_program, Dialect, LineRole, Plan, PlanSpec,
+    Plane, Purpose, Segment,
 };
+use crate::circular::sync::MIN_CRUISE_FRACTION;
 use crate::{Error, Result};
 
 /// Arguments of `jdbb plan`.
@@ -188,6 +190,9 @@ fn duration(s: f64) -> String {
     }
 }
 
+/// A slow machine's acceleration (mm/s²), for the feed-in a partial arc needs.
+const SLOW_ACCEL_MM_S2: f64 = 300.0;
+
 /// What the operator needs: where the table ball goes, where to mount, the distances used.
 fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String {
     let inst = &plan.instrument;
@@ -265,6 +270,32 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
         );
         if plan.plane == Plane::Zx {
             t += "note: in plane zx angles run from z towards x; the arc that stays above the table from -20° to 200° of x is --start-deg -110\n";
+        }
+    }
+    if arc.is_partial() {
+        // The synchronisation takes a partial arc's feed from the feed-in's cruise
+        // (`circular::sync`): the feed-in must be long enough to reach the feed.
+        let v = plan.feed_mm_min / 60.0;
+        let need = v * v / SLOW_ACCEL_MM_S2 / (1.0 - MIN_CRUISE_FRACTION);
+        let feed_in = plan
+            .segments
+            .iter()
+            .find(|s| {
+                matches!(
+                    s,
+                    Segment::Line {
+                        role: LineRole::FeedIn,
+                        ..
+                    }
+                )
+            })
+            .map_or(0.0, Segment::length_mm);
+        if feed_in < need {
+            t += &format!(
+                "note: on a partial arc the feed is measured on the feed-in, which must reach it: at {} mm/min a machine accelerating at {SLOW_ACCEL_MM_S2} mm/s² needs a feed-in of {:.1} mm or more (--feed-in-mm), this one is {feed_in:.1} mm\n",
+                gcode::number(plan.feed_mm_min),
+                (need * 10.0).ceil() / 10.0
+            );
         }
     }
     if plan.dialect == Dialect::Marlin && plan.plane != Plane::Xy {

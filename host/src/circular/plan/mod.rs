@@ -40,7 +40,10 @@
 //! both senses; L + O < A, else the plan is refused. Both ends of the arc are axis reversals of
 //! every moving axis (the sense reverses there), and the lead-in and overshoot keep the steps,
 //! dead bands and spikes of those reversals off the data arc. `--lead-in-deg 0 --overshoot-deg
-//! 0` makes the data arc the whole arc.
+//! 0` makes the data arc the whole arc (then the data start from rest, and a run of the 220° test
+//! so planned named a 0.05 µm reversal spike that was not there). The synchronisation needs the
+//! feed-in of a partial arc to reach the feed ([`crate::circular::sync`]): `jdbb plan` says so
+//! when `--feed-in-mm` is short for the feed.
 //!
 //! A dwell of 0 s is left out. Arcs are split into equal pieces of at most 180° (a full circle or
 //! an arc over 180° is ambiguous or controller-dependent with I/J/K), so with the defaults
