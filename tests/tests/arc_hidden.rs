@@ -297,3 +297,4 @@ fn on_a_partial_arc_the_feed_in_must_cruise() {
     let d = diagnose_record(&p, &record(&p, errors, 31), [None; 3]);
     assert_only(&d, "backlash_x", 6.0);
 }
+
