@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Install what the firmware build and the QEMU runs need, when missing: the thumbv7em-none-eabihf
 # target, rustfmt/clippy, and Debian's qemu-system-arm; and headless Chromium for the report
-# rendering test (not fatal: that test says it is skipped when Chromium cannot be had). Safe to run
-# again. Sourced by test.sh and demo.sh.
+# rendering test (required: setup fails loudly when it cannot be installed, and test.sh sets
+# JDBB_REQUIRE_CHROMIUM=1 so that test cannot skip). Safe to run again. Sourced by test.sh and
+# demo.sh.
 set -euo pipefail
 
 as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
@@ -15,6 +16,8 @@ if ! command -v qemu-system-arm >/dev/null; then
   DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq qemu-system-arm >/dev/null
 fi
 if ! command -v chromium >/dev/null && ! command -v chromium-headless-shell >/dev/null; then
-  { as_root apt-get update -qq && DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq chromium >/dev/null; } \
-    || echo "setup.sh: could not install chromium; host/tests/report_html.rs will skip rendering" >&2
+  if ! { as_root apt-get update -qq && DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq chromium >/dev/null; }; then
+    echo "setup.sh: could not install chromium (Debian's package): the report rendering test needs it" >&2
+    exit 1
+  fi
 fi

@@ -32,7 +32,10 @@ pub struct AxisErrors {
     pub interference_phase_rad: f64,
     /// Ball-screw or scale pitch p (mm) of the periodic and interference terms.
     pub pitch_mm: f64,
-    /// Opposite clearance (backlash) f (µm) (eq. 14): δ = +f/2 moving +k, −f/2 moving −k.
+    /// Lost motion (backlash) b (µm), positive = play: the carriage lags its motor by b/2 in the
+    /// direction of motion, δ = −b/2 moving +k, +b/2 moving −k (eq. 14 with f = −b). A step,
+    /// exact away from a reversal: a real clearance is a dead band taken up over the first b of
+    /// travel after it, which the host's models (`circular::model`) evaluate.
     pub backlash_um: f64,
 }
 
@@ -60,7 +63,7 @@ impl AxisErrors {
             d +=
                 self.interference_um_per_mm_s * v_mm_s * math::sin(w + self.interference_phase_rad);
         }
-        d + 0.5 * self.backlash_um * if dir < 0 { -1.0 } else { 1.0 }
+        d - 0.5 * self.backlash_um * if dir < 0 { -1.0 } else { 1.0 }
     }
 }
 
@@ -131,8 +134,8 @@ mod tests {
     }
 
     #[test]
-    fn backlash_is_plus_minus_half_f_times_cos() {
-        // Seed 000 eq. (16): ΔR = ±(f/2)·cos θ.
+    fn backlash_is_play_minus_half_b_times_cos() {
+        // Seed 000 eq. (16) with f = −b: ΔR = ∓(b/2)·cos θ; play makes the axis lag its motion.
         let m = MachineErrors {
             axes: [
                 AxisErrors {
@@ -147,7 +150,7 @@ mod tests {
         let p = [50.0 * 0.6, 50.0 * 0.8, 0.0];
         let plus = radial_error_um(p, m.error_um(p, [1.0, 0.0, 0.0], [1, 1, 1]));
         let minus = radial_error_um(p, m.error_um(p, [-1.0, 0.0, 0.0], [-1, 1, 1]));
-        assert!((plus - 3.0).abs() < 1e-12 && (minus + 3.0).abs() < 1e-12);
+        assert!((plus + 3.0).abs() < 1e-12 && (minus - 3.0).abs() < 1e-12);
     }
 
     #[test]

@@ -169,11 +169,11 @@ mod tests {
             ..AxisErrors::ZERO
         };
         let k = geometry::Kernel::new(&t.cal);
-        // At θ = 0 ccw the spindle moves +y; near θ = 90°, −x: δx = −10 µm and x ≈ 0 → no effect.
-        // At θ = 180° (moving −y, x = −R, last x motion −x): δx = −10 µm → D longer by 10 µm.
+        // Play of 20 µm: the carriage lags its motion by 10 µm. At θ = 180° (moving −y, x = −R,
+        // last x motion −x): δx = +10 µm → D shorter by 10 µm.
         let half = t.circle_period_us() as u64 / 2;
         let (c1, c2) = t.counts_at(half).unwrap();
         let d = k.distance_mm(c1, c2);
-        assert!((d - 90.010).abs() < 2e-4, "{d}");
+        assert!((d - 89.990).abs() < 2e-4, "{d}");
     }
 }

@@ -46,7 +46,7 @@ fn diagnosis(dir: &Path, name: &str, extra: &[&str]) -> PathBuf {
         "--rate",
         "100",
         "--effect",
-        "backlash_x=-8",
+        "backlash_x=8",
         "--effect",
         "squareness_xy=30",
         "--sigma-um",
@@ -304,7 +304,7 @@ fn history_add_list_trend_and_plot() {
     ]);
     let list = ok(&["history", "list", "--db", s(&db), "--machine", "mill"]);
     assert!(list.starts_with("machine mill: 3 runs"), "{list}");
-    assert!(list.contains("backlash_x -8.0"), "{list}");
+    assert!(list.contains("backlash_x 8.0"), "{list}");
     let machines = ok(&["history", "list", "--db", s(&db)]);
     assert_eq!(machines, "mill: 3 runs\n");
     let plot = dir.path().join("trend.svg");

@@ -353,7 +353,8 @@ fn svg_polylines(svg: &str) -> Vec<(String, Vec<(f64, f64)>)> {
 #[test]
 fn polar_plot_has_no_chord_and_states_the_removed_setup() {
     // A ccw circle, then the cw circle starts at 180°: drawn as one polyline this would be a
-    // chord through the centre. Set-up: centring (20, −10) µm, bar 5 µm long; a 2 µm ellipse.
+    // chord through the centre. Set-up: the table ball at (−20, +10) µm from where assumed (the
+    // spindle ball is at p − c from it), bar 5 µm long; a 2 µm ellipse.
     let dir = tempfile::tempdir().unwrap();
     let mut csv = String::from("t_s,x_mm,y_mm,z_mm,d_mm\n");
     let r = 60.0f64;
@@ -384,12 +385,21 @@ fn polar_plot_has_no_chord_and_states_the_removed_setup() {
         svg.contains("set-up removed"),
         "title must say the set-up is removed"
     );
-    assert!(
-        svg.contains("least-squares centre and length")
-            && svg.contains("x = 20.00 µm, y = -10.00 µm")
-            && svg.contains("length offset e = 5.00 µm"),
-        "caption must give the removed set-up"
-    );
+    // D = |p + (20, −10) µm| puts the table ball at (−20, 10) µm; noise-free data support many
+    // digits (the residual RMS is a fraction of a nanometre).
+    let caption = svg
+        .split("Set-up removed (least-squares, all samples): table ball at ")
+        .nth(1)
+        .expect("caption must give the removed set-up");
+    let number = |key: &str| -> f64 {
+        let rest = caption.split(key).nth(1).unwrap();
+        rest.split(' ').next().unwrap().parse().unwrap()
+    };
+    for (key, want) in [("x = ", -20.0), ("y = ", 10.0), ("length offset e = ", 5.0)] {
+        let got = number(key);
+        assert!((got - want).abs() < 0.01, "{key}{got}: {caption}");
+    }
+    assert!(caption.contains("from where assumed"), "{caption}");
     let lines = svg_polylines(&svg);
     // The ideal machine's zero circle gives the plot centre.
     let ring = lines
@@ -418,4 +428,151 @@ fn polar_plot_has_no_chord_and_states_the_removed_setup() {
     }
     // Measured and model, ccw and cw.
     assert!(traces >= 4, "{traces} traces");
+}
+
+/// The whole numbers before " %" in `text` after each occurrence of `marker`.
+fn percents_after(text: &str, marker: &str) -> Vec<u32> {
+    text.split(marker)
+        .skip(1)
+        .filter_map(|rest| {
+            let n: String = rest
+                .trim_start()
+                .chars()
+                .take_while(|c| c.is_ascii_digit())
+                .collect();
+            n.parse().ok()
+        })
+        .collect()
+}
+
+#[test]
+fn every_output_shows_one_g_per_circle_and_direction_shares_of_100_and_plain_words() {
+    // Two radii, three effects: backlash, squareness and a servo mismatch.
+    let dir = tempfile::tempdir().unwrap();
+    let file = simulate(
+        dir.path(),
+        "s.csv",
+        &[
+            "--radius",
+            "90",
+            "--effect",
+            "backlash_x=5",
+            "--effect",
+            "squareness_xy=20",
+            "--effect",
+            "servo_mismatch_xy=0.3",
+        ],
+    );
+    let rep = dir.path().join("rep");
+    let o = jdbb(&[
+        "diagnose",
+        "--samples",
+        &file,
+        "--report",
+        rep.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout).to_string();
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(rep.join("diagnosis.json")).unwrap())
+            .unwrap();
+    let html = std::fs::read_to_string(rep.join("report.html")).unwrap();
+    let svg = std::fs::read_to_string(rep.join("polar.svg")).unwrap();
+
+    // G: the JSON's minimum-zone G of each circle and direction, shown with the digits of the
+    // noise (two significant digits of the residual RMS), is the figure of the text, the
+    // report's table and plot titles and the overview plot's caption.
+    let noise = v["final"]["rms_um"].as_f64().unwrap();
+    let decimals = (1 - noise.log10().floor() as i32).max(0) as usize;
+    let circles = v["circles"].as_array().unwrap();
+    assert_eq!(circles.len(), 2);
+    let mut largest = 0.0f64;
+    for (k, c) in circles.iter().enumerate() {
+        let g = |dir: &str| c[dir]["g_um"].as_f64().unwrap();
+        let (ccw, cw) = (g("ccw"), g("cw"));
+        largest = largest.max(ccw).max(cw);
+        assert_eq!(c["g_um"].as_f64().unwrap(), ccw.max(cw));
+        let (ccw, cw) = (format!("{ccw:.decimals$}"), format!("{cw:.decimals$}"));
+        let line = format!("G ccw {ccw} µm, cw {cw} µm");
+        assert!(
+            text.contains(&format!("circle {} (r ", k + 1)) && text.contains(&line),
+            "text lacks `{line}`:\n{text}"
+        );
+        assert!(
+            svg.contains(&format!("G ccw {ccw} µm, cw {cw} µm")),
+            "polar.svg lacks {line}"
+        );
+        assert!(
+            html.contains(&format!("G ccw {ccw} µm, cw {cw} µm, H")),
+            "report plot title lacks {line}"
+        );
+        assert!(
+            html.contains(&format!(
+                "<td class=\"num\">{ccw}</td><td class=\"num\">{cw}</td>"
+            )),
+            "report table lacks {line}"
+        );
+    }
+    assert_eq!(v["circular_deviation_g_um"].as_f64().unwrap(), largest);
+    assert_eq!(v["minimum_zone"]["g_um"].as_f64().unwrap(), largest);
+    assert!(html.contains(&format!(
+        "largest circular deviation G = {largest:.decimals$} µm"
+    )));
+    assert!(svg.contains(&format!("G = {largest:.decimals$} µm (largest)")));
+
+    // Shares: the JSON's add up to 1 with the residual's; the printed whole percentages add
+    // up to 100 in the text and in the report, and are the same numbers.
+    let effects = v["effects"].as_array().unwrap();
+    let json_sum: f64 = effects
+        .iter()
+        .filter_map(|e| e["share"].as_f64())
+        .sum::<f64>()
+        + v["residual_share"].as_f64().unwrap();
+    assert!((json_sum - 1.0).abs() < 1e-9, "{json_sum}");
+    let mut in_text = percents_after(&text, "µm (");
+    in_text.extend(percents_after(&text, "µm/m ("));
+    in_text.extend(percents_after(&text, "ms ("));
+    in_text.extend(percents_after(&text, "the residual is"));
+    assert_eq!(in_text.len(), effects.len() - 2 + 1, "{text}");
+    assert_eq!(in_text.iter().sum::<u32>(), 100, "{text}");
+    let mut in_html = percents_after(&html, "</span> ");
+    in_html.extend(percents_after(&html, "<td class=\"share\">"));
+    assert_eq!(in_html.len(), in_text.len(), "{html}");
+    assert_eq!(in_html.iter().sum::<u32>(), 100);
+    let (mut a, mut b) = (in_text.clone(), in_html.clone());
+    a.sort();
+    b.sort();
+    assert_eq!(a, b);
+
+    // The words of the trade: no paper references or symbols for people; the backlash's
+    // words follow its sign (today's: positive = play).
+    for (what, out) in [("text", &text), ("report", &html), ("plot", &svg)] {
+        for bad in ["seed 000", "eq. ", "dtau", "ΔBIC", "BIC"] {
+            assert!(!out.contains(bad), "{what} says `{bad}`");
+        }
+    }
+    // Digits from σ: each machine effect's value and σ are printed to two significant digits
+    // of σ, in the text and in the report.
+    for e in &effects[2..] {
+        let (value, sigma) = (e["value"].as_f64().unwrap(), e["sigma"].as_f64().unwrap());
+        let d = (1 - sigma.log10().floor() as i32).max(0) as usize;
+        let shown = format!("{value:.d$} ± {sigma:.d$}");
+        let name = e["name"].as_str().unwrap();
+        assert!(
+            text.contains(&format!("{name} = {shown} ")),
+            "{shown}:\n{text}"
+        );
+        assert!(
+            html.contains(&format!("<td class=\"num\">{shown} ")),
+            "{shown}"
+        );
+    }
+    let b = effects.iter().find(|e| e["name"] == "backlash_x").unwrap();
+    let words = if b["value"].as_f64().unwrap() > 0.0 {
+        "X: lost motion (play) at reversal"
+    } else {
+        "X: axis runs ahead at reversal (over-compensation)"
+    };
+    assert!(b["cause"].as_str().unwrap().starts_with(words), "{b}");
+    assert!(text.contains(words) && html.contains(words));
 }

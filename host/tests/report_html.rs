@@ -52,7 +52,7 @@ fn report(dir: &Path) -> PathBuf {
         "--rate",
         "100",
         "--effect",
-        "backlash_x=-8",
+        "backlash_x=8",
         "--effect",
         "squareness_xy=30",
         "--sigma-um",

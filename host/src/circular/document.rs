@@ -5,13 +5,25 @@
 //! Every field added after the first version is optional here, so an older file still reads;
 //! fields this reader does not know are ignored, so a newer file does too. A malformed file is
 //! an input error at `file:line:column` (serde_json's position).
+//!
+//! A file of an older `format` (absent = 1) is upgraded to this version's conventions as it is
+//! read ([`upgrade`]), so an old run keeps its meaning: format 1 wrote backlash with the
+//! opposite sign (positive = the axis runs ahead) and the set-up offset as the centring c of
+//! D = |p + c| (the table ball at −c), took the circular deviation G about the least-squares
+//! centre, and had shares that did not add up to 1.
 use std::collections::BTreeMap;
 use std::path::Path as FsPath;
 
 use serde::Deserialize;
 
 use super::model::{Axis, Effect};
+use super::words;
 use crate::{Error, Result};
+
+/// The `format` of the diagnosis JSON this version writes and reads: 2 = backlash positive is
+/// lost motion, the set-up offset is where the table ball is, G is the minimum zone's, shares
+/// add up to 1 (see [`super::report`]). Older files are upgraded as they are read ([`upgrade`]).
+pub const FORMAT: u32 = 2;
 
 /// One effect of the file.
 #[derive(Debug, Clone, Deserialize)]
@@ -38,7 +50,13 @@ pub struct EffectDoc {
 impl EffectDoc {
     /// The effect this entry names, if it is one this version knows.
     pub fn effect(&self) -> Option<Effect> {
-        Effect::parse(&self.name)
+        match Effect::parse(&self.name)? {
+            // A backlash whose two ends differ carries `pos_um`/`neg_um`.
+            Effect::Backlash(a) if self.params.contains_key("pos_um") => {
+                Some(Effect::BacklashEnds(a))
+            }
+            e => Some(e),
+        }
     }
 
     /// The effect's parameters in [`Effect::param_names`] order (a missing or null one is 0).
@@ -114,6 +132,10 @@ pub struct Figures {
 /// A diagnosis file (see the module docs and [`super::report`] for the fields).
 #[derive(Debug, Clone, Deserialize)]
 pub struct DiagnosisDoc {
+    /// The conventions the file was written in; after [`DiagnosisDoc::parse`], always
+    /// [`FORMAT`].
+    #[serde(default)]
+    pub format: Option<u32>,
     pub samples: usize,
     #[serde(default)]
     pub baseline: Figures,
@@ -122,6 +144,9 @@ pub struct DiagnosisDoc {
     pub confounded: Vec<Vec<String>>,
     #[serde(rename = "final", default)]
     pub final_fit: Figures,
+    /// The residual's share of the error (shares and it add up to 1).
+    #[serde(default)]
+    pub residual_share: Option<f64>,
     pub gain: Option<f64>,
     pub circular_deviation_g_um: Option<f64>,
     pub hysteresis_h_um: Option<f64>,
@@ -162,9 +187,10 @@ impl DiagnosisDoc {
         Ok((doc, text))
     }
 
-    /// Parse the text of a diagnosis file named `path` (for messages).
+    /// Parse the text of a diagnosis file named `path` (for messages), upgraded to this
+    /// version's conventions ([`upgrade`]).
     pub fn parse(path: &FsPath, text: &str) -> Result<DiagnosisDoc> {
-        let doc: DiagnosisDoc = serde_json::from_str(text).map_err(|e| {
+        let not_a_diagnosis = |e: serde_json::Error| {
             Error::input(
                 path,
                 e.line(),
@@ -173,7 +199,28 @@ impl DiagnosisDoc {
                     "not a jdbb diagnosis ({e}); give the diagnosis.json of `jdbb diagnose --report DIR` or the output of `jdbb diagnose --json`"
                 ),
             )
-        })?;
+        };
+        let mut value: serde_json::Value = serde_json::from_str(text).map_err(not_a_diagnosis)?;
+        let format = value.get("format").and_then(|f| f.as_u64()).unwrap_or(1);
+        if format > u64::from(FORMAT) {
+            return Err(Error::Input {
+                location: path.display().to_string(),
+                message: format!(
+                    "format {format}: written by a newer jdbb (this one reads up to {FORMAT}); update jdbb"
+                ),
+            });
+        }
+        upgrade(&mut value);
+        // Positions are lost once parsed into a value: parse the text again for them.
+        let doc: DiagnosisDoc = serde_json::from_value(value)
+            .map_err(|_| serde_json::from_str::<DiagnosisDoc>(text).err())
+            .map_err(|e| match e {
+                Some(e) => not_a_diagnosis(e),
+                None => Error::Input {
+                    location: path.display().to_string(),
+                    message: "not a jdbb diagnosis after its upgrade to the current format".into(),
+                },
+            })?;
         for (k, e) in doc.effects.iter().enumerate() {
             if e.effect().is_none() {
                 return Err(Error::Input {
@@ -230,6 +277,138 @@ impl DiagnosisDoc {
     }
 }
 
+/// The text of a diagnosis file brought to [`FORMAT`] ([`upgrade`], pretty-printed as
+/// `jdbb diagnose` writes it); None if it is already current or is not JSON.
+pub fn upgraded_text(text: &str) -> Option<String> {
+    let mut v: serde_json::Value = serde_json::from_str(text).ok()?;
+    upgrade(&mut v).then(|| serde_json::to_string_pretty(&v).expect("JSON of plain values"))
+}
+
+/// Bring the JSON of a diagnosis file to [`FORMAT`] in place (see the module docs); returns
+/// whether it changed. A file of the current format is left as it is. From format 1:
+/// - `backlash_k`: value and parameter negated (positive = lost motion), `f_um` renamed `b_um`;
+/// - `setup_offset` parameters and `lsq_setup` x, y, z negated (where the table ball is), and each
+///   zone centre made the table-ball position of that zone (−(c + zone centre));
+/// - `circular_deviation_g_um` becomes the minimum zone's (`minimum_zone.g_um`, null without
+///   it), the least-squares G kept as `lsq_circular_deviation_g_um`; `hysteresis_h_um` the
+///   minimum zone's where the file has it;
+/// - shares recomputed from `contribution_rms_um` and `final.rms_um` so they add up to 1;
+/// - causes rewritten in the current words ([`words::cause`]).
+pub fn upgrade(v: &mut serde_json::Value) -> bool {
+    use serde_json::{json, Value};
+    let format = v.get("format").and_then(Value::as_u64).unwrap_or(1);
+    if format >= u64::from(FORMAT) || !v.is_object() {
+        return false;
+    }
+    let neg = |x: &mut Value| {
+        if let Some(f) = x.as_f64() {
+            *x = json!(-f);
+        }
+    };
+    let old_lsq: Vec<Option<f64>> = ["x_um", "y_um", "z_um"]
+        .iter()
+        .map(|k| v["lsq_setup"].get(*k).and_then(Value::as_f64))
+        .collect();
+    if let Some(effects) = v.get_mut("effects").and_then(Value::as_array_mut) {
+        for e in effects.iter_mut() {
+            let Some(effect) = e
+                .get("name")
+                .and_then(Value::as_str)
+                .and_then(Effect::parse)
+            else {
+                continue;
+            };
+            match effect {
+                Effect::Backlash(_) => {
+                    neg(&mut e["value"]);
+                    for key in ["params", "params_sigma"] {
+                        if let Some(m) = e.get_mut(key).and_then(Value::as_object_mut) {
+                            if let Some(mut f) = m.remove("f_um") {
+                                if key == "params" {
+                                    neg(&mut f);
+                                }
+                                m.insert("b_um".into(), f);
+                            }
+                        }
+                    }
+                }
+                Effect::SetupOffset => {
+                    if let Some(m) = e.get_mut("params").and_then(Value::as_object_mut) {
+                        for k in ["x_um", "y_um", "z_um"] {
+                            if let Some(x) = m.get_mut(k) {
+                                neg(x);
+                            }
+                        }
+                    }
+                }
+                _ => {}
+            }
+            if e.get("cause").is_some() {
+                let value = e["value"].as_f64().unwrap_or(0.0);
+                e["cause"] = json!(words::cause(effect, value));
+            }
+        }
+    }
+    if let Some(m) = v.get_mut("lsq_setup").and_then(Value::as_object_mut) {
+        for k in ["x_um", "y_um", "z_um"] {
+            if let Some(x) = m.get_mut(k) {
+                neg(x);
+            }
+        }
+    }
+    if let Some(circles) = v.get_mut("circles").and_then(Value::as_array_mut) {
+        for c in circles.iter_mut() {
+            for dir in ["ccw", "cw", "bidirectional"] {
+                if let Some(centre) = c
+                    .get_mut(dir)
+                    .and_then(|z| z.get_mut("centre"))
+                    .and_then(Value::as_object_mut)
+                {
+                    for (k, x) in centre.iter_mut() {
+                        let axis = ["x_um", "y_um", "z_um"].iter().position(|a| a == k);
+                        let c0 = axis.and_then(|a| old_lsq[a]).unwrap_or(0.0);
+                        if let Some(z) = x.as_f64() {
+                            *x = json!(-(c0 + z));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    // Format 1's G was taken about the least-squares centre: kept under its own name, and the
+    // test's G is the minimum zone's (null where the file has none). H did not depend on the
+    // centre (the same 1° bins), so it stays unless the file has the minimum zone's.
+    if let Some(g) = v.get("circular_deviation_g_um").cloned() {
+        if !g.is_null() {
+            v["lsq_circular_deviation_g_um"] = g;
+        }
+        v["circular_deviation_g_um"] = v["minimum_zone"]["g_um"].clone();
+    }
+    if let Some(h) = v.get("minimum_zone").and_then(|z| z.get("h_um")).cloned() {
+        v["hysteresis_h_um"] = h;
+    }
+    let rms = v["final"]["rms_um"].as_f64();
+    if let (Some(rms), Some(effects)) = (rms, v.get_mut("effects").and_then(Value::as_array_mut)) {
+        let contrib: Vec<Option<f64>> = effects
+            .iter()
+            .map(|e| e.get("contribution_rms_um").and_then(Value::as_f64))
+            .collect();
+        if contrib.iter().any(Option::is_some) {
+            let total = rms * rms + contrib.iter().flatten().map(|c| c * c).sum::<f64>();
+            if total > 0.0 {
+                for (e, c) in effects.iter_mut().zip(&contrib) {
+                    if let Some(c) = c {
+                        e["share"] = json!(c * c / total);
+                    }
+                }
+                v["residual_share"] = json!(rms * rms / total);
+            }
+        }
+    }
+    v["format"] = json!(FORMAT);
+    true
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -246,17 +425,96 @@ mod tests {
         let d = DiagnosisDoc::parse(FsPath::new("d.json"), old).unwrap();
         let eff: Vec<_> = d.machine_effects().collect();
         assert_eq!(eff.len(), 1);
+        // Version 1 signs: f = −6 µm was lost motion; today that is b = +6 µm (play).
         assert_eq!(eff[0].1, Effect::Backlash(Axis::X));
-        assert_eq!(eff[0].0.param_values(eff[0].1), vec![-6.0]);
+        // Format 1's −6 (the axis lagging: lost motion) is +6 in today's sign.
+        assert_eq!(eff[0].0.value, Some(6.0));
+        assert_eq!(eff[0].0.params.get("b_um"), Some(&Some(6.0)));
         assert!(eff[0].0.significant(3.0));
+        assert_eq!(d.format, Some(FORMAT));
+        assert_eq!(d.effects[0].params.get("x_um"), Some(&Some(-1.0)));
         assert!(d.circles.is_empty() && d.machine.is_none() && d.g_um().is_none());
 
         let bad = "{\"samples\": 100,\n  \"effects\": [1, }";
         let e = DiagnosisDoc::parse(FsPath::new("d.json"), bad).unwrap_err();
         assert!(e.to_string().starts_with("d.json:2:"), "{e}");
         assert_eq!(e.exit_code(), 2);
+        let newer = r#"{"format": 99, "samples": 1, "effects": []}"#;
+        let e = DiagnosisDoc::parse(FsPath::new("d.json"), newer).unwrap_err();
+        assert!(e.to_string().contains("newer jdbb"), "{e}");
         let unknown = r#"{"samples": 1, "effects": [{"name": "warp_x", "value": 1, "sigma": 1}]}"#;
         let e = DiagnosisDoc::parse(FsPath::new("d.json"), unknown).unwrap_err();
         assert!(e.to_string().contains("unknown effect `warp_x`"), "{e}");
+    }
+
+    #[test]
+    fn a_format_1_file_keeps_its_meaning_and_a_current_one_is_left_alone() {
+        // Format 1 (issue 10): backlash_x −8 (lost motion then), centring c = (12, −7) so the
+        // table ball at (−12, 7); the ccw zone centre 0.5 µm along x from the least-squares
+        // centre in the plot; G about the least-squares centre 9.1 µm, minimum zone 8.8 µm;
+        // shares 0.8 and 0.3 (adding to 1.1).
+        let old = serde_json::json!({
+            "samples": 100,
+            "effects": [
+                {"name": "setup_offset", "value": 13.9, "sigma": 0.01, "setup": true,
+                 "params": {"x_um": 12.0, "y_um": -7.0, "z_um": 0.0}, "cause": "seed 000"},
+                {"name": "backlash_x", "value": -8.0, "sigma": 0.01, "unit": "um",
+                 "params": {"f_um": -8.0}, "params_sigma": {"f_um": 0.01},
+                 "cause": "X axis backlash (opposite clearance): lost motion at reversal (seed 000 eq. 14)",
+                 "contribution_rms_um": 4.0, "share": 0.8},
+                {"name": "squareness_xy", "value": 25.0, "sigma": 0.05, "unit": "um/m",
+                 "params": {"s_um_per_m": 25.0}, "contribution_rms_um": 2.0, "share": 0.3}
+            ],
+            "final": {"rms_um": 1.0},
+            "lsq_setup": {"x_um": 12.0, "y_um": -7.0, "z_um": 0.0, "e_um": 0.1},
+            "circular_deviation_g_um": 9.1, "hysteresis_h_um": 6.0,
+            "plane": "xy",
+            "circles": [{"radius_mm": 90.0, "g_um": 8.8, "h_um": 6.0,
+                "ccw": {"g_um": 8.8, "centre": {"x_um": 0.5, "y_um": 0.0}}, "cw": null}],
+            "minimum_zone": {"g_um": 8.8, "h_um": 6.0}
+        });
+        let mut v = old.clone();
+        assert!(upgrade(&mut v));
+        assert_eq!(v["format"], FORMAT);
+        let b = &v["effects"][1];
+        assert_eq!(
+            (b["value"].as_f64(), b["params"]["b_um"].as_f64()),
+            (Some(8.0), Some(8.0))
+        );
+        assert!(b["params"].get("f_um").is_none());
+        assert_eq!(b["params_sigma"]["b_um"].as_f64(), Some(0.01));
+        assert!(b["cause"]
+            .as_str()
+            .unwrap()
+            .starts_with("X: lost motion (play)"));
+        assert!(!v["effects"][0]["cause"].as_str().unwrap().contains("seed"));
+        let s = &v["effects"][0]["params"];
+        assert_eq!(
+            (s["x_um"].as_f64(), s["y_um"].as_f64()),
+            (Some(-12.0), Some(7.0))
+        );
+        assert_eq!(v["lsq_setup"]["x_um"].as_f64(), Some(-12.0));
+        assert_eq!(v["lsq_setup"]["e_um"].as_f64(), Some(0.1));
+        // The zone's table-ball position: −(12 + 0.5) along x, −(−7 + 0) along y.
+        let c = &v["circles"][0]["ccw"]["centre"];
+        assert_eq!(
+            (c["x_um"].as_f64(), c["y_um"].as_f64()),
+            (Some(-12.5), Some(7.0))
+        );
+        assert_eq!(v["circular_deviation_g_um"].as_f64(), Some(8.8));
+        assert_eq!(v["lsq_circular_deviation_g_um"].as_f64(), Some(9.1));
+        // Shares: 16 and 4 of 16 + 4 + 1 µm².
+        let share = |k: usize| v["effects"][k]["share"].as_f64().unwrap();
+        assert!((share(1) - 16.0 / 21.0).abs() < 1e-12);
+        assert!((share(2) - 4.0 / 21.0).abs() < 1e-12);
+        assert!((share(1) + share(2) + v["residual_share"].as_f64().unwrap() - 1.0).abs() < 1e-12);
+        // Once upgraded, nothing changes again.
+        let again = v.clone();
+        assert!(!upgrade(&mut v));
+        assert_eq!(v, again);
+        // What the reader makes of the old text is the upgraded file.
+        let d = DiagnosisDoc::parse(FsPath::new("d.json"), &old.to_string()).unwrap();
+        assert_eq!(d.effects[1].value, Some(8.0));
+        assert_eq!(d.g_um(), Some(8.8));
     }
 }

@@ -3,14 +3,17 @@
 //!
 //! What it says, in order: the verdict against the tolerance; the test conditions (machine,
 //! date, plane, circles with radius, height and feed, plan, instrument calibration); the machine
-//! effects ranked by their share of the error, each with value ± standard error and its cause;
-//! G and H of every circle per ISO 230-4 with the minimum-zone centre ([`super::zone`]); the
-//! polar plot of every circle.
+//! effects ranked by their share of the error, each with value ± standard error and its cause
+//! in the trade's words ([`super::words`]); G and H of every circle per ISO 230-4 with the
+//! minimum-zone centre ([`super::zone`]); the polar plot of every circle.
 //!
 //! Definitions the page states too:
 //! - *share of the error* of an effect: the mean square of the radial deviation that effect
-//!   alone makes (after the same set-up removal as the plot), over the mean square of the plotted
-//!   measured deviation (JSON `effects[].share`);
+//!   alone makes (after the same set-up removal as the plot), over the sum of that of every
+//!   machine effect and the residual's (JSON `effects[].share`, `residual_share`): the shares
+//!   add up to 100 %, shown as whole percentages rounded by largest remainder;
+//! - *G*: one per circle and direction, the minimum zone's (the same figure as the text and the
+//!   plots); figures without a ± of their own are shown to the digits the test's noise supports;
 //! - *pass*: every circle's G (each direction, minimum-zone centre) is at most the tolerance.
 //!
 //! The page is built from the diagnosis JSON read back as a [`DiagnosisDoc`] (so it shows what
@@ -20,7 +23,9 @@ use std::fmt::Write;
 use super::diagnose::Diagnosis;
 use super::document::{CircleDoc, DiagnosisDoc, ZoneDoc};
 use super::plot::{polar_svg, View};
-use crate::units::{format_estimate, human};
+use super::report::split_percentages;
+use super::words::cause;
+use crate::units::{format_estimate, format_to, human};
 use crate::Result;
 
 /// `text` with the five HTML special characters escaped.
@@ -101,7 +106,15 @@ fn compact(v: &serde_json::Value) -> String {
     }
 }
 
-fn zone_cell(z: &Option<ZoneDoc>, tol: Option<f64>) -> String {
+/// `x` (µm) to the digits the test's noise `noise_um` supports, or a dash.
+fn um(x: Option<f64>, noise_um: f64) -> String {
+    match x {
+        Some(v) if v.is_finite() => format_to(v, noise_um),
+        _ => "–".into(),
+    }
+}
+
+fn zone_cell(z: &Option<ZoneDoc>, tol: Option<f64>, noise_um: f64) -> String {
     match z.as_ref().and_then(|z| z.g_um) {
         Some(g) => {
             let mark = match tol {
@@ -109,18 +122,18 @@ fn zone_cell(z: &Option<ZoneDoc>, tol: Option<f64>) -> String {
                 Some(_) => " ✓",
                 None => "",
             };
-            format!("{g:.2}{mark}")
+            format!("{}{mark}", format_to(g, noise_um))
         }
         None => "–".into(),
     }
 }
 
-fn centre_text(z: &Option<ZoneDoc>) -> String {
+fn centre_text(z: &Option<ZoneDoc>, noise_um: f64) -> String {
     match z {
         Some(z) if !z.centre.is_empty() => z
             .centre
             .iter()
-            .map(|(k, v)| format!("{} {}", k.trim_end_matches("_um"), fmt_opt(*v, 2)))
+            .map(|(k, v)| format!("{} {}", k.trim_end_matches("_um"), um(*v, noise_um)))
             .collect::<Vec<_>>()
             .join(", "),
         _ => "–".into(),
@@ -142,6 +155,8 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         .as_deref()
         .unwrap_or("(machine not named: --machine NAME)");
     let tol = doc.tolerance.as_ref().map(|t| t.g_um);
+    // The test's noise: the digits of every figure without a ± of its own.
+    let noise = doc.final_fit.rms_um.unwrap_or(f64::NAN);
     let plane = doc.plane.clone().unwrap_or_else(|| "?".into());
     let normal = match plane.as_str() {
         "xy" => 'z',
@@ -168,10 +183,10 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         (Some(t), Some(g)) => {
             let _ = writeln!(
                 h,
-                "<div class=\"verdict {}\">{}: largest circular deviation G = {:.2} µm {} tolerance {:.2} µm</div>",
+                "<div class=\"verdict {}\">{}: largest circular deviation G = {} µm (minimum zone, per circle and direction) {} tolerance {} µm</div>",
                 if t.pass { "pass" } else { "fail" },
                 if t.pass { "PASS" } else { "FAIL" },
-                g,
+                format_to(g, noise),
                 if t.pass { "≤" } else { ">" },
                 t.g_um
             );
@@ -179,8 +194,8 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         _ => {
             let _ = writeln!(
                 h,
-                "<div class=\"verdict none\">No tolerance given (jdbb diagnose --tolerance-um): largest circular deviation G = {} µm</div>",
-                fmt_opt(g_max, 2)
+                "<div class=\"verdict none\">No tolerance given (jdbb diagnose --tolerance-um): largest circular deviation G = {} µm (minimum zone, per circle and direction)</div>",
+                um(g_max, noise)
             );
         }
     }
@@ -249,8 +264,8 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         "Fit".into(),
         format!(
             "RMS {} µm before (ideal machine), {} µm after the model (gain ×{})",
-            fmt_opt(doc.baseline.rms_um, 3),
-            fmt_opt(doc.final_fit.rms_um, 3),
+            um(doc.baseline.rms_um, noise),
+            um(doc.final_fit.rms_um, noise),
             fmt_opt(doc.gain, 1)
         ),
     ));
@@ -261,11 +276,24 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
 
     // Effects ranked by share.
     let _ = writeln!(h, "<h2>What the errors are, largest share first</h2>");
-    let mut effects: Vec<_> = doc.machine_effects().collect();
+    // Whole percentages adding up to 100, over the file's effects in its order, then ranked.
+    let machine: Vec<_> = doc.machine_effects().collect();
+    let pct = split_percentages(
+        &machine
+            .iter()
+            .map(|(e, _)| Some(e.share.unwrap_or(f64::NAN)))
+            .collect::<Vec<_>>(),
+        doc.residual_share.unwrap_or(f64::NAN),
+    );
+    let mut effects: Vec<_> = machine
+        .into_iter()
+        .zip(pct.effects.iter().copied())
+        .collect();
     effects.sort_by(|a, b| {
-        b.0.share
+        b.0 .0
+            .share
             .unwrap_or(0.0)
-            .total_cmp(&a.0.share.unwrap_or(0.0))
+            .total_cmp(&a.0 .0.share.unwrap_or(0.0))
     });
     if effects.is_empty() {
         let _ = writeln!(
@@ -277,15 +305,13 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
             h,
             "<table>\n<tr><th>#</th><th>effect</th><th>value ± σ</th><th>share of the error</th><th>RMS alone</th><th>cause</th></tr>"
         );
-        for (k, (e, _)) in effects.iter().enumerate() {
-            let share = e.share.unwrap_or(f64::NAN);
-            let bar = if share.is_finite() {
-                format!(
+        for (k, ((e, effect), pct)) in effects.iter().enumerate() {
+            let bar = match pct {
+                Some(p) => format!(
                     "<span class=\"bar\" style=\"width:{:.0}px\"></span> ",
-                    (share.clamp(0.0, 1.0) * 120.0).max(1.0)
-                )
-            } else {
-                String::new()
+                    (1.2 * f64::from(*p)).max(1.0)
+                ),
+                None => String::new(),
             };
             let _ = writeln!(
                 h,
@@ -294,19 +320,20 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
                 escape(&e.name),
                 escape(&format_estimate(e.value.unwrap_or(f64::NAN), e.sigma)),
                 escape(&human(&e.unit)),
-                if share.is_finite() {
-                    format!("{:.1} %", 100.0 * share)
-                } else {
-                    "–".into()
+                match pct {
+                    Some(p) => format!("{p} %"),
+                    None => "–".into(),
                 },
-                fmt_opt(e.contribution_rms_um, 3),
-                escape(&e.cause)
+                um(e.contribution_rms_um, noise),
+                escape(&cause(*effect, e.value.unwrap_or(0.0)))
             );
         }
         let _ = writeln!(
             h,
-            "<tr><td></td><td>residual</td><td class=\"num\">RMS {} µm</td><td colspan=\"3\">noise and what no candidate explains</td></tr>\n</table>",
-            fmt_opt(doc.final_fit.rms_um, 3)
+            "<tr><td></td><td>residual</td><td class=\"num\">RMS {} µm</td><td class=\"share\">{}</td><td class=\"num\">{} µm</td><td>noise and what no effect explains</td></tr>\n</table>",
+            um(doc.final_fit.rms_um, noise),
+            pct.residual.map_or("–".to_string(), |p| format!("{p} %")),
+            um(doc.final_fit.rms_um, noise),
         );
     }
     let setup: Vec<String> = doc
@@ -314,17 +341,35 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         .iter()
         .filter(|e| e.setup)
         .map(|e| {
+            let params: Vec<String> = e
+                .params
+                .iter()
+                .filter_map(|(k, v)| {
+                    let v = (*v)?;
+                    let s = e.params_sigma.get(k).copied().flatten();
+                    Some(format!(
+                        "{} {}",
+                        super::words::param_label(k),
+                        format_estimate(v, s)
+                    ))
+                })
+                .collect();
             format!(
-                "{} = {} {}",
+                "{} = {} {}{}",
                 e.name,
                 format_estimate(e.value.unwrap_or(f64::NAN), e.sigma),
-                human(&e.unit)
+                human(&e.unit),
+                if params.len() > 1 {
+                    format!(" ({})", params.join(", "))
+                } else {
+                    String::new()
+                }
             )
         })
         .collect();
     let _ = writeln!(
         h,
-        "<p class=\"note\">Share of the error: the mean square of the radial deviation an effect alone makes, over the mean square of the plotted measured deviation (set-up removed); shares of correlated effects need not add up to 100 %. ± is one standard error. Set-up, removed before everything here: {}.</p>",
+        "<p class=\"note\">Share of the error: the mean square of the radial deviation an effect alone makes (set-up removed), over the sum of that of every effect and the residual's mean square; the shares add up to 100 % (whole percentages, rounded by largest remainder). ± is one standard error; every figure is shown to the digits its σ supports (G, H and RMS: the test's noise, the residual RMS). Set-up, removed before everything here (the table ball relative to where it was assumed): {}.</p>",
         escape(&setup.join("; "))
     );
     for g in &doc.confounded {
@@ -353,7 +398,7 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
     // G and H.
     let _ = writeln!(
         h,
-        "<h2>Circular deviation G and hysteresis H (ISO 230-4, minimum-zone centre)</h2>\n<table>\n<tr><th>circle</th><th>feed mm/min</th><th>G ccw µm</th><th>G cw µm</th><th>G both directions µm</th><th>H µm</th><th>zone centre (ccw), µm</th><th>verdict</th></tr>"
+        "<h2>Circular deviation G and hysteresis H (ISO 230-4, minimum-zone centre)</h2>\n<table>\n<tr><th>circle</th><th>feed mm/min</th><th>G ccw µm</th><th>G cw µm</th><th>G both directions µm</th><th>H µm</th><th>minimum-zone centre (ccw): table ball at, µm</th><th>verdict</th></tr>"
     );
     for c in &doc.circles {
         let verdict = match (tol, c.g_um) {
@@ -366,16 +411,16 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
             "<tr><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{}</td><td>{verdict}</td></tr>",
             escape(&circle_label(c, normal)),
             fmt_opt(c.feed_mm_min, 0),
-            zone_cell(&c.ccw, tol),
-            zone_cell(&c.cw, tol),
-            zone_cell(&c.bidirectional, None),
-            fmt_opt(c.h_um, 2),
-            escape(&centre_text(&c.ccw)),
+            zone_cell(&c.ccw, tol, noise),
+            zone_cell(&c.cw, tol, noise),
+            zone_cell(&c.bidirectional, None, noise),
+            um(c.h_um, noise),
+            escape(&centre_text(&c.ccw, noise)),
         );
     }
     let _ = writeln!(
         h,
-        "</table>\n<p class=\"note\">G: the radial width of the minimum zone (two concentric circles, closest together, enclosing the trace) of one circle in one direction; its centre is relative to the least-squares centre of all samples. H: the largest difference between the ccw and cw traces in a 1° bin. Pass: every circle's G in each direction is at most the tolerance.</p>"
+        "</table>\n<p class=\"note\">G: the radial width of the minimum zone (two concentric circles, closest together, enclosing the trace) of one circle in one direction; its centre is given as where it puts the table ball, relative to where the ball was assumed (as the set-up offset). H: the largest difference between the ccw and cw traces in a 1° bin. Pass: every circle's G in each direction is at most the tolerance.</p>"
     );
 
     // Plots.
@@ -387,10 +432,11 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         let view = View {
             circle: Some(k),
             title: Some(format!(
-                "{}: G = {} µm, H = {} µm",
+                "{}: G ccw {} µm, cw {} µm, H {} µm",
                 circle_label(c, normal),
-                fmt_opt(c.g_um, 2),
-                fmt_opt(c.h_um, 2)
+                um(c.ccw.as_ref().and_then(|z| z.g_um), noise),
+                um(c.cw.as_ref().and_then(|z| z.g_um), noise),
+                um(c.h_um, noise)
             )),
         };
         let svg = polar_svg(d, &view)?;

@@ -9,6 +9,7 @@
 //! - [`runs`]: the circles as drawn: plane, angles, runs, G and H, harmonics.
 //! - [`zone`]: per circle: conditions and ISO 230-4 G and H with the minimum-zone centre.
 //! - [`diagnose`]: baseline, set-up, candidate search and selection, exact refit.
+//! - [`words`]: what each effect means in the trade's words (the causes every output shows).
 //! - [`report`] (text, JSON) and [`plot`] (polar plot, SVG and PNG) of a diagnosis;
 //!   [`document`] reads that JSON back (the input contract of compensation and history);
 //!   [`html`] is the report a person reads (`report.html`).
@@ -17,7 +18,7 @@
 //!
 //! May use: [`crate::numerics`], [`crate::table`], `jdbb_core::machine` (and, for [`plan`],
 //! `jdbb_core::{calib, geometry}`). Dependencies inside point one way: model ← simulate, input,
-//! runs, zone ← diagnose ← report, plot, html; plan ← sync; document stands alone (it reads
+//! runs, zone ← diagnose ← report, plot, html; words ← report, html; plan ← sync; document stands alone (it reads
 //! files, not diagnoses).
 pub mod diagnose;
 pub mod document;
@@ -31,4 +32,5 @@ pub mod report;
 pub mod runs;
 pub mod simulate;
 pub mod sync;
+pub mod words;
 pub mod zone;

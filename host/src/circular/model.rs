@@ -23,7 +23,9 @@ pub use super::path::{parse_pitch, Axis, Pair, Path};
 /// One candidate effect. Names (see [`Effect::name`]) are the issue's, used everywhere.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Effect {
-    /// c: the table ball is not where assumed (µm per axis); D = |p + δ + c| + e.
+    /// c: where the table ball is relative to where it was assumed (µm per axis); the spindle
+    /// ball is then at p + δ − c from it: D = |p + δ − c| + e. The same sign as `calibrate`'s
+    /// table-ball offset.
     SetupOffset,
     /// e added to D (µm).
     LengthOffset,
@@ -31,8 +33,29 @@ pub enum Effect {
     Scale(Axis),
     /// δ_k = b·k², b in µm/m² (seed 000 eq. 5, second-order uniform contraction).
     Scale2(Axis),
-    /// δ_k = ±f/2 moving ±k, f in µm (seed 000 eq. 14, opposite clearance).
+    /// Lost motion of axis k, b in µm: **positive = play** (a nut clearance: the carriage lags
+    /// its motor by b/2 in the direction of motion), negative = the axis runs ahead by |b|/2
+    /// (over-compensation). Play is a *dead band* (a play operator between motor and carriage):
+    /// after a reversal at x_r the carriage stands still until the motor has travelled b, so
+    /// δ_k = −s·b/2 + s·max(0, b − s·(k − x_r)) with s the new direction; on a circle the gap is
+    /// taken up over Δθ ≈ √(2b/R). A negative b is a step at the reversal (the controller's
+    /// compensation jumps the motor through the gap), which is seed 000 eq. 14 with f = −b.
     Backlash(Axis),
+    /// Lost motion that differs along the travel (a worn screw): the gap grows linearly from
+    /// `neg_um` at the low end of the test's travel to `pos_um` at the high end, each taken up as
+    /// a dead band as in [`Effect::Backlash`]; the ballbar's backlash at the negative and the
+    /// positive reversal. Reported under the same name (`backlash_k`), value (pos + neg)/2.
+    BacklashEnds(Axis),
+    /// A bowed axis i (straightness): moving along i, axis j is displaced by
+    /// δ_j = w·(1 − 4·((i − i_mid)/L)²), w in µm: the bow of the middle of the tested travel L
+    /// (centre i_mid) relative to the line through its ends, positive towards +j. On one circle
+    /// i² = R² − j², so it is the same data as `scale2_j` with a set-up offset.
+    Straightness(Axis, Axis),
+    /// Lateral play of axis i in direction j (a guideway clearance across its travel): when i
+    /// reverses, friction turns and the carriage shifts across the clearance, so
+    /// δ_j = (l/2)·s_i with s_i the direction of i, l in µm (positive: towards +j while i moves
+    /// in +i). A step where i reverses, seen in j; on a circle ∓(l/2)·|u_j| by direction.
+    LateralPlay(Axis, Axis),
     /// δ_k = A·sin(2πk/p + φ), A in µm (seed 000 eq. 8, periodic error).
     Cyclic(Axis),
     /// δ_k = b·v_k·sin(2πk/p + φ), b in µm per mm/s (seed 000 eq. 11, interference).
@@ -97,6 +120,20 @@ impl Effect {
         for a in Axis::ALL {
             v.push(Effect::ReversalSpike(a));
         }
+        for a in Axis::ALL {
+            for b in Axis::ALL {
+                if a != b {
+                    v.push(Effect::Straightness(a, b));
+                }
+            }
+        }
+        for a in Axis::ALL {
+            for b in Axis::ALL {
+                if a != b {
+                    v.push(Effect::LateralPlay(a, b));
+                }
+            }
+        }
         v.push(Effect::Drift);
         v
     }
@@ -108,7 +145,9 @@ impl Effect {
             Effect::LengthOffset => "length_offset".into(),
             Effect::Scale(a) => format!("scale_{}", a.letter()),
             Effect::Scale2(a) => format!("scale2_{}", a.letter()),
-            Effect::Backlash(a) => format!("backlash_{}", a.letter()),
+            Effect::Backlash(a) | Effect::BacklashEnds(a) => format!("backlash_{}", a.letter()),
+            Effect::Straightness(a, b) => format!("straightness_{}_{}", a.letter(), b.letter()),
+            Effect::LateralPlay(a, b) => format!("lateral_play_{}_{}", a.letter(), b.letter()),
             Effect::Cyclic(a) => format!("cyclic_{}", a.letter()),
             Effect::Interference(a) => format!("interference_{}", a.letter()),
             Effect::Squareness(p) => format!("squareness_{}", p.name()),
@@ -126,6 +165,19 @@ impl Effect {
             "length_offset" => return Some(Effect::LengthOffset),
             "drift" => return Some(Effect::Drift),
             _ => {}
+        }
+        for (prefix, make) in [
+            (
+                "straightness_",
+                Effect::Straightness as fn(Axis, Axis) -> Effect,
+            ),
+            ("lateral_play_", Effect::LateralPlay),
+        ] {
+            if let Some(rest) = name.strip_prefix(prefix) {
+                let (a, b) = rest.split_once('_')?;
+                let (a, b) = (Axis::parse(a)?, Axis::parse(b)?);
+                return (a != b).then_some(make(a, b));
+            }
         }
         let (head, tail) = name.rsplit_once('_')?;
         match head {
@@ -153,7 +205,12 @@ impl Effect {
             Effect::SetupOffset | Effect::LengthOffset => "um",
             Effect::Scale(_) | Effect::Squareness(_) | Effect::ScaleMismatch(_) => "um/m",
             Effect::Scale2(_) => "um/m^2",
-            Effect::Backlash(_) | Effect::Cyclic(_) | Effect::ReversalSpike(_) => "um",
+            Effect::Backlash(_)
+            | Effect::BacklashEnds(_)
+            | Effect::Cyclic(_)
+            | Effect::ReversalSpike(_)
+            | Effect::Straightness(..)
+            | Effect::LateralPlay(..) => "um",
             Effect::Interference(_) => "um/(mm/s)",
             Effect::ServoMismatch(_) => "ms",
             Effect::Drift => "um/min",
@@ -167,7 +224,10 @@ impl Effect {
             Effect::LengthOffset => &["e_um"],
             Effect::Scale(_) | Effect::ScaleMismatch(_) => &["a_um_per_m"],
             Effect::Scale2(_) => &["b_um_per_m2"],
-            Effect::Backlash(_) => &["f_um"],
+            Effect::Backlash(_) => &["b_um"],
+            Effect::BacklashEnds(_) => &["pos_um", "neg_um"],
+            Effect::Straightness(..) => &["bow_um"],
+            Effect::LateralPlay(..) => &["l_um"],
             Effect::Cyclic(_) => &["sin_um", "cos_um"],
             Effect::Interference(_) => &["sin_um_per_mm_s", "cos_um_per_mm_s"],
             Effect::Squareness(_) => &["s_um_per_m"],
@@ -191,68 +251,13 @@ impl Effect {
 
     /// Whether the model is linear in all the effect's parameters (given the nominal path).
     pub fn is_linear(&self) -> bool {
-        !matches!(self, Effect::ServoMismatch(_) | Effect::ReversalSpike(_))
-    }
-
-    /// The physical cause, in words.
-    pub fn cause(&self) -> String {
-        match *self {
-            Effect::SetupOffset => "the table ball is not where assumed (set-up offset)".into(),
-            Effect::LengthOffset => "the bar length differs from its assumed value".into(),
-            Effect::Scale(a) => format!(
-                "{} axis scale error: uniform contraction/expansion of its ball screw or scale, usually thermal (seed 000 eq. 2)",
-                a.letter().to_ascii_uppercase()
-            ),
-            Effect::Scale2(a) => format!(
-                "{} axis second-order contraction: screw or scale fixed at both ends and heated (seed 000 eq. 5)",
-                a.letter().to_ascii_uppercase()
-            ),
-            Effect::Backlash(a) => format!(
-                "{} axis backlash (opposite clearance): lost motion at reversal (seed 000 eq. 14)",
-                a.letter().to_ascii_uppercase()
-            ),
-            Effect::Cyclic(a) => format!(
-                "{} axis periodic error of the ball screw or scale at its pitch (seed 000 eq. 8)",
-                a.letter().to_ascii_uppercase()
-            ),
-            Effect::Interference(a) => format!(
-                "{} axis interference of the detection device: periodic error growing with speed (seed 000 eq. 11)",
-                a.letter().to_ascii_uppercase()
-            ),
-            Effect::Squareness(p) => {
-                let (i, j) = p.axes();
-                format!(
-                    "squareness error between {} and {}: {} moves by s per metre of {}",
-                    i.letter().to_ascii_uppercase(),
-                    j.letter().to_ascii_uppercase(),
-                    i.letter().to_ascii_uppercase(),
-                    j.letter().to_ascii_uppercase()
-                )
-            }
-            Effect::ServoMismatch(p) => {
-                let (i, j) = p.axes();
-                format!(
-                    "servo mismatch: {} follows its command dtau later than {} (position-loop gains or time constants differ; tuning, not a setting)",
-                    i.letter().to_ascii_uppercase(),
-                    j.letter().to_ascii_uppercase()
-                )
-            }
-            Effect::ReversalSpike(a) => format!(
-                "{} axis reversal spike: at each reversal the axis sticks by h and catches up with time constant tau (friction, stick-slip, lost motion taken up by the servo)",
-                a.letter().to_ascii_uppercase()
-            ),
-            Effect::Drift => "the ball distance drifts with time during the test (warm-up of the machine or the instrument)".into(),
-            Effect::ScaleMismatch(p) => {
-                let (i, j) = p.axes();
-                format!(
-                    "scale mismatch between {} and {} (scale_{} − scale_{}); their common part cannot be told from length_offset at one radius",
-                    i.letter().to_ascii_uppercase(),
-                    j.letter().to_ascii_uppercase(),
-                    i.letter(),
-                    j.letter()
-                )
-            }
-        }
+        !matches!(
+            self,
+            Effect::ServoMismatch(_)
+                | Effect::ReversalSpike(_)
+                | Effect::Backlash(_)
+                | Effect::BacklashEnds(_)
+        )
     }
 
     /// Add this effect's δ (mm) for parameters `theta` to `q[j]` and its direct change of D (mm)
@@ -272,10 +277,11 @@ impl Effect {
         let dd = &mut dd[..n];
         match *self {
             Effect::SetupOffset => {
+                // The table ball moved by c: the spindle ball is at p + δ − c from it.
                 let c = [1e-3 * theta[0], 1e-3 * theta[1], 1e-3 * theta[2]];
                 for qj in q.iter_mut() {
                     for k in 0..3 {
-                        qj[k] += c[k];
+                        qj[k] -= c[k];
                     }
                 }
             }
@@ -316,10 +322,29 @@ impl Effect {
                 }
             }
             Effect::Backlash(a) => {
-                let (k, s) = (a.index(), 0.5e-3 * theta[0]);
-                let dir = &path.dir[i0..i0 + n];
-                for (qj, dj) in q.iter_mut().zip(dir) {
-                    qj[k] += s * f64::from(dj[k]);
+                let k = a.index();
+                for_each_dead_band(path, k, i0, n, theta[0], theta[0], |j, d_um, _, _| {
+                    q[j][k] += 1e-3 * d_um;
+                });
+            }
+            Effect::BacklashEnds(a) => {
+                let k = a.index();
+                for_each_dead_band(path, k, i0, n, theta[0], theta[1], |j, d_um, _, _| {
+                    q[j][k] += 1e-3 * d_um;
+                });
+            }
+            Effect::Straightness(a, b) => {
+                let (i, j) = (a.index(), b.index());
+                let w = 1e-3 * theta[0];
+                for (qk, pk) in q.iter_mut().zip(p) {
+                    qk[j] += w * bow_shape(path, i, pk[i]);
+                }
+            }
+            Effect::LateralPlay(a, b) => {
+                let (i, j) = (a.index(), b.index());
+                let half = 0.5e-3 * theta[0];
+                for (qk, dk) in q.iter_mut().zip(&path.dir[i0..i0 + n]) {
+                    qk[j] += half * f64::from(dk[i]);
                 }
             }
             Effect::Cyclic(a) => {
@@ -415,6 +440,24 @@ impl Effect {
                     out[o + 1] = -u[j][k] * h * s * e * dt_ms / (tau * tau);
                 });
             }
+            Effect::Backlash(ax) | Effect::BacklashEnds(ax) => {
+                let k = ax.index();
+                let ends = matches!(self, Effect::BacklashEnds(_));
+                let (pos, neg) = if ends {
+                    (theta[0], theta[1])
+                } else {
+                    (theta[0], theta[0])
+                };
+                for_each_dead_band(path, k, i0, n, pos, neg, |j, _, dpos, dneg| {
+                    let o = j * stride + offset;
+                    if ends {
+                        out[o] = u[j][k] * dpos;
+                        out[o + 1] = u[j][k] * dneg;
+                    } else {
+                        out[o] = u[j][k] * (dpos + dneg);
+                    }
+                });
+            }
             _ => Candidate::of(*self).columns_block(path, i0, u, out, stride, offset),
         }
     }
@@ -439,6 +482,13 @@ impl Effect {
                 }
                 (v, var.is_finite().then(|| var.max(0.0).sqrt()))
             }
+            Effect::BacklashEnds(_) => {
+                let var = 0.25 * (cov[0][0] + cov[1][1] + 2.0 * cov[0][1]);
+                (
+                    0.5 * (params[0] + params[1]),
+                    var.is_finite().then(|| var.max(0.0).sqrt()),
+                )
+            }
             _ => (params[0], Some(cov[0][0].max(0.0).sqrt())),
         }
     }
@@ -452,7 +502,7 @@ impl Effect {
                 Some(vec![value * phase_rad.cos(), value * phase_rad.sin()])
             }
             Effect::ServoMismatch(_) => Some(vec![value, 0.0]),
-            Effect::ReversalSpike(_) | Effect::SetupOffset => None,
+            Effect::ReversalSpike(_) | Effect::SetupOffset | Effect::BacklashEnds(_) => None,
             _ => Some(vec![value; self.n_params()]),
         }
     }
@@ -465,6 +515,74 @@ fn decay(x: f64) -> f64 {
         (-x).exp()
     } else {
         0.0
+    }
+}
+
+/// The shape of a bow of axis i (see [`Effect::Straightness`]) at its position `x_mm`:
+/// 1 − 4·((x − mid)/L)² over the path's travel of i; 0 for an axis that does not move.
+fn bow_shape(path: &Path, i: usize, x_mm: f64) -> f64 {
+    let len = path.hi_mm[i] - path.lo_mm[i];
+    if len <= 0.0 {
+        return 0.0;
+    }
+    let z = (x_mm - 0.5 * (path.hi_mm[i] + path.lo_mm[i])) / len;
+    1.0 - 4.0 * z * z
+}
+
+/// A dead band (play operator) between motor and carriage of axis k, evaluated from the nominal
+/// (motor) position: for each sample i0 + j, `f(j, δ_um, ∂δ/∂pos, ∂δ/∂neg)` with the gap g(x)
+/// growing linearly from `neg_um` at the low end of the path's travel of k to `pos_um` at the
+/// high end (equal for a uniform backlash). With s the direction since the last reversal (at x_r,
+/// gap g_r there) and u = s·(x − x_r) ≥ 0 the motor's travel since: the carriage stood where the
+/// old direction left it, x_r + s·g_r/2, until the motor took the gap up, so
+/// δ = −s·g(x)/2 + s·max(0, g_r − u) for g_r > 0; a negative gap is a step (over-compensation).
+/// Before the first reversal the held direction of the path is used, the gap taken up.
+pub(crate) fn for_each_dead_band(
+    path: &Path,
+    k: usize,
+    i0: usize,
+    n: usize,
+    pos_um: f64,
+    neg_um: f64,
+    mut f: impl FnMut(usize, f64, f64, f64),
+) {
+    let (lo, hi) = (path.lo_mm[k], path.hi_mm[k]);
+    let weight_pos = |x: f64| {
+        if hi > lo {
+            ((x - lo) / (hi - lo)).clamp(0.0, 1.0)
+        } else {
+            0.5
+        }
+    };
+    let revs = &path.reversals[k];
+    let t = &path.t_s[i0..i0 + n];
+    let mut next = revs.partition_point(|r| r.t_s <= t[0]);
+    for (j, &tj) in t.iter().enumerate() {
+        while next < revs.len() && revs[next].t_s <= tj {
+            next += 1;
+        }
+        let x = path.p_mm[i0 + j][k];
+        let wp = weight_pos(x);
+        let gap = pos_um * wp + neg_um * (1.0 - wp);
+        let (s, taken) = match next.checked_sub(1).map(|i| revs[i]) {
+            Some(r) => {
+                let s = f64::from(r.new_dir);
+                let wr = weight_pos(r.p_mm);
+                let gap_r = pos_um * wr + neg_um * (1.0 - wr);
+                let travel_um = (1e3 * s * (x - r.p_mm)).max(0.0);
+                (s, (gap_r > travel_um).then_some((gap_r - travel_um, wr)))
+            }
+            None => (f64::from(path.dir[i0 + j][k]), None),
+        };
+        let mut d = -0.5 * s * gap;
+        let mut dpos = -0.5 * s * wp;
+        let mut dneg = -0.5 * s * (1.0 - wp);
+        if let Some((left, wr)) = taken {
+            d += s * left;
+            dpos += s * wr;
+            dneg += s * (1.0 - wr);
+        }
+        f(j, d, dpos, dneg);
     }
 }
 
@@ -500,6 +618,9 @@ pub struct Candidate {
     pub effect: Effect,
     /// The trial decay time of a reversal spike (ms); 0 for other effects.
     pub tau_ms: f64,
+    /// The trial gap of a backlash (µm) whose dead band shapes its search column (the column
+    /// is the dead band of this gap per µm); 0 searches a step.
+    pub gap_um: f64,
 }
 
 impl Candidate {
@@ -512,6 +633,21 @@ impl Candidate {
             } else {
                 0.0
             },
+            gap_um: 0.0,
+        }
+    }
+
+    /// A backlash of axis `a` (uniform, or differing between the ends) searched with the dead
+    /// band of a trial gap `gap_um` (a step if it is not positive).
+    pub fn backlash(a: Axis, ends: bool, gap_um: f64) -> Candidate {
+        Candidate {
+            effect: if ends {
+                Effect::BacklashEnds(a)
+            } else {
+                Effect::Backlash(a)
+            },
+            tau_ms: 0.0,
+            gap_um: gap_um.max(0.0),
         }
     }
 
@@ -520,13 +656,14 @@ impl Candidate {
         Candidate {
             effect: Effect::ReversalSpike(a),
             tau_ms,
+            gap_um: 0.0,
         }
     }
 
     /// Number of search columns.
     pub fn n_cols(&self) -> usize {
         match self.effect {
-            Effect::ReversalSpike(_) => 1,
+            Effect::ReversalSpike(_) | Effect::BacklashEnds(_) => 1,
             e => e.n_params(),
         }
     }
@@ -536,6 +673,9 @@ impl Candidate {
     pub fn start(&self, coef: &[f64]) -> Vec<f64> {
         match self.effect {
             Effect::ReversalSpike(_) => vec![coef[0], self.tau_ms],
+            // Searched by the difference pos − neg alone (the mean is `Backlash`'s; the
+            // diagnosis merges the two): exact (pos, neg) = (±difference/2).
+            Effect::BacklashEnds(_) => vec![0.5 * coef[0], -0.5 * coef[0]],
             Effect::ServoMismatch(_) => {
                 let lag = if coef[0].abs() > 1e-6 {
                     (coef[1] / coef[0]).clamp(-50.0, 50.0)
@@ -566,7 +706,7 @@ impl Candidate {
         match self.effect {
             Effect::SetupOffset => {
                 for (j, o) in rows.enumerate() {
-                    out[o..o + 3].copy_from_slice(&u[j]);
+                    out[o..o + 3].copy_from_slice(&u[j].map(|x| -x));
                 }
             }
             Effect::LengthOffset => {
@@ -600,11 +740,34 @@ impl Candidate {
                     out[o] = 1e-6 * u[j][k] * p[j][k] * p[j][k];
                 }
             }
-            Effect::Backlash(a) => {
+            Effect::Backlash(a) | Effect::BacklashEnds(a) => {
+                // Per µm of gap: the dead band of the trial gap scaled to it, or the step
+                // ∂δ/∂b = −s/2; the ends' column is ∂δ/∂(pos − neg) at the trial gap.
                 let k = a.index();
+                let g = self.gap_um;
+                let ends = matches!(self.effect, Effect::BacklashEnds(_));
+                for_each_dead_band(path, k, i0, n, g, g, |j, d, dpos, dneg| {
+                    out[j * stride + offset] = u[j][k]
+                        * if ends {
+                            0.5 * (dpos - dneg)
+                        } else if g > 0.0 {
+                            d / g
+                        } else {
+                            dpos + dneg
+                        };
+                });
+            }
+            Effect::Straightness(a, b) => {
+                let (i, jx) = (a.index(), b.index());
+                for (j, o) in rows.enumerate() {
+                    out[o] = u[j][jx] * bow_shape(path, i, p[j][i]);
+                }
+            }
+            Effect::LateralPlay(a, b) => {
+                let (i, jx) = (a.index(), b.index());
                 let dir = &path.dir[i0..i0 + n];
                 for (j, o) in rows.enumerate() {
-                    out[o] = 0.5 * u[j][k] * f64::from(dir[j][k]);
+                    out[o] = 0.5 * u[j][jx] * f64::from(dir[j][i]);
                 }
             }
             Effect::Cyclic(a) | Effect::Interference(a) => {
@@ -807,6 +970,7 @@ mod tests {
     fn every_effect() -> Vec<Effect> {
         let mut v = Effect::all();
         v.extend(Pair::ALL.map(Effect::ScaleMismatch));
+        v.extend(Axis::ALL.map(Effect::BacklashEnds));
         v
     }
 
@@ -822,12 +986,22 @@ mod tests {
     #[test]
     fn names_round_trip() {
         for e in every_effect() {
-            assert_eq!(Effect::parse(&e.name()), Some(e));
             assert_eq!(e.param_names().len(), e.n_params());
+            if let Effect::BacklashEnds(a) = e {
+                // One name for a backlash, whether its ends differ or not.
+                assert_eq!(Effect::parse(&e.name()), Some(Effect::Backlash(a)));
+                continue;
+            }
+            assert_eq!(Effect::parse(&e.name()), Some(e));
         }
         assert_eq!(Effect::parse("scale_w"), None);
         assert_eq!(Effect::parse("backlash"), None);
-        assert_eq!(Effect::all().len(), 2 + 5 * 3 + 2 * 3 + 3 + 1);
+        assert_eq!(Effect::parse("straightness_x_x"), None);
+        assert_eq!(
+            Effect::parse("straightness_x_y"),
+            Some(Effect::Straightness(Axis::X, Axis::Y))
+        );
+        assert_eq!(Effect::all().len(), 2 + 5 * 3 + 2 * 3 + 3 + 6 + 6 + 1);
     }
 
     #[test]

@@ -129,12 +129,14 @@ fn derivative(t_s: &[f64], x: &[[f64; 3]]) -> Vec<[f64; 3]> {
     d
 }
 
-/// A reversal of one axis: the time (s) its commanded velocity crossed zero and the sign of the
-/// new direction.
+/// A reversal of one axis: the time (s) its commanded velocity crossed zero, the sign of the
+/// new direction, and where the axis turned (mm, in the path's frame: relative to the table
+/// ball). A dead band (backlash) is taken up over the first `b` of travel from there.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Reversal {
     pub t_s: f64,
     pub new_dir: i8,
+    pub p_mm: f64,
 }
 
 /// The nominal path with the derived motion: velocity, acceleration, held direction and the
@@ -157,6 +159,10 @@ pub struct Path {
     pub pitch_mm: [Option<f64>; 3],
     /// Travel range (max − min) per axis, mm.
     pub range_mm: [f64; 3],
+    /// Lowest and highest position per axis on the path (mm, relative to the table ball): the
+    /// ends of the travel where the lost motion of the two reversals is reported.
+    pub lo_mm: [f64; 3],
+    pub hi_mm: [f64; 3],
     /// See [`Path::pitch_phase`].
     pub(crate) phase: Vec<[(f64, f64); 3]>,
     /// Standard error of the samples' times against the machine's motion (s): 0 where the path
@@ -174,6 +180,8 @@ impl Path {
         let v = derivative(&t_s, &p_mm);
         let a = derivative(&t_s, &v);
         let mut range = [0.0; 3];
+        let mut lo_mm = [0.0; 3];
+        let mut hi_mm = [0.0; 3];
         for k in 0..3 {
             let (lo, hi) = p_mm
                 .iter()
@@ -181,6 +189,9 @@ impl Path {
                     (lo.min(p[k]), hi.max(p[k]))
                 });
             range[k] = if n > 0 { hi - lo } else { 0.0 };
+            if n > 0 {
+                (lo_mm[k], hi_mm[k]) = (lo, hi);
+            }
         }
         // Direction with hold: a speed below 1e-9 of the fastest axis speed is a standstill.
         let vmax = v
@@ -217,9 +228,16 @@ impl Path {
                     } else {
                         0.0
                     };
+                    // The turning point: the extreme of the samples around the crossing.
+                    let ext = if d0 > 0 {
+                        p_mm[i - 1][k].max(p_mm[i][k])
+                    } else {
+                        p_mm[i - 1][k].min(p_mm[i][k])
+                    };
                     reversals[k].push(Reversal {
                         t_s: t_s[i - 1] + f * (t_s[i] - t_s[i - 1]),
                         new_dir: d1,
+                        p_mm: ext,
                     });
                 }
             }
@@ -245,6 +263,8 @@ impl Path {
             dir,
             pitch_mm,
             range_mm: range,
+            lo_mm,
+            hi_mm,
             phase,
             timing_sigma_s: 0.0,
         }

@@ -1,8 +1,10 @@
 //! `--report DIR`: a ballbar-style polar plot (SVG and PNG) with the set-up removed, as ballbar
-//! software does: the measured deviation D − (|p + c| + e) with the least-squares centre c and
-//! length offset e of all samples, the ideal machine (the zero-deviation circle) and the extended
-//! model's prediction after the same removal (its machine effects), with ISO 230-4 style circular
-//! deviation G and hysteresis H of the plotted curve; plus the JSON of the diagnosis.
+//! software does: the measured deviation D − (|p − t| + e) with the least-squares table-ball
+//! offset t and length offset e of all samples, the ideal machine (the zero-deviation circle) and
+//! the extended model's prediction after the same removal (its machine effects), with the one
+//! circular deviation G per circle and direction (ISO 230-4, minimum-zone centre, as the text and
+//! the JSON) and hysteresis H; plus the JSON of the diagnosis. Figures are shown to the digits
+//! the test's noise supports ([`super::report`], *Digits*).
 //!
 //! Each run (one circle, one direction, no jump; [`super::runs::split_runs`]) is its own
 //! polyline, so no chord crosses the plot; several circles get one colour each (ccw dark, cw
@@ -17,6 +19,7 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use super::diagnose::Diagnosis;
+use crate::units::format_to;
 use crate::{Error, Result};
 
 static FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
@@ -61,7 +64,8 @@ const MODEL: RGBColor = RGBColor(0, 0, 0);
 pub struct View {
     /// Only this circle (index into [`Diagnosis::circles`]); None = all.
     pub circle: Option<usize>,
-    /// The title strip's text; None = the overall G and H of the least-squares centre.
+    /// The title strip's text; None = the test's G (the largest minimum-zone G of a circle in
+    /// one direction) and H.
     pub title: Option<String>,
 }
 
@@ -135,17 +139,30 @@ fn legend(d: &Diagnosis, view: &View) -> Vec<(Vec<RGBColor>, String)> {
 /// Caption lines under the legend: the set-up removed, what G and H are, the overlay.
 fn caption(d: &Diagnosis, view: &View) -> Vec<String> {
     let s = d.lsq_setup_um;
+    let um = |x: f64| format_to(x, d.final_rms_um);
     let mut out = vec![
         format!(
-            "Set-up removed (least-squares centre and length of all samples): centring x = {:.2} µm, y = {:.2} µm, z = {:.2} µm; length offset e = {:.2} µm",
-            s[0], s[1], s[2], s[3]
+            "Set-up removed (least-squares, all samples): table ball at x = {} µm, y = {} µm, z = {} µm from where assumed; length offset e = {} µm",
+            um(s[0]), um(s[1]), um(s[2]), um(s[3])
         ),
-        if view.circle.is_some() {
-            "G: radial width of the minimum zone of one direction (minimum-zone centre); H: largest ccw − cw difference in a 1° bin".to_string()
-        } else {
-            "G: largest peak-to-valley of the plotted measured deviation (one circle, one direction); H: largest ccw − cw difference in a 1° bin".to_string()
-        },
+        "G: radial width of the minimum zone of one circle in one direction (ISO 230-4, minimum-zone centre); H: largest ccw − cw difference in a 1° bin".to_string(),
     ];
+    if view.circle.is_none() {
+        let normal = ['x', 'y', 'z'][3 - d.plane.0 - d.plane.1];
+        for c in &d.circle_zones {
+            let g = |z: &Option<crate::numerics::mzc::MinimumZone>| {
+                z.map_or("not run".to_string(), |z| format!("{} µm", um(z.width_um)))
+            };
+            out.push(format!(
+                "r = {:.1} mm, {normal} = {:.1} mm: G ccw {}, cw {}; H {} µm",
+                c.radius_mm,
+                c.height_mm,
+                g(&c.ccw),
+                g(&c.cw),
+                um(c.h_um)
+            ));
+        }
+    }
     if view.n_circles(d) > 1 {
         out.push(format!(
             "{} circles (radius, height) overlaid on one deviation scale; dark = ccw, light = cw",
@@ -221,8 +238,10 @@ where
     let title = match &view.title {
         Some(t) => format!("{t}, {step} µm/div"),
         None => format!(
-            "J-DBB circular test, set-up removed: G = {:.2} µm, H = {:.2} µm, {} µm/div",
-            d.circular_deviation_g_um, d.hysteresis_h_um, step
+            "J-DBB circular test, set-up removed: G = {} µm (largest), H = {} µm, {} µm/div",
+            format_to(d.circular_deviation_g_um, d.final_rms_um),
+            format_to(d.hysteresis_h_um, d.final_rms_um),
+            step
         ),
     };
     let centred = Pos::new(HPos::Center, VPos::Center);

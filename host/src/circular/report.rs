@@ -1,8 +1,41 @@
 //! What a diagnosis says, for people and for programs: the text summary and the documented JSON.
 //! (The polar plot is [`super::plot`].)
 //!
+//! # Digits
+//! Every figure printed for people (text, `report.html`, plots) is rounded to what its σ
+//! supports: two significant digits of σ, the value to the same decimal place
+//! ([`crate::units::format_estimate`], [`crate::units::format_to`]). A fitted value and its
+//! parameters use their own standard error; G, H, peak-to-valley and RMS figures use the test's
+//! noise, the residual RMS (`final.rms_um`); a residual harmonic's amplitude uses
+//! noise·√(2/samples). The JSON keeps every number unrounded.
+//!
+//! # One G
+//! A test has one circular deviation G per circle and direction: the radial width of the minimum
+//! zone of that trace (ISO 230-4 with the minimum-zone centre, [`super::zone`]). Text, JSON,
+//! `report.html` and the plots all show that G; the test's G is the largest of them. The
+//! least-squares centre serves only to remove the set-up before the plot and is labelled as such.
+//!
+//! # Shares of the error
+//! An effect's share is the mean square of the radial deviation it alone makes (with the plotted
+//! curve's set-up removal), over the sum of that of every machine effect and the mean square of
+//! the residual (`final.rms_um`²). The shares and `residual_share` therefore add up to 1; printed
+//! as whole percentages they are rounded by largest remainder so that they add up to exactly
+//! 100 % ([`crate::units::percentages`]). Effects that are correlated share some of their
+//! deviation, which this sum counts once per effect: a share says how large an effect is
+//! against the others, not how much of the variance its removal would take away.
+//!
+//! # Signs
+//! - `backlash_k`: positive = lost motion (play) at reversal, negative = the axis runs ahead
+//!   (over-compensation);
+//! - `setup_offset`, `lsq_setup`, the zone centres: where the table ball is relative to where it
+//!   was assumed (the same sign as `jdbb calibrate`'s table-ball offset).
+//!
+//! Files written before these conventions (no `format`, or `format` 1) are upgraded when read
+//! ([`super::document`]).
+//!
 //! # JSON (`--json`, and `diagnosis.json` in `--report DIR`)
 //! ```text
+//! format                   2: the conventions above (absent in older files: 1)
 //! samples                  number of samples used
 //! baseline.rms_um          RMS of D − |p| (ideal machine), µm
 //! baseline.pv_um           peak-to-valley of D − |p|, µm
@@ -17,16 +50,25 @@
 //!   .sigma                 standard error of value (delta method), null if undetermined
 //!   .params                {parameter: value}: setup_offset {x_um,y_um,z_um}, length_offset
 //!                          {e_um}, scale/scale_mismatch {a_um_per_m}, scale2 {b_um_per_m2},
-//!                          backlash {f_um}, cyclic {sin_um,cos_um} (A·sin(w+φ) = sin_um·sin w +
-//!                          cos_um·cos w, w = 2πk/pitch), interference {sin_um_per_mm_s,
-//!                          cos_um_per_mm_s}, squareness {s_um_per_m}, servo_mismatch {dtau_ms}
+//!                          backlash {b_um: the lost motion; pos_um, neg_um: at the reversal
+//!                          at the + and − end of the travel, when they differ}, cyclic
+//!                          {sin_um,cos_um}
+//!                          (A·sin(w+φ) = sin_um·sin w + cos_um·cos w, w = 2πk/pitch),
+//!                          interference {sin_um_per_mm_s, cos_um_per_mm_s}, squareness
+//!                          {s_um_per_m}, servo_mismatch {dtau_ms: how much later the first
+//!                          axis follows its command than the second, lag_ms: their common
+//!                          lag}, reversal_spike {h_um: height, tau_ms: decay time}, drift
+//!                          {rate_um_per_min}
 //!   .params_sigma          {parameter: standard error or null (undetermined, held at 0)}
 //!   .rms_after_um          RMS of the residual after the step that added this effect (linear
 //!                          search); for the set-up, after the set-up fit
 //!   .rms_ratio             RMS before / after that step
-//!   .delta_bic             BIC change of that step (null for the set-up)
+//!   .delta_bic             change of the Bayesian information criterion by that step (the
+//!                          evidence the selection weighed; negative = better; null for the
+//!                          set-up)
 //!   .setup                 true for setup_offset and length_offset
-//!   .cause                 the physical cause in words
+//!   .cause                 the cause in the trade's words, what to check or set
+//!                          ([`super::words`])
 //! confounded[][]           groups of names the test cannot tell apart (effects, or set-up
 //!                          components setup_offset.x/.y/.z); a group of one is a parameter the
 //!                          path does not excite at all
@@ -34,19 +76,23 @@
 //!                          anywhere is not named (µm)
 //! below_floor[]            {name, peak_um}: effects the data support but that stay under the
 //!                          floor (peak_um bounds their largest contribution to D)
-//! not_significant[]        {name, value, sigma, unit, params}: effects the selection chose whose value
-//!                          is within 2σ of zero once σ counts the timing uncertainty (not named)
-//! final.rms_um             RMS of the residual of the exact refit, µm
+//! not_significant[]        {name, value, sigma, unit, params, reason}: effects the selection
+//!                          chose that the data cannot carry, not named: parameters not
+//!                          determined, a spike decaying within one sample period, or a value
+//!                          within 2σ of zero once σ counts the timing uncertainty
+//! final.rms_um             RMS of the residual of the exact refit, µm (the test's noise)
+//! residual_share           the residual's share of the error (see *Shares*)
 //! gain                     baseline.rms_um / final.rms_um
 //! harmonics_um[]           amplitude of residual harmonics 1..8 against the angle in the plane
 //!                          of the two axes with the largest travel, µm
-//! lsq_setup                {x_um, y_um, z_um, e_um}: least-squares centre and length offset of
-//!                          all samples (D ≈ |p + c| + e), the set-up removed before G, H and
-//!                          the polar plot
-//! circular_deviation_g_um  ISO 230-4 style G of D − (|p + c| + e) with lsq_setup: largest
-//!                          peak-to-valley of one circle in one direction, µm
-//! hysteresis_h_um          ISO 230-4 style H: largest ccw − cw difference of one circle in a
-//!                          1° bin, µm
+//! lsq_setup                {x_um, y_um, z_um, e_um}: the least-squares set-up of all samples,
+//!                          D ≈ |p − t| + e, t = where the table ball is relative to where it
+//!                          was assumed: the set-up removed before the polar plot
+//! circular_deviation_g_um  the test's G: the largest minimum-zone G of a circle in one
+//!                          direction (= minimum_zone.g_um), µm
+//! hysteresis_h_um          the test's H: the largest H of a circle (= minimum_zone.h_um), µm
+//! lsq_circular_deviation_g_um  only in files upgraded from format 1: their G about the
+//!                          least-squares centre, kept (not written by this version)
 //! candidates[]             the candidate effects that were tried
 //! arcs[]                   per circle (as `circles`): {start_deg, sweep_deg, partial}, the arc
 //!                          its samples cover in the plane, degrees from the plane's first axis
@@ -61,9 +107,7 @@
 //! ```text
 //! effects[].contribution_rms_um  RMS of the radial deviation the effect alone makes, with the
 //!                          plotted curve's set-up removal, µm (null for the set-up)
-//! effects[].share          contribution_rms_um² / (RMS of the plotted measured deviation)²: the
-//!                          effect's share of the error (null for the set-up; shares of
-//!                          correlated effects need not add up to 1)
+//! effects[].share          the effect's share of the error (see *Shares*; null for the set-up)
 //! plane                    xy, yz or zx: the plane of the two axes with the largest travel; the
 //!                          polar angle is measured from the first axis towards the second
 //! pitch_mm                 {x, y, z}: the pitch per axis the diagnosis was given, mm or null
@@ -75,8 +119,10 @@
 //!                          larger of .ccw.g_um and .cw.g_um, µm
 //!   .h_um                  hysteresis H: largest ccw − cw difference in a 1° bin, µm
 //!   .ccw, .cw, .bidirectional  the minimum zone of that trace (null if not run): {g_um (zone
-//!                          width), centre {<axis>_um, <axis>_um} (zone centre relative to the
-//!                          least-squares set-up centre, along the plane's axes), radius_offset_um}
+//!                          width), centre {<axis>_um, <axis>_um} (the minimum-zone centre as
+//!                          a table-ball position relative to where it was assumed, along the
+//!                          plane's axes: comparable with lsq_setup and setup_offset),
+//!                          radius_offset_um}
 //! minimum_zone             {g_um, h_um}: the largest G and H over the circles
 //!
 //! Written by `jdbb diagnose` from its options, when given:
@@ -89,62 +135,69 @@
 //! ```
 // Index loops over the axes (k in 0..3) and samples mirror the equations; keep them.
 use super::diagnose::Diagnosis;
+use super::document::FORMAT;
 use super::plan::{Plan, Sense};
 use super::sync::Sync;
+use super::words::{cause, param_label};
 use super::zone::CircleZone;
 use crate::numerics::mzc::MinimumZone;
+use crate::units::{format_estimate, format_to, percentages};
 
-/// Human summary of a diagnosis.
+/// Human summary of a diagnosis. Every figure is shown to the digits its σ supports (see the
+/// module docs, *Digits*): an effect's value and parameters to two significant digits of their
+/// standard error, G, H and RMS to those of the test's noise (the residual RMS).
 pub fn summary(d: &Diagnosis) -> String {
     use std::fmt::Write;
     let mut s = String::new();
+    let noise = d.final_rms_um;
+    let um = |x: f64| format_to(x, noise);
     let _ = writeln!(s, "{} samples", d.samples);
     let _ = writeln!(
         s,
-        "ideal machine (D = |p|): RMS {:.3} µm, peak-to-valley {:.3} µm",
-        d.baseline_rms_um, d.baseline_pv_um
+        "ideal machine (D = |p|): RMS {} µm, peak-to-valley {} µm",
+        um(d.baseline_rms_um),
+        um(d.baseline_pv_um)
     );
+    let shares = share_percentages(d);
     for (i, f) in d.effects.iter().enumerate() {
         let step = if i < 2 {
             "set-up".to_string()
         } else {
             format!("step {}", i - 1)
         };
-        let sig = f
-            .sigma
-            .map(|s| format!(" ± {s:.4}"))
-            .unwrap_or_else(|| " (undetermined)".into());
+        let share = match shares.effects.get(i).copied().flatten() {
+            Some(p) => format!(" ({p} % of the error)"),
+            None => String::new(),
+        };
         let _ = writeln!(
             s,
-            "{step}: {} = {:.4}{sig} {} — {}",
+            "{step}: {} = {} {}{share} — {}",
             f.effect.name(),
-            f.value,
+            format_estimate(f.value, f.sigma),
             crate::units::human(f.effect.unit()),
-            f.effect.cause()
+            cause(f.effect, f.value)
         );
-        let params: Vec<String> = f
-            .effect
-            .param_names()
-            .iter()
-            .zip(&f.params)
-            .zip(&f.param_sigma)
-            .map(|((n, v), s)| match s {
-                Some(s) => format!("{n} = {v:.4} ± {s:.4}"),
-                None => format!("{n} = {v:.4} (undetermined, held)"),
-            })
-            .collect();
-        let _ = writeln!(s, "    {}", params.join(", "));
-        if i >= 2 || i == 1 {
+        // The parameters, where they say more than the value.
+        if f.params.len() > 1 {
+            let params: Vec<String> = f
+                .effect
+                .param_names()
+                .iter()
+                .zip(&f.params)
+                .zip(&f.param_sigma)
+                .map(|((n, v), s)| match s {
+                    Some(s) => format!("{} {}", param_label(n), format_estimate(*v, Some(*s))),
+                    None => format!("{} {v:.3} (undetermined, held)", param_label(n)),
+                })
+                .collect();
+            let _ = writeln!(s, "    {}", params.join(", "));
+        }
+        if i >= 1 {
             let _ = writeln!(
                 s,
-                "    RMS after {:.3} µm, gain ×{:.2}{}",
-                f.rms_after_um,
+                "    RMS after {} µm, gain ×{:.2}",
+                um(f.rms_after_um),
                 f.rms_ratio,
-                if f.delta_bic.is_finite() {
-                    format!(", ΔBIC {:.1}", f.delta_bic)
-                } else {
-                    String::new()
-                }
             );
         }
     }
@@ -169,28 +222,45 @@ pub fn summary(d: &Diagnosis) -> String {
         let params: Vec<String> = w
             .params
             .iter()
-            .map(|(n, v)| format!("{n} = {v:.4}"))
+            .map(|(n, v)| format!("{} {v:.3}", param_label(n)))
             .collect();
         let _ = writeln!(
             s,
-            "not significant (|value| < 2σ, σ with the timing uncertainty): {} = {:.3} ± {:.3} {} ({}) — not named",
+            "not named: {} = {} {} ({}) — {}",
             w.name,
-            w.value,
-            w.sigma_value,
+            format_estimate(w.value, Some(w.sigma_value)),
             crate::units::human(w.unit),
-            params.join(", ")
+            params.join(", "),
+            w.reason
         );
     }
     let _ = writeln!(
         s,
-        "final: RMS {:.3} µm, gain ×{:.2} over the ideal machine",
-        d.final_rms_um, d.gain
+        "final: RMS {} µm, gain ×{:.2} over the ideal machine{}",
+        um(d.final_rms_um),
+        d.gain,
+        match shares.residual {
+            Some(p) if d.effects.len() > 2 => format!("; the residual is {p} % of the error"),
+            _ => String::new(),
+        }
     );
-    let _ = writeln!(
-        s,
-        "circular deviation G {:.3} µm, hysteresis H {:.3} µm (ISO 230-4 style, least-squares centre and length removed)",
-        d.circular_deviation_g_um, d.hysteresis_h_um
-    );
+    let normal = ['x', 'y', 'z'][3 - d.plane.0 - d.plane.1];
+    for (k, c) in d.circle_zones.iter().enumerate() {
+        let g = |z: &Option<crate::numerics::mzc::MinimumZone>| match z {
+            Some(z) => format!("{} µm", um(z.width_um)),
+            None => "not run".to_string(),
+        };
+        let _ = writeln!(
+            s,
+            "circle {} (r {:.1} mm, {normal} {:.1} mm): G ccw {}, cw {}; H {} µm (ISO 230-4, minimum-zone centre)",
+            k + 1,
+            c.radius_mm,
+            c.height_mm,
+            g(&c.ccw),
+            g(&c.cw),
+            um(c.h_um)
+        );
+    }
     let partial: Vec<String> = d
         .arcs
         .iter()
@@ -215,11 +285,14 @@ pub fn summary(d: &Diagnosis) -> String {
         })
         .collect();
     if partial.is_empty() {
+        // A harmonic's amplitude from m samples of noise σ has a standard error of about
+        // σ·√(2/m).
+        let harmonic_sigma = noise * (2.0 / d.samples.max(1) as f64).sqrt();
         let h: Vec<String> = d
             .harmonics_um
             .iter()
             .enumerate()
-            .map(|(k, a)| format!("{}:{:.3}", k + 1, a))
+            .map(|(k, a)| format!("{}:{}", k + 1, format_to(*a, harmonic_sigma)))
             .collect();
         let _ = writeln!(s, "residual harmonics vs angle (order:µm): {}", h.join(" "));
     } else {
@@ -230,6 +303,43 @@ pub fn summary(d: &Diagnosis) -> String {
         );
     }
     s
+}
+
+/// The shares of the error as whole percentages that add up to 100 (largest remainder, see
+/// [`percentages`]): per effect of [`Diagnosis::effects`] (None for the set-up) and the residual.
+pub struct SharePercentages {
+    pub effects: Vec<Option<u32>>,
+    pub residual: Option<u32>,
+}
+
+/// [`SharePercentages`] of a diagnosis.
+pub fn share_percentages(d: &Diagnosis) -> SharePercentages {
+    let shares: Vec<Option<f64>> = d
+        .effects
+        .iter()
+        .map(|f| (!f.effect.is_setup()).then_some(f.share))
+        .collect();
+    split_percentages(&shares, d.residual_share)
+}
+
+/// Whole percentages of the machine effects' shares (None: the set-up, no share) and the
+/// residual's, adding up to 100.
+pub fn split_percentages(shares: &[Option<f64>], residual: f64) -> SharePercentages {
+    let mut flat: Vec<f64> = shares.iter().flatten().copied().collect();
+    flat.push(residual);
+    if !flat.iter().any(|x| x.is_finite() && *x > 0.0) {
+        return SharePercentages {
+            effects: vec![None; shares.len()],
+            residual: None,
+        };
+    }
+    let pct = percentages(&flat);
+    let mut it = pct.iter().copied();
+    let effects = shares.iter().map(|s| s.and_then(|_| it.next())).collect();
+    SharePercentages {
+        effects,
+        residual: it.next(),
+    }
 }
 
 /// The documented JSON (see the README): samples, baseline, effects, confounded, final, gain.
@@ -263,11 +373,12 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
                 "rms_ratio": num(f.rms_ratio),
                 "delta_bic": num(f.delta_bic),
                 "setup": f.effect.is_setup(),
-                "cause": f.effect.cause(),
+                "cause": cause(f.effect, f.value),
             })
         })
         .collect();
     let mut v = json!({
+        "format": FORMAT,
         "samples": d.samples,
         "baseline": {"rms_um": num(d.baseline_rms_um), "pv_um": num(d.baseline_pv_um)},
         "effects": effects,
@@ -277,8 +388,10 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
         "not_significant": d.not_significant.iter().map(|w| json!({
             "name": w.name, "value": num(w.value), "sigma": num(w.sigma_value), "unit": w.unit,
             "params": w.params.iter().map(|(n, v)| (n.to_string(), num(*v))).collect::<serde_json::Map<_, _>>(),
+            "reason": w.reason,
         })).collect::<Vec<_>>(),
         "final": {"rms_um": num(d.final_rms_um)},
+        "residual_share": num(d.residual_share),
         "gain": num(d.gain),
         "harmonics_um": d.harmonics_um,
         "lsq_setup": {
@@ -316,12 +429,22 @@ fn add_zones_and_shares(v: &mut serde_json::Value, d: &Diagnosis) {
         }
     }
     let axes = ['x', 'y', 'z'];
+    let (a, b) = d.plane;
     let zone = |z: &Option<MinimumZone>| match z {
         None => Value::Null,
         Some(z) => {
+            // The zone's centre as a table-ball position, relative to where it was assumed: the
+            // least-squares set-up's t, moved by the zone centre. A trace centred at z in the
+            // plot (deviation ≈ z·u) is a table ball displaced by −z (D ≈ |p| − u·t).
             let mut centre = serde_json::Map::new();
-            centre.insert(format!("{}_um", axes[d.plane.0]), num(z.centre_um[0]));
-            centre.insert(format!("{}_um", axes[d.plane.1]), num(z.centre_um[1]));
+            centre.insert(
+                format!("{}_um", axes[a]),
+                num(d.lsq_setup_um[a] - z.centre_um[0]),
+            );
+            centre.insert(
+                format!("{}_um", axes[b]),
+                num(d.lsq_setup_um[b] - z.centre_um[1]),
+            );
             json!({"g_um": num(z.width_um), "centre": centre, "radius_offset_um": num(z.radius_offset_um)})
         }
     };

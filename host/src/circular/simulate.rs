@@ -13,7 +13,7 @@ use jdbb_core::machine::{AxisErrors, MachineErrors};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
-use super::model::{Effect, Path};
+use super::model::{Effect, EffectSet, Path};
 use crate::{Error, Result};
 
 /// One effect with its parameters (in the effect's parameter units, see
@@ -24,7 +24,8 @@ pub struct EffectValue {
     pub params: Vec<f64>,
 }
 
-/// Parse `name=value[@phase_deg]` or `name=v1,v2,..` (all parameters, e.g. `setup_offset=5,-3,0`).
+/// Parse `name=value[@phase_deg]` or `name=v1,v2,..` (all parameters, e.g. `setup_offset=5,-3,0`;
+/// `backlash_x=10,5` is lost motion of 10 µm at the positive end and 5 µm at the negative).
 pub fn parse_effect(s: &str) -> Result<EffectValue> {
     let (name, val) = s.split_once('=').ok_or_else(|| {
         Error::Usage(format!(
@@ -50,6 +51,11 @@ pub fn parse_effect(s: &str) -> Result<EffectValue> {
         None => (val, None),
     };
     let list: Vec<f64> = vals.split(',').map(num).collect::<Result<_>>()?;
+    // `backlash_x=pos,neg`: lost motion at the positive and the negative end of the travel.
+    let effect = match (effect, list.len()) {
+        (Effect::Backlash(a), 2) => Effect::BacklashEnds(a),
+        (e, _) => e,
+    };
     let from_value = if list.len() == 1 {
         effect.params_from_value(list[0], phase.unwrap_or(0.0))
     } else {
@@ -198,6 +204,7 @@ pub fn distances_mm(path: &Path, effects: &[EffectValue]) -> Result<Vec<f64>> {
     let mut drift_um_per_min = 0.0;
     let mut delay_ms = [0.0f64; 3]; // per-axis delay τ_k (ms)
     let mut spikes: Vec<(usize, f64, f64)> = vec![]; // (axis, h µm, τ ms)
+    let mut path_effects: Vec<EffectValue> = vec![];
     for ev in effects {
         let p = &ev.params;
         let pitch = |k: usize| {
@@ -221,7 +228,12 @@ pub fn distances_mm(path: &Path, effects: &[EffectValue]) -> Result<Vec<f64>> {
                 m.axes[j.index()].scale_um_per_m -= 0.5 * p[0];
             }
             Effect::Scale2(a) => m.axes[a.index()].scale2_um_per_m2 += p[0],
-            Effect::Backlash(a) => m.axes[a.index()].backlash_um += p[0],
+            // Dead bands and bows need the path's reversals and travel: the model's own
+            // evaluation (a round trip with the fit, not an independent truth).
+            Effect::Backlash(_)
+            | Effect::BacklashEnds(_)
+            | Effect::Straightness(..)
+            | Effect::LateralPlay(..) => path_effects.push(ev.clone()),
             Effect::Cyclic(a) => {
                 let ax: &mut AxisErrors = &mut m.axes[a.index()];
                 ax.pitch_mm = pitch(a.index())?;
@@ -259,14 +271,20 @@ pub fn distances_mm(path: &Path, effects: &[EffectValue]) -> Result<Vec<f64>> {
         }
     }
     let t0 = path.t_s.first().copied().unwrap_or(0.0);
+    let along_path = EffectSet::new(path_effects.iter().map(|e| e.effect).collect());
+    let along_theta: Vec<f64> = path_effects.iter().flat_map(|e| e.params.clone()).collect();
     Ok((0..path.len())
         .map(|i| {
             let v = path.v_mm_s[i];
             let dir = path.dir[i];
             let d = m.error_um(path.p_mm[i], v, dir);
             let mut q = path.p_mm[i];
+            if !path_effects.is_empty() {
+                q = along_path.displaced(path, i, &along_theta).0;
+            }
             for k in 0..3 {
-                q[k] += (d[k] + c_um[k]) * 1e-3;
+                // The table ball sits at +c: the spindle ball is at p + δ − c from it.
+                q[k] += (d[k] - c_um[k]) * 1e-3;
                 if delay_ms[k] != 0.0 {
                     q[k] += delayed_mm(path, i, k, 1e-3 * delay_ms[k]) - path.p_mm[i][k];
                 }
@@ -381,11 +399,12 @@ mod tests {
         let path = Path::new(t, p, [None; 3]);
         let d = distances_mm(&path, &[]).unwrap();
         assert!(d.iter().all(|d| (d - 50.0).abs() < 1e-12));
-        // Backlash f on x: D changes by ±(f/2)·cos θ (seed 000 eq. 16).
+        // Play b on x: the axis lags its motion by b/2, D changes by ∓(b/2)·cos θ (seed 000
+        // eq. 16 with f = −b).
         let ev = parse_effect("backlash_x=10").unwrap();
         let d = distances_mm(&path, &[ev]).unwrap();
-        let i = n / 8 + 3; // ccw, θ ≈ 45°: moving −x → −f/2 · cos θ
+        let i = n / 8 + 3; // ccw, θ ≈ 45°: moving −x → δx = +b/2 → +(b/2)·cos θ
         let th = path.p_mm[i][1].atan2(path.p_mm[i][0]);
-        assert!(((d[i] - 50.0) * 1e3 + 5.0 * th.cos()).abs() < 1e-3);
+        assert!(((d[i] - 50.0) * 1e3 - 5.0 * th.cos()).abs() < 1e-3);
     }
 }

@@ -1536,9 +1536,16 @@ fn nominal_reversals(plan: &Plan, sync: &Sync) -> [Vec<Reversal>; 3] {
                     } else {
                         0.0
                     };
+                    // Where the axis turned: the extreme of the two grid points around it.
+                    let ext = if s > 0 {
+                        prev_p[k].min(q[k])
+                    } else {
+                        prev_p[k].max(q[k])
+                    };
                     out[k].push(Reversal {
                         t_s: time - dt + f.clamp(0.0, 1.0) * dt - 0.5 * dt,
                         new_dir: s,
+                        p_mm: ext - plan.centre_mm[k],
                     });
                 }
                 if s != 0 {

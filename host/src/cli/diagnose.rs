@@ -109,9 +109,9 @@ fn add_run_facts(
     let pass = !diag.circle_zones.is_empty() && diag.circle_zones.iter().all(|c| c.g_um() <= tol);
     json["tolerance"] = json!({"g_um": tol, "pass": pass});
     Ok(Some(format!(
-        "{}: largest circular deviation G {:.3} µm (minimum zone, per circle and direction) {} tolerance {} µm",
+        "{}: largest circular deviation G {} µm (minimum zone, per circle and direction) {} tolerance {} µm",
         if pass { "PASS" } else { "FAIL" },
-        g,
+        crate::units::format_to(g, diag.final_rms_um),
         if pass { "<=" } else { ">" },
         tol
     )))

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use super::output::print;
 use crate::circular::document::DiagnosisDoc;
 use crate::history::{default_path, trend, History};
-use crate::units::human;
+use crate::units::{format_to, human};
 use crate::Result;
 
 /// Arguments of `jdbb history`.
@@ -123,8 +123,10 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
                 s,
                 "run  date                  G µm    H µm    RMS µm  verdict  effects"
             );
-            let num = |x: Option<f64>| x.map_or("-".to_string(), |v| format!("{v:.2}"));
             for r in &runs {
+                // G, H and RMS to the digits the run's noise (its residual RMS) supports.
+                let noise = r.final_rms_um.unwrap_or(f64::NAN);
+                let num = |x: Option<f64>| x.map_or("-".to_string(), |v| format_to(v, noise));
                 let verdict = match (r.pass, r.tolerance_um) {
                     (Some(true), Some(t)) => format!("pass {t}"),
                     (Some(false), Some(t)) => format!("FAIL {t}"),
@@ -137,7 +139,11 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
                         format!(
                             "{} {} {}",
                             e.name,
-                            e.value.map_or("-".into(), |v| format!("{v:.3}")),
+                            match (e.value, e.sigma) {
+                                (Some(v), Some(s)) => format_to(v, s),
+                                (Some(v), None) => format!("{v:.3}"),
+                                (None, _) => "-".into(),
+                            },
                             human(&e.unit)
                         )
                     })
@@ -149,7 +155,7 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
                     r.date_utc,
                     num(r.g_um),
                     num(r.h_um),
-                    r.final_rms_um.map_or("-".into(), |v| format!("{v:.3}")),
+                    num(r.final_rms_um),
                     verdict,
                     if effects.is_empty() {
                         "none".to_string()

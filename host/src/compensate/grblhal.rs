@@ -65,7 +65,7 @@ pub fn plan(m: &MachineErrors, current: &Current) -> Plan {
             "mm",
             current.get(&key),
             0.0,
-            -1e-3 * b.value,
+            1e-3 * b.value,
             6,
         );
         if c.new < 0.0 {

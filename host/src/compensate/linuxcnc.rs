@@ -170,7 +170,7 @@ pub fn plan(m: &MachineErrors, current: &Current, opts: &Options) -> Result<Plan
         let key = format!("JOINT_{k}.BACKLASH");
         let cur = current.get(&key);
         let b0 = cur.unwrap_or(0.0);
-        let delta = m.backlash_um[k].as_ref().map_or(0.0, |b| -1e-3 * b.value);
+        let delta = m.backlash_um[k].as_ref().map_or(0.0, |b| 1e-3 * b.value);
         let because_backlash = m.backlash_um[k].as_ref().map(|b| b.text());
         if m.position_dependent(axis) {
             let b_new = b0 + delta;

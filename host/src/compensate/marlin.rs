@@ -81,7 +81,7 @@ pub fn plan(m: &MachineErrors, current: &Current) -> Plan {
         let key = format!("M425.{l}");
         let x_cur = current.get(&key);
         let eff_cur = f_cur.unwrap_or(0.0) * x_cur.unwrap_or(0.0);
-        let eff_new = eff_cur - 1e-3 * b.value;
+        let eff_new = eff_cur + 1e-3 * b.value;
         if eff_new < 0.0 {
             p.cannot.push(Cannot {
                 effect: b.text(),

@@ -16,9 +16,12 @@
 //!
 //! The diagnosis reports errors δ added to the commanded position (the actual position is
 //! command + δ), with positions k in mm relative to the table ball:
-//! - `backlash_k` f (µm): δ_k = (f/2)·(direction of motion). **f < 0 is the usual lost motion**:
-//!   the axis lags behind the command after each reversal. f > 0 means it runs ahead (typically a
-//!   backlash compensation already in force that is too large).
+//! - `backlash_k` b (µm), the trade's sign: **b > 0 is lost motion (play)**, the axis lags its
+//!   command by b/2 in the direction of motion, δ_k = −(b/2)·(direction of motion), taken up as a
+//!   dead band after each reversal; b < 0 means it runs ahead (typically a backlash compensation
+//!   already in force that is too large). When the two ends of the travel differ
+//!   (`pos_um`/`neg_um`), a single setting takes their mean and the difference is noted.
+//! - straightness (a bowed axis) is no setting: it is listed with what to do instead.
 //! - `squareness_ij` s (µm/m): δ_i = s·j (i moves by s per metre of j).
 //! - `scale_k` a (µm/m): δ_k = a·k; `scale_mismatch_ij` a: δ_i = +(a/2)·i, δ_j = −(a/2)·j (one
 //!   radius cannot separate the common scale from the bar length; the split is the model's own).
@@ -28,7 +31,7 @@
 //! controller here that compensates backlash adds, at each reversal, a motion of the full
 //! setting in the new direction (LinuxCNC as ±half about the centre, Marlin and grblHAL as the
 //! whole step); either way the correction is +(B/2)·direction up to a constant offset, so the
-//! setting that cancels δ_k = (f/2)·direction is **B = −f** (the full lost motion). A skew
+//! setting that cancels δ_k = −(b/2)·direction is **B = b** (the full lost motion). A skew
 //! correction x' = x − xy·y (Marlin, Klipper) cancels δ_x = xy·y, so **xy = s·10⁻⁶**.
 //!
 //! The values in force during the test were already acting on the machine, so what the test shows
@@ -128,7 +131,7 @@ pub struct Cyclic {
 /// axis (index x, y, z) and pair (index xy, yz, zx): the input of every controller's plan.
 #[derive(Debug, Clone, Default)]
 pub struct MachineErrors {
-    /// backlash_k f (µm).
+    /// backlash_k b (µm, positive = play).
     pub backlash_um: [Option<Measured>; 3],
     /// Scale a (µm/m) per axis, with the effect it comes from (scale_k, or half a
     /// scale_mismatch_ij with its sign).
@@ -139,7 +142,7 @@ pub struct MachineErrors {
     /// squareness_ij s (µm/m), by pair.
     pub squareness_um_per_m: [Option<Measured>; 3],
     /// Effects that are tuning, repair or warm-up, not a setting (servo_mismatch, interference,
-    /// reversal_spike, drift).
+    /// reversal_spike, drift, straightness).
     pub tuning: Vec<Measured>,
     /// Effects left alone and why (not significant, undetermined).
     pub left_alone: Vec<String>,
@@ -187,7 +190,16 @@ impl MachineErrors {
             }
             let p = e.param_values(effect);
             match effect {
-                Effect::Backlash(a) => m.backlash_um[a.index()] = Some(measured),
+                Effect::Backlash(a) | Effect::BacklashEnds(a) => {
+                    if let [pos, neg] = p[..] {
+                        m.notes.push(format!(
+                            "{}: lost motion differs along the travel ({pos:.1} µm at the positive end, {neg:.1} µm at the negative end): one backlash setting takes the mean; a worn screw or nut is the cause",
+                            measured.text()
+                        ));
+                    }
+                    m.backlash_um[a.index()] = Some(measured)
+                }
+                Effect::Straightness(..) | Effect::LateralPlay(..) => m.tuning.push(measured),
                 Effect::Scale(a) => m.scale_um_per_m[a.index()] = Some((p[0], measured)),
                 Effect::ScaleMismatch(pair) => {
                     let (i, j) = pair.axes();
@@ -398,6 +410,32 @@ fn tuning_advice(t: &Measured, c: Controller) -> Cannot {
                 },
             }
         }
+        Effect::Straightness(a, b) => {
+            let (a, b) = (a.letter().to_ascii_uppercase(), b.letter().to_ascii_uppercase());
+            Cannot {
+                effect: t.text(),
+                why: format!(
+                    "{a} bows in {b} by {:.1} µm over the tested travel: a guideway that is bent, worn or unevenly supported; {} has no setting for it",
+                    t.value,
+                    c.name()
+                ),
+                instead: format!(
+                    "check {a}'s guideway straightness (level, foundation bolts, a straightedge along its travel) and realign or regrind it; a second radius about the same table ball confirms it against a second-order scale of {b}"
+                ),
+            }
+        }
+        Effect::LateralPlay(a, b) => {
+            let (a, b) = (a.letter().to_ascii_uppercase(), b.letter().to_ascii_uppercase());
+            Cannot {
+                effect: t.text(),
+                why: format!(
+                    "{a}'s carriage shifts {:.1} µm in {b} each time {a} reverses: clearance across its guideway; {} has no setting for it",
+                    t.value.abs(),
+                    c.name()
+                ),
+                instead: format!("adjust {a}'s gibs or roller preload, or renew worn guideway pads, and test again"),
+            }
+        }
         Effect::Drift => Cannot {
             effect: t.text(),
             why: "D drifted during the test: the machine (or the instrument) was warming up; it is a state, not an error of an axis".into(),
@@ -561,7 +599,8 @@ mod tests {
                 serde_json::json!({"name": n, "value": v, "sigma": s, "unit": "um", "params": params})
             })
             .collect();
-        let text = serde_json::json!({"samples": 1000, "effects": effects,
+        // Format 2: the values as given (an older file would be upgraded as it is read).
+        let text = serde_json::json!({"format": 2, "samples": 1000, "effects": effects,
             "circles": [{"radius_mm": 50.0, "height_mm": 0.0, "feed_mm_min": 1000.0}]})
         .to_string();
         DiagnosisDoc::parse(Path::new("d.json"), &text).unwrap()
@@ -584,8 +623,8 @@ mod tests {
 
     #[test]
     fn an_axis_that_runs_ahead_lowers_the_setting_in_force_or_cannot() {
-        // f = +3 µm: the axis runs ahead by 1.5 µm each way (too much compensation in force).
-        let d = doc(&[("backlash_x", 3.0, 0.01, &[("f_um", 3.0)])]);
+        // b = −3 µm: the axis runs ahead by 1.5 µm each way (too much compensation in force).
+        let d = doc(&[("backlash_x", -3.0, 0.01, &[("b_um", -3.0)])]);
         for c in [Controller::GrblHal, Controller::Marlin] {
             let p = plan(&d, &Current::none(), &opts(c)).unwrap();
             assert!(p.changes.is_empty() && p.cannot.len() == 1, "{c:?}: {p:?}");
@@ -624,7 +663,7 @@ mod tests {
     #[test]
     fn effects_below_3_sigma_are_left_alone() {
         let d = doc(&[
-            ("backlash_x", -0.02, 0.01, &[("f_um", -0.02)]),
+            ("backlash_x", 0.02, 0.01, &[("b_um", 0.02)]),
             ("squareness_xy", 12.0, 0.05, &[("s_um_per_m", 12.0)]),
         ]);
         let p = plan(&d, &Current::none(), &opts(Controller::Marlin)).unwrap();

@@ -8,7 +8,10 @@
 //!   `BEGIN IMMEDIATE` transaction (the write lock is taken up front, so two writers never
 //!   deadlock upgrading read locks).
 //! - A run is one diagnosis file, kept whole, with its effects and conditions in columns. Adding
-//!   the same file twice adds nothing (a 64-bit FNV-1a digest of its text per machine).
+//!   the same file twice adds nothing (a 64-bit FNV-1a digest of its text per machine). A file
+//!   of an older diagnosis format is kept upgraded to the current one
+//!   ([`crate::circular::document::upgrade`]), as are the runs of an older history file
+//!   (migration 3 of [`schema`]): an old run keeps its meaning under today's signs.
 //! - Runs are comparable when their conditions match: plane, circles (radius and height within
 //!   0.5 mm), feed (within 2 %), test plan and instrument calibration (equal as JSON). The trend
 //!   ([`trend`]) compares every run with the latest and says what differs.
@@ -20,7 +23,7 @@ use std::time::Duration;
 use rusqlite::{params, Connection, OptionalExtension, TransactionBehavior};
 use serde::{Deserialize, Serialize};
 
-use crate::circular::document::DiagnosisDoc;
+use crate::circular::document::{upgraded_text, DiagnosisDoc};
 use crate::{Error, Result};
 
 pub mod schema;
@@ -207,9 +210,20 @@ impl History {
         conn.busy_timeout(BUSY_TIMEOUT).map_err(db)?;
         // journal_mode returns the mode in force; anything but wal means the file system
         // cannot share memory between processes (then SQLite's default locking still serialises).
-        let _mode: String = conn
-            .query_row("PRAGMA journal_mode = WAL", [], |r| r.get(0))
-            .map_err(db)?;
+        // Switching a new file to WAL while another process does the same can be refused as busy
+        // without the busy handler being asked: retry, within the same timeout.
+        let started = std::time::Instant::now();
+        let _mode: String = loop {
+            match conn.query_row("PRAGMA journal_mode = WAL", [], |r| r.get(0)) {
+                Err(rusqlite::Error::SqliteFailure(e, _))
+                    if e.code == rusqlite::ErrorCode::DatabaseBusy
+                        && started.elapsed() < BUSY_TIMEOUT =>
+                {
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+                other => break other.map_err(db)?,
+            }
+        };
         conn.pragma_update(None, "foreign_keys", true).map_err(db)?;
         match schema::migrate_to(&mut conn, target) {
             Ok(_) => {}
@@ -277,6 +291,8 @@ impl History {
             (None, None) => (crate::dates::now_utc(), false),
         };
         let dig = digest(text.as_bytes());
+        let stored = upgraded_text(text);
+        let text = stored.as_deref().unwrap_or(text);
         let conditions =
             serde_json::to_string(&Conditions::of(doc)).expect("conditions are plain data");
         let now = crate::dates::now_utc();
@@ -458,11 +474,12 @@ mod tests {
     ) -> (DiagnosisDoc, String) {
         let text = serde_json::json!({
             "samples": 1000,
+            "format": 2,
             "effects": [
                 {"name": "setup_offset", "value": 1.0, "unit": "um", "sigma": 0.1, "setup": true,
                  "params": {"x_um": 1.0, "y_um": 0.0, "z_um": 0.0}},
                 {"name": "backlash_x", "value": effect_value, "unit": "um", "sigma": 0.01,
-                 "params": {"f_um": effect_value}}
+                 "params": {"b_um": effect_value}}
             ],
             "final": {"rms_um": 0.3},
             "plane": "xy",
@@ -534,7 +551,7 @@ mod tests {
                 .unwrap();
         }
         let h = History::open(&path).unwrap();
-        assert_eq!(h.version().unwrap(), 2);
+        assert_eq!(h.version().unwrap(), schema::latest());
         assert_eq!(
             h.runs("m").unwrap().len(),
             1,
@@ -555,6 +572,138 @@ mod tests {
         drop(conn);
         let e = History::open(&path).err().unwrap();
         assert!(e.to_string().contains("newer jdbb"), "{e}");
+    }
+
+    #[test]
+    fn runs_stored_before_the_signs_of_the_trade_keep_their_meaning() {
+        // A version-2 history as the previous jdbb wrote it: a format-1 diagnosis whose
+        // backlash_x −8 µm was lost motion (the axis lagging) and whose centring c = (12, −7)
+        // put the table ball at (−12, 7); plus a squareness, which has no changed sign.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("h.sqlite");
+        let old_text = serde_json::json!({
+            "samples": 1000,
+            "effects": [
+                {"name": "setup_offset", "value": 13.9, "unit": "um", "sigma": 0.1, "setup": true,
+                 "params": {"x_um": 12.0, "y_um": -7.0, "z_um": 0.0}},
+                {"name": "backlash_x", "value": -8.0, "unit": "um", "sigma": 0.01,
+                 "params": {"f_um": -8.0}},
+                {"name": "squareness_xy", "value": 25.0, "unit": "um/m", "sigma": 0.05,
+                 "params": {"s_um_per_m": 25.0}}
+            ],
+            "final": {"rms_um": 0.3},
+            "lsq_setup": {"x_um": 12.0, "y_um": -7.0, "z_um": 0.0, "e_um": 0.0},
+            "plane": "xy",
+            "circles": [{"radius_mm": 90.0, "height_mm": 0.0, "feed_mm_min": 1000.0,
+                         "samples": 500, "g_um": 14.1, "h_um": 10.3}],
+            "minimum_zone": {"g_um": 14.1, "h_um": 10.3},
+        })
+        .to_string();
+        {
+            let h = History::open_at(&path, 2).unwrap();
+            h.conn
+                .execute(
+                    "INSERT INTO machines (name, created_utc) VALUES ('mill', 'x')",
+                    [],
+                )
+                .unwrap();
+            h.conn
+                .execute(
+                    "INSERT INTO runs (machine_id, date_utc, added_utc, source, digest, samples,
+                         conditions, g_um, h_um, final_rms_um, diagnosis, jdbb_version)
+                     VALUES (1, '2026-09-01T00:00:00Z', 'x', 'sep.json', ?1, 1000, '{}', 14.1,
+                         10.3, 0.3, ?2, '0.1.0')",
+                    params![digest(old_text.as_bytes()), old_text],
+                )
+                .unwrap();
+            for (name, value, unit) in [("backlash_x", -8.0, "um"), ("squareness_xy", 25.0, "um/m")]
+            {
+                h.conn
+                    .execute(
+                        "INSERT INTO effects (run_id, name, value, sigma, unit) VALUES (1, ?1, ?2, 0.01, ?3)",
+                        params![name, value, unit],
+                    )
+                    .unwrap();
+            }
+        }
+        let h = History::open(&path).unwrap();
+        assert_eq!(h.version().unwrap(), 3);
+        let runs = h.runs("mill").unwrap();
+        let value = |n: &str| runs[0].effects.iter().find(|e| e.name == n).unwrap().value;
+        assert_eq!(
+            value("backlash_x"),
+            Some(8.0),
+            "lost motion is positive now"
+        );
+        assert_eq!(value("squareness_xy"), Some(25.0));
+        assert_eq!(runs[0].g_um, Some(14.1));
+        // The stored file reads as today's: backlash +8 as b_um, the table ball at (−12, 7).
+        let stored: String = h
+            .conn
+            .query_row("SELECT diagnosis FROM runs WHERE id = 1", [], |r| r.get(0))
+            .unwrap();
+        let doc = DiagnosisDoc::parse(Path::new("stored"), &stored).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&stored).unwrap();
+        assert_eq!(v["format"], crate::circular::document::FORMAT);
+        assert_eq!(v["effects"][1]["params"]["b_um"].as_f64(), Some(8.0));
+        assert_eq!(doc.effects[0].params.get("x_um"), Some(&Some(-12.0)));
+        assert_eq!(v["lsq_setup"]["y_um"].as_f64(), Some(7.0));
+        // Migrated once: opening again changes nothing.
+        drop(h);
+        let mut h = History::open(&path).unwrap();
+        assert_eq!(h.runs("mill").unwrap()[0].effects[0].value, Some(8.0));
+        // The same old file added again is the run already there (its digest is the file's);
+        // a new old-format file is stored upgraded, its backlash +8 too.
+        let d = DiagnosisDoc::parse(Path::new("sep.json"), &old_text).unwrap();
+        let again = h.add("mill", &d, &old_text, "sep.json", None).unwrap();
+        assert_eq!((again.run_id, again.new), (1, false));
+        let other = old_text.replace("\"samples\":1000", "\"samples\":1001");
+        let d = DiagnosisDoc::parse(Path::new("oct.json"), &other).unwrap();
+        let added = h
+            .add(
+                "mill",
+                &d,
+                &other,
+                "oct.json",
+                Some("2026-10-01T00:00:00Z".into()),
+            )
+            .unwrap();
+        assert!(added.new);
+        let runs = h.runs("mill").unwrap();
+        assert_eq!(runs[1].effects[0].value, Some(8.0));
+        let stored: String = h
+            .conn
+            .query_row(
+                "SELECT diagnosis FROM runs WHERE id = ?1",
+                [added.run_id],
+                |r| r.get(0),
+            )
+            .unwrap();
+        assert!(stored.contains("\"format\": 2"), "{stored}");
+    }
+
+    #[test]
+    fn many_first_opens_of_a_new_file_at_once_all_succeed() {
+        // Six connections open the same new file at once, sixty times over: each must get it
+        // (switching a new file to WAL can be refused as busy without the busy handler).
+        let dir = tempfile::tempdir().unwrap();
+        for round in 0..60 {
+            let path = dir.path().join(format!("h{round}.sqlite"));
+            let start = std::sync::Arc::new(std::sync::Barrier::new(6));
+            let handles: Vec<_> = (0..6)
+                .map(|_| {
+                    let (path, start) = (path.clone(), start.clone());
+                    std::thread::spawn(move || {
+                        start.wait();
+                        History::open(&path).map(|h| h.version().unwrap())
+                    })
+                })
+                .collect();
+            for h in handles {
+                let v = h.join().unwrap();
+                assert_eq!(v.ok(), Some(schema::latest()), "round {round}");
+            }
+        }
     }
 
     #[test]

@@ -7,12 +7,19 @@
 //! A file whose version is newer than this program's is refused rather than guessed at.
 //!
 //! Never edit a released migration: add one.
-use rusqlite::{Connection, TransactionBehavior};
+use rusqlite::{params, Connection, Transaction, TransactionBehavior};
+
+/// One migration: SQL, or code for what SQL cannot do (rewrite the stored diagnosis files).
+pub enum Migration {
+    Sql(&'static str),
+    Code(fn(&Transaction) -> rusqlite::Result<()>),
+}
 
 /// The migrations, in order; `MIGRATIONS[k]` takes `user_version` from k to k + 1.
-pub const MIGRATIONS: &[&str] = &[
+pub const MIGRATIONS: &[Migration] = &[
     // 1: machines, their runs (one diagnosis each, kept whole), the runs' effects.
-    "CREATE TABLE machines (
+    Migration::Sql(
+        "CREATE TABLE machines (
         id INTEGER PRIMARY KEY,
         name TEXT NOT NULL UNIQUE,
         created_utc TEXT NOT NULL
@@ -42,10 +49,44 @@ pub const MIGRATIONS: &[&str] = &[
         unit TEXT NOT NULL,
         PRIMARY KEY (run_id, name)
     );",
+    ),
     // 2: the per-machine listing by date; which jdbb added a run.
-    "CREATE INDEX runs_by_machine_date ON runs (machine_id, date_utc);
+    Migration::Sql(
+        "CREATE INDEX runs_by_machine_date ON runs (machine_id, date_utc);
     ALTER TABLE runs ADD COLUMN jdbb_version TEXT;",
+    ),
+    // 3: the signs of the trade (diagnosis format 2): see [`to_format_2`].
+    Migration::Code(to_format_2),
 ];
+
+/// Migration 3: runs stored before diagnosis format 2 keep their meaning under its signs.
+/// - `effects`: the value of every `backlash_k` is negated (positive is now lost motion);
+/// - `runs.diagnosis`: the stored file is upgraded as [`crate::circular::document::upgrade`]
+///   does when such a file is read (backlash and set-up offset signs, zone centres, the one G,
+///   shares adding up to 1). `runs.digest` stays that of the file as it was added, so adding
+///   the same old file again still adds nothing. A stored text that is not JSON is left as is.
+///
+/// Nothing else stored has a sign or a meaning that changed: G and H in `runs` were already
+/// the minimum zone's, and σ, units and conditions have no sign.
+fn to_format_2(tx: &Transaction) -> rusqlite::Result<()> {
+    tx.execute(
+        "UPDATE effects SET value = -value WHERE name LIKE 'backlash\\_%' ESCAPE '\\'",
+        [],
+    )?;
+    let mut read = tx.prepare("SELECT id, diagnosis FROM runs")?;
+    let rows = read
+        .query_map([], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, String>(1)?)))?
+        .collect::<rusqlite::Result<Vec<_>>>()?;
+    for (id, text) in rows {
+        if let Some(new) = crate::circular::document::upgraded_text(&text) {
+            tx.execute(
+                "UPDATE runs SET diagnosis = ?1 WHERE id = ?2",
+                params![new, id],
+            )?;
+        }
+    }
+    Ok(())
+}
 
 /// The schema version this program writes.
 pub fn latest() -> i64 {
@@ -75,13 +116,16 @@ pub fn migrate_to(conn: &mut Connection, target: i64) -> Result<i64, MigrateErro
     if found > latest() {
         return Err(MigrateError::Newer(found));
     }
-    for (k, sql) in MIGRATIONS
+    for (k, migration) in MIGRATIONS
         .iter()
         .enumerate()
         .take(target as usize)
         .skip(found as usize)
     {
-        tx.execute_batch(sql)?;
+        match migration {
+            Migration::Sql(sql) => tx.execute_batch(sql)?,
+            Migration::Code(run) => run(&tx)?,
+        }
         tx.pragma_update(None, "user_version", (k + 1) as i64)?;
     }
     tx.commit()?;

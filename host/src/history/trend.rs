@@ -12,7 +12,7 @@ use time::format_description::well_known::Rfc3339;
 use time::OffsetDateTime;
 
 use super::Run;
-use crate::units::{format_estimate, human};
+use crate::units::{format_estimate, format_to, human};
 use crate::{Error, Result};
 
 /// One run of one effect.
@@ -221,6 +221,19 @@ pub fn plot_svg(file: &Path, machine: &str, trends: &[EffectTrend]) -> Result<()
         } else {
             (-1.0, 1.0)
         };
+        // Axis labels to the digits of the panel's smallest σ, or of its tick spacing where that
+        // is coarser (about a tenth of the range).
+        let smallest_sigma = pts
+            .iter()
+            .map(|p| p.2)
+            .filter(|s| *s > 0.0)
+            .fold(f64::INFINITY, f64::min);
+        let tick = (hi - lo) / 20.0;
+        let label_sigma = if smallest_sigma.is_finite() {
+            smallest_sigma.max(tick)
+        } else {
+            tick
+        };
         let mut chart = ChartBuilder::on(&area)
             .caption(
                 format!("{} ({})", t.name, human(&t.unit)),
@@ -236,7 +249,7 @@ pub fn plot_svg(file: &Path, machine: &str, trends: &[EffectTrend]) -> Result<()
             .light_line_style(WHITE.mix(0.0))
             .x_desc(format!("days since {first_date}"))
             .x_label_formatter(&|x| format!("{x:.0}"))
-            .y_label_formatter(&|y| format!("{y:.3}"))
+            .y_label_formatter(&|y| format_to(*y, label_sigma))
             .label_style(("sans-serif", 12))
             .draw()
             .map_err(|e| err(&e))?;

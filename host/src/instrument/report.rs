@@ -75,8 +75,8 @@ pub fn summary(c: &Calibrated) -> String {
         }
         let _ = writeln!(
             s,
-            "    RMS after {:.4} µm, gain ×{:.2}, ΔBIC {:.1}",
-            f.rms_after_um, f.rms_ratio, f.delta_bic
+            "    RMS after {:.4} µm, gain ×{:.2}",
+            f.rms_after_um, f.rms_ratio
         );
     }
     if c.effects.is_empty() {

@@ -20,6 +20,7 @@ use nalgebra::DMatrix;
 
 use crate::numerics::select::{forward_select, Group, SelectOptions};
 use crate::table::{Column, Table};
+use crate::units::format_estimate;
 use crate::{Error, Result};
 
 /// The candidate effects of angle-indexed data, in the order of the table above.
@@ -315,15 +316,13 @@ pub fn summary(runs: &[RunDiagnosis]) -> String {
                 .unwrap_or_default();
             let _ = writeln!(
                 s,
-                "  step {}: {} = {:.2} ± {:.2} µm{phase} — {}\n          RMS after {:.2} µm, ×{:.2}, ΔBIC {:.1}",
+                "  step {}: {} = {} µm{phase} — {}\n          RMS after {:.2} µm, ×{:.2}",
                 i + 1,
                 e.name,
-                e.value_um,
-                e.sigma_um,
+                format_estimate(e.value_um, Some(e.sigma_um)),
                 e.cause,
                 e.rms_after_um,
                 e.rms_ratio,
-                e.delta_bic
             );
         }
         for g in &r.confounded {

@@ -55,6 +55,46 @@ pub struct Squareness {
     pub um_per_m: f64,
 }
 
+/// A clearance (play) that varies along the axis: linear from `neg_um` at `neg_end_mm` to
+/// `pos_um` at `pos_end_mm` (program coordinates), constant beyond the two.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BacklashEnds {
+    /// Position of the negative end (mm).
+    pub neg_end_mm: f64,
+    /// Clearance there (µm).
+    pub neg_um: f64,
+    /// Position of the positive end (mm).
+    pub pos_end_mm: f64,
+    /// Clearance there (µm).
+    pub pos_um: f64,
+}
+
+/// A bowed axis: moving along `axis`, axis `toward` is displaced by κ·(p_axis − vertex)².
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Bow {
+    /// The axis that is not straight (i).
+    pub axis: Axis,
+    /// The direction it bows in (j ≠ i).
+    pub toward: Axis,
+    /// Where on i the bow's vertex is (mm, program coordinates).
+    pub vertex_mm: f64,
+    /// κ (µm per m²).
+    pub um_per_m2: f64,
+}
+
+/// Lateral play: the carriage of `axis` sits in a guideway with a clearance across it; the
+/// friction along `axis` turns it to one side, so it shifts by ±l/2 in `toward` with the
+/// direction of `axis` (+l/2 while `axis` moves in +).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LateralPlay {
+    /// The axis whose guideway has the clearance (i).
+    pub axis: Axis,
+    /// The direction the carriage shifts in (j ≠ i).
+    pub toward: Axis,
+    /// l (µm): the whole shift between the two directions.
+    pub um: f64,
+}
+
 /// All machine errors; [`Default`] is a perfect machine.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct MachineErrors {
@@ -62,8 +102,15 @@ pub struct MachineErrors {
     pub setup_offset_um: [f64; 3],
     /// Length offset e (µm) added to D (the instrument's length calibration error).
     pub length_offset_um: f64,
-    /// Backlash f per axis (µm, the full lost motion): δ = +f/2 after moving +, −f/2 after −.
+    /// Backlash per axis (µm): the clearance between motor and carriage (play); see the module
+    /// docs. Negative: over-compensated (a step ahead).
     pub backlash_um: [f64; 3],
+    /// A clearance that differs along the axis; replaces `backlash_um` of that axis when set.
+    pub backlash_ends: [Option<BacklashEnds>; 3],
+    /// Bowed axes.
+    pub bows: Vec<Bow>,
+    /// Guideway clearances across the travel.
+    pub lateral_play: Vec<LateralPlay>,
     /// Scale error a per axis (µm/m): δ = a·p (p from the program origin).
     pub scale_um_per_m: [f64; 3],
     /// Squareness terms.
@@ -97,6 +144,29 @@ impl MachineErrors {
         for s in &self.squareness {
             all.push(s.um_per_m);
         }
+        for e in self.backlash_ends.iter().flatten() {
+            all.extend([e.neg_end_mm, e.neg_um, e.pos_end_mm, e.pos_um]);
+        }
+        for b in &self.bows {
+            all.extend([b.vertex_mm, b.um_per_m2]);
+        }
+        for l in &self.lateral_play {
+            all.push(l.um);
+        }
+        if self.lateral_play.iter().any(|l| l.axis == l.toward) {
+            return Err("lateral play shifts another axis than its own".into());
+        }
+        if self
+            .backlash_ends
+            .iter()
+            .flatten()
+            .any(|e| e.pos_end_mm <= e.neg_end_mm)
+        {
+            return Err("backlash_ends: pos_end_mm must lie above neg_end_mm".into());
+        }
+        if self.bows.iter().any(|b| b.axis == b.toward) {
+            return Err("a bow displaces another axis than its own".into());
+        }
         if !finite(&all) {
             return Err("machine errors must be finite numbers".into());
         }
@@ -115,6 +185,45 @@ impl MachineErrors {
         Ok(())
     }
 
+    /// The clearance (µm) of axis `k` at its position `p_mm`.
+    fn clearance_um(&self, k: usize, p_mm: f64) -> f64 {
+        match self.backlash_ends[k] {
+            Some(e) => {
+                let w = ((p_mm - e.neg_end_mm) / (e.pos_end_mm - e.neg_end_mm)).clamp(0.0, 1.0);
+                e.neg_um + w * (e.pos_um - e.neg_um)
+            }
+            None => self.backlash_um[k],
+        }
+    }
+
+    /// Where the carriage of axis `k` is (mm) when its motor is at `motor_mm` at program time `t`:
+    /// the play operator over the motor's motion since its last reversal.
+    fn carriage_mm(&self, k: usize, motor_mm: f64, traj: &Trajectory, t: f64) -> f64 {
+        let half = 0.5e-3 * self.clearance_um(k, motor_mm);
+        let (dir, last) = traj.direction_at(k, t);
+        let s = if dir < 0 { -1.0 } else { 1.0 };
+        if half <= 0.0 {
+            // Over-compensated (or none): the controller's jump leaves the carriage ahead.
+            return motor_mm - s * half;
+        }
+        // The flank that pushes: behind the motor in the direction of motion.
+        let pushed = motor_mm - s * half;
+        match last {
+            None => pushed,
+            Some(t_rev) => {
+                // At the reversal the old direction's flank had left the carriage behind the
+                // motor's turning point; it stays there until the other flank arrives.
+                let turn_mm = traj.position_at(t_rev)[k];
+                let left_at = turn_mm + s * 0.5e-3 * self.clearance_um(k, turn_mm);
+                if s > 0.0 {
+                    pushed.max(left_at.min(motor_mm + half))
+                } else {
+                    pushed.min(left_at.max(motor_mm - half))
+                }
+            }
+        }
+    }
+
     /// Error δ_k (µm) of axis `k` alone (scale, cyclic, backlash, reversal spike) at its own
     /// commanded coordinate `p_k` (mm), for the direction state of the axis at program time `t`.
     fn axis_error_um(&self, k: usize, p_k: f64, traj: &Trajectory, t: f64) -> f64 {
@@ -123,11 +232,13 @@ impl MachineErrors {
         if c.pitch_mm > 0.0 && c.amplitude_um != 0.0 {
             d += c.amplitude_um * (std::f64::consts::TAU * p_k / c.pitch_mm + c.phase_rad).sin();
         }
+        if self.backlash_um[k] != 0.0 || self.backlash_ends[k].is_some() {
+            d += 1e3 * (self.carriage_mm(k, p_k, traj, t) - p_k);
+        }
         let sp = &self.reversal_spike[k];
-        if self.backlash_um[k] != 0.0 || (sp.height_um != 0.0 && sp.tau_ms > 0.0) {
+        if sp.height_um != 0.0 && sp.tau_ms > 0.0 {
             let (dir, last) = traj.direction_at(k, t);
             let s = dir as f64;
-            d += 0.5 * self.backlash_um[k] * s;
             if let Some(t_rev) = last {
                 if sp.tau_ms > 0.0 && sp.height_um != 0.0 {
                     d -= sp.height_um * s * (-(t - t_rev) * 1e3 / sp.tau_ms).exp();
@@ -157,6 +268,15 @@ impl MachineErrors {
         for s in &self.squareness {
             let (i, j) = (s.axis.index(), s.by.index());
             delta_um[i] += s.um_per_m * (lagged[j] - ball_mm[j]) * 1e-3;
+        }
+        for b in &self.bows {
+            let x_m = (lagged[b.axis.index()] - b.vertex_mm) * 1e-3;
+            delta_um[b.toward.index()] += b.um_per_m2 * x_m * x_m;
+        }
+        for l in &self.lateral_play {
+            let i = l.axis.index();
+            let (dir, _) = traj.direction_at(i, t_axis[i]);
+            delta_um[l.toward.index()] += 0.5 * l.um * if dir < 0 { -1.0 } else { 1.0 };
         }
         Pose {
             command_mm: command,
@@ -207,7 +327,7 @@ mod tests {
     }
 
     #[test]
-    fn backlash_sign_follows_the_last_motion() {
+    fn backlash_is_play_that_lags_the_motion_and_is_taken_up_after_a_reversal() {
         // +x, dwell, −x, dwell.
         let t = traj("G21 G90 G1 X10 F600\nG4 P1\nX5\nG4 P1\n");
         let e = MachineErrors {
@@ -223,17 +343,37 @@ mod tests {
             let p = e.actual(&t, tt, b);
             (p.actual_mm[0] - p.command_mm[0]) * 1e3
         };
-        assert!((dx(mid_plus) - 4.0).abs() < 1e-9);
-        assert!((dx(dwell1) - 4.0).abs() < 1e-9, "holds through standstill");
-        assert!((dx(mid_minus) + 4.0).abs() < 1e-9);
-        assert!((dx(dwell2) + 4.0).abs() < 1e-9);
-        // y did not move: keeps its initial direction (+), so +f/2 if it had backlash.
+        // The carriage trails the motor by half the 8 µm clearance in the direction of motion.
+        assert!((dx(mid_plus) + 4.0).abs() < 1e-9);
+        assert!((dx(dwell1) + 4.0).abs() < 1e-9, "holds through standstill");
+        assert!((dx(mid_minus) - 4.0).abs() < 1e-9);
+        assert!((dx(dwell2) - 4.0).abs() < 1e-9);
+        // Right after the reversal at X10 the carriage stands still until the motor has
+        // travelled the 8 µm clearance back: it stays at 10 − 0.004 mm.
+        let t_rev = t.segments[2].t_start_s;
+        for dt in [1e-4, 1e-3, 5e-3] {
+            let p = e.actual(&t, t_rev + dt, b);
+            let motor = p.command_mm[0];
+            let travelled_um = (10.0 - motor) * 1e3;
+            if travelled_um < 8.0 {
+                assert!(
+                    (p.actual_mm[0] - (10.0 - 0.004)).abs() < 1e-12,
+                    "{dt}: {p:?}"
+                );
+            } else {
+                assert!(
+                    (p.actual_mm[0] - (motor + 0.004)).abs() < 1e-12,
+                    "{dt}: {p:?}"
+                );
+            }
+        }
+        // y did not move: its clearance stays closed in its initial direction (+): −b/2.
         let e = MachineErrors {
             backlash_um: [0.0, 6.0, 0.0],
             ..Default::default()
         };
         let p = e.actual(&t, dwell2, b);
-        assert!(((p.actual_mm[1] - p.command_mm[1]) * 1e3 - 3.0).abs() < 1e-9);
+        assert!(((p.actual_mm[1] - p.command_mm[1]) * 1e3 + 3.0).abs() < 1e-9);
     }
 
     #[test]

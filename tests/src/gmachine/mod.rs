@@ -71,10 +71,20 @@
 //! - *set-up offset* c (µm per axis): the table ball is at `table_ball_mm` + c (`table_ball_mm` is
 //!   where the program's test centre is, i.e. where the operator was told to put the ball);
 //!   D = |spindle ball − table ball|. *Length offset* e (µm) is added to D.
-//! - *backlash* f_k (µm, full lost motion): δ_k = +f_k/2 while axis k last moved in +k, −f_k/2
-//!   after it last moved in −k, holding through standstill (before its first move: per
-//!   [`MachineConfig::initial_direction`]). On a circle this gives ΔD ≈ ±(f/2)·cos θ (seed 000
-//!   eq. 16).
+//! - *backlash* b_k (µm): a clearance between the motor (which follows the command) and the
+//!   carriage, i.e. play. Written as the mechanism, not as a formula: the carriage is pushed by
+//!   one flank of the nut, so it sits b/2 behind the motor in the direction of motion; when the
+//!   motor reverses it leaves the carriage where it was until it has crossed the clearance and
+//!   meets the other flank (a play operator: carriage = clamp(carriage, motor − b/2, motor + b/2)
+//!   applied over each monotonic stretch of the motor). Before the first move the clearance is
+//!   closed per [`MachineConfig::initial_direction`]. A negative b (over-compensation: the
+//!   controller jumps the motor through more than the clearance) is a step: the carriage runs
+//!   |b|/2 ahead. [`BacklashEnds`] makes the clearance a linear function of the axis position
+//!   (a screw worn more at one end). On a circle the step part gives ΔD ≈ ∓(b/2)·cos θ.
+//! - *bow* ([`Bow`]): axis i is not straight: moving along it displaces axis j by
+//!   κ·(p_i − vertex_i)² (κ in µm/m², the vertex in program coordinates).
+//! - *lateral play* ([`LateralPlay`]): the carriage of axis i shifts across its guideway
+//!   clearance by ±l/2 in j with the direction of i (+ while i moves in +).
 //! - *scale* a_k (µm/m): δ_k = a_k·p_k, p_k measured from the **program origin** (not from the
 //!   table ball: the two differ by a constant displacement a_k·ball_k, which only shifts the
 //!   circle's centre).
@@ -116,7 +126,9 @@ pub mod program;
 pub mod recorder;
 mod words;
 
-pub use errors::{Axis, Cyclic, MachineErrors, ReversalSpike, Squareness};
+pub use errors::{
+    Axis, BacklashEnds, Bow, Cyclic, LateralPlay, MachineErrors, ReversalSpike, Squareness,
+};
 pub use planner::{plan, MachineConfig, SegmentKind, Trajectory};
 pub use program::{
     parse_program, Dialect, FanucInput, Program, ProgramError, ProgramOptions,
