@@ -25,8 +25,9 @@
 //!    the scale candidates become `scale_mismatch_ij` = scale_i − scale_j and the confounded group
 //!    is named; a candidate that lies in the span of the current model is skipped and named with
 //!    what it is confounded with. On a partial arc (the samples of a circle leave a gap, e.g. the
-//!    220° vertical-plane test) a candidate the arc cannot tell from the set-up and the scale
-//!    ([`PARTIAL_ARC_MIN_FREE`]) is not tried and named as confounded with them.
+//!    220° vertical-plane test) a candidate the arc barely tells from the set-up and the scale
+//!    ([`PARTIAL_ARC_MIN_FREE`]) is named with them in [`Diagnosis::weak_on_arc`], and one it
+//!    cannot tell at all ([`PARTIAL_ARC_NONE`]) is not tried and named as confounded.
 //! 6. The selected effects are refitted with the exact geometry ([`super::model::ExactModel`]),
 //!    giving the reported values ± standard errors, then the residual's harmonics against angle.
 //!
@@ -176,9 +177,23 @@ pub struct Diagnosis {
     /// The pitch per axis the diagnosis was given (mm), which the periodic effects refer to.
     pub pitch_mm: [Option<f64>; 3],
     /// The arc each circle's samples cover (in `circles`' order): 360° on a full circle. On a
-    /// partial arc the candidates it cannot tell from the set-up are not tried and named in
-    /// `confounded` ([`PARTIAL_ARC_MIN_FREE`]), and `harmonics_um` is empty.
+    /// partial arc `harmonics_um` is empty, and see `weak_on_arc`.
     pub arcs: Vec<ArcCover>,
+    /// On a partial arc: the candidates whose shape differs from the set-up's and the scale's by
+    /// less than [`PARTIAL_ARC_MIN_FREE`] of itself, each with what it resembles. They are
+    /// tried — the part that differs can carry them where the data are good — but where one of
+    /// the group is named, the others are its alternative on this arc.
+    pub weak_on_arc: Vec<WeakOnArc>,
+}
+
+/// A candidate a partial arc barely tells from others (see [`Diagnosis::weak_on_arc`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct WeakOnArc {
+    /// The candidate first, then the set-up components and scales its shape resembles.
+    pub names: Vec<String>,
+    /// The fraction of its column's norm² that the others do not explain (0..1; 1 on a shape of
+    /// its own).
+    pub free_fraction: f64,
 }
 
 /// An effect of the exact refit and the selection steps it came from (two for a backlash whose
@@ -548,8 +563,10 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     let confounded_before = confounded.clone();
     let mut gaps_um = trial_gaps_um(path, &y);
     let mut pass = 0;
+    let mut weak: Vec<WeakOnArc> = vec![];
     let (design, candidates, sel) = loop {
         confounded = confounded_before.clone();
+        weak.clear();
         let cands: Vec<Candidate> = effects
             .iter()
             .flat_map(|&e| search_forms(e, &gaps_um))
@@ -611,10 +628,17 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
             })
             .collect();
         if partial {
-            for (c, group) in undetermined_on_arc(&design, &candidates, &setup_free) {
-                candidates.retain(|&k| design.cands[k].effect != design.cands[c].effect);
-                if !confounded.contains(&group) {
-                    confounded.push(group);
+            for (c, group, free) in weak_on_arc(&design, &candidates, &setup_free) {
+                if free < PARTIAL_ARC_NONE {
+                    candidates.retain(|&k| design.cands[k].effect != design.cands[c].effect);
+                    if !confounded.contains(&group) {
+                        confounded.push(group);
+                    }
+                } else {
+                    weak.push(WeakOnArc {
+                        names: group,
+                        free_fraction: free,
+                    });
                 }
             }
         }
@@ -980,31 +1004,40 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         circle_zones: zones,
         pitch_mm: path.pitch_mm,
         arcs,
+        weak_on_arc: weak,
     })
 }
 
-/// On a partial arc, a candidate keeps at least this fraction of its column's norm² once the
-/// set-up's columns (table-ball offset, length offset) and, for all but the scales, the scale
-/// candidates' columns are projected out, or it is not tried: the arc cannot tell it from the
-/// set-up and the scale. On a full circle every candidate keeps 10 % or more (a bowed axis,
-/// u_k·p_k² ∝ cos³θ, keeps its cos 3θ part, 10 %). On the 220° vertical-plane test's 180° of
-/// data (0° to 180°), the bow of the axis that reverses mid-arc keeps 0.13 % (sin³θ there is
-/// nearly 1, sin θ and cos 2θ: set-up and scale mismatch), so it is not tried; the bow of the
-/// axis that reverses at the data arc's ends keeps its 10 %, the scale mismatch 4.9 % (its σ
-/// 4.5 times a full circle's per sample), squareness 28 %, backlash 100 %.
+/// On a partial arc, a candidate that keeps less than this fraction of its column's norm² once
+/// the set-up's columns (table-ball offset, length offset) and, for all but the scales, the
+/// scale candidates' columns are projected out is named in [`Diagnosis::weak_on_arc`] with what
+/// it resembles. On a full circle every candidate keeps 10 % or more (a bowed axis, u_k·p_k² ∝
+/// cos³θ, keeps its cos 3θ part, 10 %). On the 220° vertical-plane test's 180° of data (0° to
+/// 180°), the bow of the first axis towards the second (`straightness_i_j`, u_j·sin²θ = sin³θ:
+/// nearly 1, sin θ and cos 2θ, i.e. set-up and scale mismatch) keeps 0.13 %: its σ is some 28
+/// times what a shape of its own would have, and on simulated records (0.2 µm noise) it is
+/// still found (8.10 ± 0.01 µm for 8.1 µm), while leaving it out named the bow as a scale
+/// mismatch of −147 µm/m and two reversal spikes. So it is tried and said. The scale mismatch
+/// keeps 4.9 % (σ 4.5 times a full circle's per sample), squareness 28 %, backlash 100 %.
 pub const PARTIAL_ARC_MIN_FREE: f64 = 0.01;
 
+/// On a partial arc, a candidate that keeps less than this fraction (see
+/// [`PARTIAL_ARC_MIN_FREE`]) is not tried, and is named as confounded with what it resembles:
+/// numerically nothing of it is its own (or it does not move on the data at all).
+pub const PARTIAL_ARC_NONE: f64 = 1e-6;
+
 /// The candidates (of `candidates`, by index into `design.cands`; a spike's trial decay times
-/// count as one) that a partial arc cannot tell from the set-up (columns `setup`) and the
-/// scale ([`PARTIAL_ARC_MIN_FREE`]), each with the confounded group to report: its name and
-/// the columns that carry it (each at least a tenth of the largest part of the projection), or
-/// its name alone where it does not move on the data.
-fn undetermined_on_arc(
+/// count as one) that a partial arc barely tells from the set-up (columns `setup`) and the
+/// scale: those keeping less than [`PARTIAL_ARC_MIN_FREE`] of themselves, each with the group
+/// to report — its name and the columns that carry it (each at least a tenth of the largest part
+/// of the projection), or its name alone where it does not move on the data — and the fraction
+/// it keeps.
+fn weak_on_arc(
     design: &Design,
     candidates: &[usize],
     setup: &[usize],
-) -> Vec<(usize, Vec<String>)> {
-    let mut out: Vec<(usize, Vec<String>)> = vec![];
+) -> Vec<(usize, Vec<String>, f64)> {
+    let mut out: Vec<(usize, Vec<String>, f64)> = vec![];
     let is_scale = |c: usize| {
         matches!(
             design.cands[c].effect,
@@ -1018,7 +1051,10 @@ fn undetermined_on_arc(
         .collect();
     for &c in candidates {
         let effect = design.cands[c].effect;
-        if out.iter().any(|(k, _)| design.cands[*k].effect == effect) {
+        if out
+            .iter()
+            .any(|(k, _, _)| design.cands[*k].effect == effect)
+        {
             continue;
         }
         let mut base = setup.to_vec();
@@ -1061,7 +1097,7 @@ fn undetermined_on_arc(
             if free < PARTIAL_ARC_MIN_FREE {
                 let mut group = vec![effect.name()];
                 group.extend(names);
-                out.push((c, group));
+                out.push((c, group, free));
             }
         }
     }

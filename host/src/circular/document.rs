@@ -113,6 +113,13 @@ pub struct ArcDoc {
     pub partial: bool,
 }
 
+/// A candidate a partial arc barely tells from others: `names` (it first), `free_fraction`.
+#[derive(Debug, Clone, Deserialize)]
+pub struct WeakOnArcDoc {
+    pub names: Vec<String>,
+    pub free_fraction: f64,
+}
+
 /// `tolerance` of the file: the limit on G and the verdict.
 #[derive(Debug, Clone, Deserialize)]
 pub struct ToleranceDoc {
@@ -159,6 +166,9 @@ pub struct DiagnosisDoc {
     /// Per circle, the arc its samples cover (absent before partial arcs: full circles).
     #[serde(default)]
     pub arcs: Vec<ArcDoc>,
+    /// On a partial arc, the candidates it barely tells from others (see the report's docs).
+    #[serde(default)]
+    pub weak_on_arc: Vec<WeakOnArcDoc>,
     #[serde(default)]
     pub minimum_zone: Option<Figures>,
     #[serde(default)]

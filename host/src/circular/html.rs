@@ -387,11 +387,20 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         };
         let _ = writeln!(
             h,
-            "<p class=\"note\">Partial arc: circle {} covers {:.0}° ({:.0}° to {:.0}°). What part of a circle cannot tell from the set-up and the scale is listed above as not told apart and was not tried; the set-up and the scale are less sure than on a full circle (their ± says by how much).</p>",
+            "<p class=\"note\">Partial arc: circle {} covers {:.0}° ({:.0}° to {:.0}°). The set-up and the scale are less sure than on a full circle (their ± says by how much).</p>",
             k + 1,
             a.sweep_deg,
             start,
             start + a.sweep_deg
+        );
+    }
+    for w in &doc.weak_on_arc {
+        let _ = writeln!(
+            h,
+            "<p class=\"note\">Weak on this arc: only {:.2} % of {}'s shape is its own beside {}; where one of them is named, the others are its alternative.</p>",
+            100.0 * w.free_fraction,
+            escape(&w.names[0]),
+            escape(&w.names[1..].join(", "))
         );
     }
 

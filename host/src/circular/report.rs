@@ -96,9 +96,12 @@
 //! candidates[]             the candidate effects that were tried
 //! arcs[]                   per circle (as `circles`): {start_deg, sweep_deg, partial}, the arc
 //!                          its samples cover in the plane, degrees from the plane's first axis
-//!                          (360 a full circle); on a partial arc `harmonics_um` is empty and
-//!                          the candidates the arc cannot tell from the set-up and the scale are
-//!                          in `confounded` and not tried
+//!                          (360 a full circle); on a partial arc `harmonics_um` is empty
+//! weak_on_arc[]            on a partial arc, {names, free_fraction}: a candidate (first) whose
+//!                          shape is its own by less than 1 % (free_fraction) beside the set-up
+//!                          components and scales named after it; tried, and where one of them
+//!                          is named the others are its alternative. A candidate with nothing of
+//!                          its own is not tried and is in `confounded`
 //! ```
 //!
 //! Added for acting on a diagnosis (issue 10); every field is optional to a reader, so a file
@@ -298,9 +301,19 @@ pub fn summary(d: &Diagnosis) -> String {
     } else {
         let _ = writeln!(
             s,
-            "partial arc: {}; what it cannot tell from the set-up and the scale is listed as confounded and not tried, the set-up and scale are less sure than on a full circle (their σ says by how much), and residual harmonics are not shown (they need the whole circle)",
+            "partial arc: {}; the set-up and scale are less sure than on a full circle (their σ says by how much), residual harmonics are not shown (they need the whole circle), and what the arc barely tells apart is said here",
             partial.join(", ")
         );
+        for w in &d.weak_on_arc {
+            let _ = writeln!(
+                s,
+                "weak on this arc: only {:.2} % of {}'s shape is its own beside {} (its σ some {:.0} times that of a shape of its own): where one of them is named, the others are its alternative",
+                100.0 * w.free_fraction,
+                w.names[0],
+                w.names[1..].join(", "),
+                1.0 / w.free_fraction.sqrt()
+            );
+        }
     }
     s
 }
@@ -405,6 +418,9 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
         "candidates": d.candidates,
         "arcs": d.arcs.iter().map(|a| json!({
             "start_deg": num(a.start_deg), "sweep_deg": num(a.sweep_deg), "partial": a.is_partial(),
+        })).collect::<Vec<_>>(),
+        "weak_on_arc": d.weak_on_arc.iter().map(|w| json!({
+            "names": w.names, "free_fraction": num(w.free_fraction),
         })).collect::<Vec<_>>(),
     });
     add_zones_and_shares(&mut v, d);
