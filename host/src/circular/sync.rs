@@ -1061,7 +1061,7 @@ fn line_speed(feed_in: &Ramp, feed_out: &Ramp) -> (f64, f64) {
 }
 
 /// Least part of a ramp's length spent at its cruising speed for its fitted speed to count as
-/// the feed ([`line_speed`]).
+/// the feed (`line_speed`).
 pub const MIN_CRUISE_FRACTION: f64 = 0.2;
 
 /// At most this many data samples of a circle enter the search of the arcs' speed
