@@ -77,6 +77,10 @@ fn diagnose_record(plan: &Plan, rec: &Recording, pitch: [Option<f64>; 3]) -> Dia
         "cycle start {start_us} µs vs {} µs",
         t.cycle_start_us
     );
+    // The diagnosis JSON's plan says which arc was run.
+    let pj = jdbb::circular::report::plan_json(Path::new("plan.json"), plan);
+    assert_eq!(pj["arc"]["sweep_deg"], plan.arc.sweep_deg);
+    assert_eq!(pj["arc"]["data_sweep_deg"], plan.arc.data_sweep_deg);
     // Every data arc of the plan found: the data arc ccw and back cw.
     let planned = plan
         .segments

@@ -600,8 +600,9 @@ pub fn sync_json(plan: &Plan, s: &Sync) -> serde_json::Value {
     })
 }
 
-/// What the diagnosis JSON says of the plan (`plan`): the file, dialect, feed and circles, so a
-/// report and the machine's history can tell which test this was.
+/// What the diagnosis JSON says of the plan (`plan`): the file, dialect, feed, the arc every
+/// circle runs (plan.json's `arc`: a full circle or a partial arc) and the circles, so a report
+/// and the machine's history can tell which test this was.
 pub fn plan_json(file: &std::path::Path, plan: &Plan) -> serde_json::Value {
     use serde_json::json;
     json!({
@@ -612,6 +613,7 @@ pub fn plan_json(file: &std::path::Path, plan: &Plan) -> serde_json::Value {
         "plane": plan.plane.name(),
         "feed_mm_min": plan.feed_mm_min,
         "centre_mm": plan.centre_mm,
+        "arc": plan.arc,
         "circles": plan.circles.iter().map(|c| json!({
             "radius_mm": c.radius_mm, "height_mm": c.height_mm, "d_mm": c.d_mm,
             "plane": c.plane.name(), "feed_mm_min": c.feed_mm_min,
