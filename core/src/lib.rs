@@ -25,6 +25,7 @@
 #![deny(missing_docs)]
 
 pub mod calib;
+pub mod clock;
 pub mod geometry;
 pub mod link;
 pub mod machine;

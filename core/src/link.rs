@@ -275,6 +275,7 @@ mod tests {
             reset_cause: ResetCause(0xff),
             index: [status; 2],
             overruns: 0,
+            clock: ClockSource::Crystal,
         };
         let hello = DeviceMsg::Hello(Hello::of(&info));
         let mut buf = [0u8; MAX_FRAME_LEN];

@@ -5,9 +5,11 @@
 //!
 //! # Overruns
 //!
-//! The sample task is handed, with the counts, a 16-bit count of sample-clock ticks kept by the
-//! hardware (the real board: TIM4 counting TIM3's update events; QEMU: the pacer's count of pended
-//! ticks). If it ran late by more than a period, the count has moved by more than one: the ticks in
+//! The sample task is handed, with the counts, a 32-bit count of sample-clock ticks kept by the
+//! hardware (the real board: TIM4 counting TIM3's update events and TIM1 counting TIM4's
+//! overflows; QEMU: the pacer's count of the periods elapsed). 32 bits, so that no stall can hide:
+//! a 16-bit count wraps after 65 536 periods (3.3 s at 20 kHz, less than a 128 KiB flash erase),
+//! and a stall that long would have shifted seq and t_us silently by 65 536 periods. If it ran late by more than a period, the count has moved by more than one: the ticks in
 //! between are *overruns*. Their samples are lost (on the real board the counters are latched at
 //! every tick and the later latch overwrote them), so they are counted as dropped, their sequence
 //! numbers and time stamps are skipped (the time base stays exact, and the host sees the gap), and
@@ -98,6 +100,20 @@ impl SampleClock {
     }
 }
 
+/// Whether the sample task, serving tick `latched` (the tick count it read at its start), may
+/// write a pending rate into the sample timer's preloaded prescaler and reload now: only if the
+/// tick count still reads `latched` (`tick_now`: no update event came since) and at least
+/// `margin` timer-clock cycles are `left` in the period, so that the write lands before the next
+/// update event and the new period begins right after the one now running. The caller then sets
+/// the sampler's new period after tick `latched`'s sample ([`Sampler::set_period`]); if not, the
+/// rate stays pending for the next tick. The task does this before it computes the tick's sample:
+/// done after, a slow D could push the write past the next update event, the new period would
+/// begin one period later than the sampler's clock assumes, and every later t_us would be off.
+#[inline]
+pub fn rate_write_lands(latched: u32, tick_now: u32, left: u32, margin: u32) -> bool {
+    tick_now == latched && left >= margin
+}
+
 /// Counts → D → [`Sample`] → [`SampleBatch`], with sequence numbers and counted drops.
 #[derive(Debug, Clone)]
 pub struct Sampler {
@@ -108,7 +124,7 @@ pub struct Sampler {
     next_seq: u32,
     dropped: u32,
     overruns: u32,
-    last_tick: u16,
+    last_tick: u32,
     run: u32,
     base_status: u8,
     batch: SampleBatch,
@@ -137,7 +153,7 @@ impl Sampler {
         }
     }
 
-    /// The sample of sample-clock tick `tick` (the hardware's 16-bit tick count, see the module
+    /// The sample of sample-clock tick `tick` (the hardware's 32-bit tick count, see the module
     /// docs; the tick count was 0 at [`Self::restart`]): `read(t_us)` gives the two counters' raw
     /// values at that tick, which is at `t_us`. Returns a batch when one is sealed: full, or cut
     /// short by overruns (the new sample then starts the next batch). A tick count that has not
@@ -145,7 +161,7 @@ impl Sampler {
     #[inline]
     pub fn sample_at_tick(
         &mut self,
-        tick: u16,
+        tick: u32,
         read: impl FnOnce(u64) -> [u32; 2],
     ) -> Option<SampleBatch> {
         let elapsed = tick.wrapping_sub(self.last_tick);
@@ -154,7 +170,7 @@ impl Sampler {
         }
         self.last_tick = tick;
         if elapsed > 1 {
-            return self.sample_after_overrun(u32::from(elapsed - 1), read);
+            return self.sample_after_overrun(elapsed - 1, read);
         }
         let raw = read(self.clock.now_us());
         self.push(raw)
@@ -441,10 +457,10 @@ mod tests {
 
     /// Runs the sampler as the sample task does, on a list of tick counts read at successive
     /// interrupts; counts are `tick × 10` so each sample shows which tick it was taken at.
-    fn at_ticks(s: &mut Sampler, ticks: &[u16]) -> std::vec::Vec<SampleBatch> {
+    fn at_ticks(s: &mut Sampler, ticks: &[u32]) -> std::vec::Vec<SampleBatch> {
         let mut out = std::vec::Vec::new();
         for &tick in ticks {
-            let raw = [u32::from(tick) * 10, 0];
+            let raw = [tick.wrapping_mul(10), 0];
             out.extend(s.sample_at_tick(tick, |_| raw));
         }
         out.extend(s.take_batch());
@@ -484,17 +500,35 @@ mod tests {
     }
 
     #[test]
-    fn tick_count_wraps_at_16_bits() {
+    fn a_stall_longer_than_16_bits_of_ticks_is_counted_exactly() {
+        // A 128 KiB flash erase stalls the CPU for up to 4 s: 80 000 periods at 20 kHz. With a
+        // 16-bit tick count the task would have seen 80 000 − 65 536 = 14 464 missed ticks and
+        // stamped the next sample 65 536 periods too early; the 32-bit count sees them all.
+        let mut s = Sampler::new(
+            [0, 0],
+            &Calibration::DEFAULT,
+            SampleClock::new(96_000_000, 4_800), // 20 kHz: 50 µs
+            false,
+        );
+        let batches = at_ticks(&mut s, &[1, 2, 3, 80_004, 80_005]);
+        assert_eq!(s.overruns(), 80_000);
+        assert_eq!(s.dropped(), 80_000);
+        let after = &batches[1];
+        assert_eq!(after.seq, 80_003, "seq = tick − 1");
+        assert_eq!(after.dropped, 80_000, "the stream reports the stall");
+        assert_eq!(after.samples[0].t_us, 50 * 80_003);
+        assert_eq!(after.samples[1].t_us, 50 * 80_004);
+    }
+
+    #[test]
+    fn tick_count_wraps_at_32_bits() {
         let mut s = sampler();
-        let mut ticks: std::vec::Vec<u16> = (1..=u16::MAX).collect();
-        ticks.extend([0u16, 1, 3]); // wraps, then one missed
-        let n: usize = at_ticks(&mut s, &ticks)
-            .iter()
-            .map(|b| b.samples.len())
-            .sum();
-        assert_eq!(n, 65_535 + 3);
+        // Sampling for 49.7 days at 1 kHz: the count wraps through 0, one tick missed after.
+        s.last_tick = u32::MAX - 2;
+        let b = at_ticks(&mut s, &[u32::MAX - 1, u32::MAX, 0, 2]);
+        assert_eq!(b.iter().map(|b| b.samples.len()).sum::<usize>(), 4);
         assert_eq!(s.overruns(), 1);
-        assert_eq!(s.next_t_us(), 1000 * (65_535 + 4));
+        assert_eq!(s.next_t_us(), 1000 * 5);
     }
 
     #[test]
@@ -533,6 +567,142 @@ mod tests {
         let b = at_ticks(&mut s, &[3, 4, 5]);
         let t: std::vec::Vec<u64> = b[0].samples.iter().map(|x| x.t_us).collect();
         assert_eq!(t, [2000, 2500, 3000]);
+    }
+
+    /// The sample timer as the board runs it: an update event (a tick) every `active` cycles of a
+    /// 1 MHz clock; a period written into the preload takes effect at the next update event.
+    struct TimerModel {
+        last_update: u64,
+        active: u32,
+        preload: u32,
+        tick: u32,
+        updates: std::vec::Vec<u64>,
+    }
+
+    impl TimerModel {
+        fn new(period: u32) -> Self {
+            TimerModel {
+                last_update: 0,
+                active: period,
+                preload: period,
+                tick: 0,
+                updates: std::vec::Vec::new(),
+            }
+        }
+        /// Run the timer up to time `now`.
+        fn run_to(&mut self, now: u64) {
+            while self.last_update + u64::from(self.active) <= now {
+                self.last_update += u64::from(self.active);
+                self.active = self.preload;
+                self.tick += 1;
+                self.updates.push(self.last_update);
+            }
+        }
+        fn left(&self, now: u64) -> u32 {
+            (self.last_update + u64::from(self.active) - now) as u32
+        }
+    }
+
+    /// Run the sample task against the timer model for 60 ticks, a rate change from `old` to
+    /// `new` (cycles) asked for just before tick 20. The task serving tick 20 starts `latency`
+    /// cycles after it and takes `d_cycles` to compute D; the others start 1 cycle after their
+    /// tick. `write_first`: the firmware's order (rate written before D, if it lands); else the
+    /// order before issue 19 (written after D, unchecked). Returns the largest difference between
+    /// a sample's t_us and the true time of its tick (µs).
+    fn rate_change_error(
+        old: u32,
+        new: u32,
+        latency: u64,
+        d_cycles: u64,
+        write_first: bool,
+    ) -> u64 {
+        const MARGIN: u32 = 2;
+        let mut tim = TimerModel::new(old);
+        let mut s = Sampler::new(
+            [0, 0],
+            &Calibration::DEFAULT,
+            SampleClock::new(1_000_000, old),
+            false,
+        );
+        let mut pending = None;
+        let mut samples = std::vec::Vec::new();
+        let mut busy_until = 0u64;
+        let mut served = 0;
+        for k in 1..=60u32 {
+            while tim.tick < k {
+                tim.run_to(tim.last_update + u64::from(tim.active));
+            }
+            if k <= served {
+                continue; // a late task served it (an overrun)
+            }
+            if k == 20 {
+                pending = Some(new);
+            }
+            let at = tim.updates[k as usize - 1];
+            let start = busy_until.max(at + if k == 20 { latency } else { 1 });
+            tim.run_to(start);
+            let latched = tim.tick;
+            served = latched;
+            let mut now = start + 1;
+            let mut applied = None;
+            if write_first {
+                tim.run_to(now);
+                if let Some(p) = pending {
+                    if rate_write_lands(latched, tim.tick, tim.left(now), MARGIN) {
+                        tim.preload = p;
+                        pending = None;
+                        applied = Some(p);
+                    }
+                }
+            }
+            now += d_cycles;
+            let b = s.sample_at_tick(latched, |_| [latched, 0]);
+            samples.extend(b.into_iter().flat_map(|b| b.samples));
+            if !write_first {
+                tim.run_to(now);
+                if let Some(p) = pending.take() {
+                    tim.preload = p;
+                    applied = Some(p);
+                }
+            }
+            if let Some(p) = applied {
+                s.set_period(1_000_000, p);
+            }
+            busy_until = now;
+            tim.run_to(now);
+        }
+        samples.extend(s.take_batch().into_iter().flat_map(|b| b.samples));
+        samples
+            .iter()
+            .map(|x| {
+                let tick = x.enc1 as usize; // the raw count is the tick count
+                let truth = tim.updates[tick - 1] - tim.updates[0];
+                x.t_us.abs_diff(truth)
+            })
+            .max()
+            .unwrap()
+    }
+
+    #[test]
+    fn a_rate_change_written_before_d_keeps_every_time_stamp_exact() {
+        // 20 kHz ↔ 10 kHz on a 1 MHz timer clock (50 and 100 cycles), the task serving the tick
+        // of the change starting 1–120 cycles late and taking 5–45 cycles for D: with the rate
+        // written first (and only when it lands), every t_us is its tick's true time.
+        let mut late_before = 0;
+        for (old, new) in [(50, 100), (100, 50), (50, 49)] {
+            for latency in 1..=120 {
+                for d in [5, 20, 30, 45] {
+                    let err = rate_change_error(old, new, latency, d, true);
+                    assert_eq!(err, 0, "{old}→{new}, latency {latency}, D {d}");
+                    if rate_change_error(old, new, latency, d, false) > 0 {
+                        late_before += 1;
+                    }
+                }
+            }
+        }
+        // The model sees the race the old order had (written after D, it landed a period late
+        // whenever latency + D passed the period's end): the test can fail.
+        assert!(late_before > 100, "{late_before}");
     }
 
     #[test]

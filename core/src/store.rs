@@ -29,7 +29,16 @@
 //! **Writing** ([`CalStore::store`]) programs the next slot that is still erased after the newest
 //! record, in the newest record's block. When that block is full it erases the *other* block and
 //! writes there: the newest record is never erased before its successor is complete, so a power
-//! loss at any moment leaves either the old or the new calibration. Wear: one erase per
+//! loss at any moment leaves either the old or the new calibration.
+//!
+//! **Erasing ahead** ([`CalStore::erase_spare`]). Once the log has moved to a block, the other
+//! block (the *spare*) holds only superseded records and may be erased at any time. A device
+//! erases it when an erase costs nothing (at power-up, while it is not sampling); the store that
+//! fills the current block then starts the spare with no erase, a write only. An erase is slow
+//! (2–4 s for the STM32F411's 128 KiB sectors) and on a single-bank flash it stalls the whole CPU,
+//! so this takes it out of the command path. A store that finds the spare not erased (512 stores
+//! without a chance to erase ahead) still erases it itself ([`CalStore::store_would_erase`] says
+//! so beforehand). Wear: one erase per
 //! `block / SLOT` stores, alternating between the two blocks (with 128 KiB blocks, 512 stores per
 //! erase; the F411's 10 000 erase cycles then last 10 million stores).
 use embedded_storage::nor_flash::NorFlash;
@@ -76,6 +85,8 @@ pub struct CalStore<F> {
     base: u32,
     block: u32,
     newest: Option<Found>,
+    /// The spare block (the one the newest record is not in) is known to be erased.
+    spare_erased: bool,
 }
 
 impl<F: NorFlash> CalStore<F> {
@@ -96,11 +107,13 @@ impl<F: NorFlash> CalStore<F> {
         }
         let mut newest: Option<Found> = None;
         let mut buf = [0u8; SLOT];
+        let mut erased = [true; 2];
         for blk in 0..2 {
             for slot in 0..block / SLOT as u32 {
                 flash
                     .read(base + blk * block + slot * SLOT as u32, &mut buf)
                     .map_err(StoreError::Flash)?;
+                erased[blk as usize] &= buf.iter().all(|&b| b == 0xFF);
                 if let Some((seq, cal)) = parse(&buf) {
                     if newest.is_none_or(|n| seq > n.seq) {
                         newest = Some(Found {
@@ -113,12 +126,49 @@ impl<F: NorFlash> CalStore<F> {
                 }
             }
         }
+        let current = newest.map_or(0, |n| n.block);
         Ok(CalStore {
             flash,
             base,
             block,
             newest,
+            spare_erased: erased[1 - current as usize],
         })
+    }
+
+    /// The block the log writes into: the newest record's (block 0 while there is none).
+    fn current_block(&self) -> u32 {
+        self.newest.map_or(0, |n| n.block)
+    }
+
+    /// Erase the spare block (the one the newest record is not in) if it is not erased already,
+    /// so that no later [`Self::store`] has to erase; returns whether it erased. Safe at any time:
+    /// the spare holds only superseded records.
+    pub fn erase_spare(&mut self) -> Result<bool, StoreError<F::Error>> {
+        if self.spare_erased {
+            return Ok(false);
+        }
+        let from = self.base + (1 - self.current_block()) * self.block;
+        self.flash
+            .erase(from, from + self.block)
+            .map_err(StoreError::Flash)?;
+        self.spare_erased = true;
+        Ok(true)
+    }
+
+    /// Whether the next [`Self::store`] would erase a block (the current block is full and the
+    /// spare was not erased ahead).
+    pub fn store_would_erase(&mut self) -> Result<bool, StoreError<F::Error>> {
+        let (block, first) = self.next_in_current();
+        Ok(!self.spare_erased && self.erased_slot(block, first)?.is_none())
+    }
+
+    /// The current block and the first slot after the newest record in it.
+    fn next_in_current(&self) -> (u32, u32) {
+        match self.newest {
+            Some(nw) => (nw.block, nw.slot + 1),
+            None => (0, 0),
+        }
     }
 
     /// The calibration stored last, if any record is valid.
@@ -141,21 +191,14 @@ impl<F: NorFlash> CalStore<F> {
         let crc = CRC32C.checksum(&rec[..HEADER + n]);
         rec[HEADER + n..HEADER + n + 4].copy_from_slice(&crc.to_le_bytes());
 
-        let (block, first) = match self.newest {
-            Some(nw) => (nw.block, nw.slot + 1),
-            None => (0, 0),
-        };
+        let (block, first) = self.next_in_current();
         let slot = match self.erased_slot(block, first)? {
             Some(s) => (block, s),
             None => {
-                // This block is full (or torn to the end): start the other one. The newest
-                // record stays where it is until the next switch.
-                let other = 1 - block;
-                let from = self.base + other * self.block;
-                self.flash
-                    .erase(from, from + self.block)
-                    .map_err(StoreError::Flash)?;
-                (other, 0)
+                // This block is full (or torn to the end): start the other one, erased ahead or
+                // now. The newest record stays where it is until the next switch.
+                self.erase_spare()?;
+                (1 - block, 0)
             }
         };
         let at = self.base + slot.0 * self.block + slot.1 * SLOT as u32;
@@ -165,6 +208,10 @@ impl<F: NorFlash> CalStore<F> {
         self.flash
             .write(at, &rec[..len])
             .map_err(StoreError::Flash)?;
+        if slot.0 != block {
+            // The log moved: the block it left is the spare now, full of old records.
+            self.spare_erased = false;
+        }
         self.newest = Some(Found {
             block: slot.0,
             slot: slot.1,
@@ -383,10 +430,11 @@ mod tests {
         // One erase per full block: about n / slots_per_block erases over the region's 4 erase
         // pages, spread evenly, and none outside it.
         let total: u32 = flash.erases.iter().sum();
-        let switches = (n - 1) / slots_per_block; // the first block starts erased
+        // Both blocks start erased: the first switch (into block 1) needs no erase.
+        let switches = (n - 1) / slots_per_block;
         assert_eq!(
             total,
-            switches * (BLOCK / ERASE as u32),
+            (switches - 1) * (BLOCK / ERASE as u32),
             "{:?}",
             flash.erases
         );
@@ -394,6 +442,55 @@ mod tests {
         let (lo, hi) = (region.iter().min().unwrap(), region.iter().max().unwrap());
         assert!(hi - lo <= 1, "uneven wear {region:?}");
         assert_eq!(flash.erases[0] + flash.erases[5..].iter().sum::<u32>(), 0);
+    }
+
+    #[test]
+    fn the_spare_erased_ahead_keeps_every_erase_out_of_the_stores() {
+        // As the firmware does: erase ahead at every power-up and whenever it stops sampling
+        // (here: after every 3rd store); then no store ever erases, over several block switches.
+        let slots = BLOCK / SLOT as u32;
+        let mut s = reopen(RamFlash::new(8 * ERASE));
+        assert!(!s.erase_spare().unwrap(), "a blank flash needs no erase");
+        let mut erases_in_stores = 0;
+        for k in 0..5 * slots {
+            if k % 3 == 0 {
+                let before: u32 = s.flash.erases.iter().sum();
+                let erased = s.erase_spare().unwrap();
+                let after: u32 = s.flash.erases.iter().sum();
+                assert_eq!(erased, after > before, "store {k}");
+            }
+            assert!(!s.store_would_erase().unwrap(), "store {k}");
+            let before: u32 = s.flash.erases.iter().sum();
+            s.store(&cal(k)).unwrap();
+            erases_in_stores += s.flash.erases.iter().sum::<u32>() - before;
+            assert_eq!(s.load(), Some(cal(k)));
+        }
+        assert_eq!(erases_in_stores, 0);
+        // Re-opened, the store knows again whether the spare is erased.
+        let mut s = reopen(s.into_inner());
+        assert_eq!(s.load(), Some(cal(5 * slots - 1)));
+        s.erase_spare().unwrap();
+        let mut s = reopen(s.into_inner());
+        assert!(!s.erase_spare().unwrap(), "erased before the power cycle");
+
+        // Without erasing ahead, the store that switches blocks says beforehand that it erases,
+        // and does.
+        let mut s = reopen(RamFlash::new(8 * ERASE));
+        for k in 0..2 * slots {
+            assert!(
+                !s.store_would_erase().unwrap(),
+                "store {k}: both blocks start blank"
+            );
+            s.store(&cal(k)).unwrap();
+        }
+        assert!(s.store_would_erase().unwrap());
+        let before: u32 = s.flash.erases.iter().sum();
+        s.store(&cal(99)).unwrap();
+        assert_eq!(
+            s.flash.erases.iter().sum::<u32>() - before,
+            BLOCK / ERASE as u32
+        );
+        assert_eq!(reopen(s.into_inner()).load(), Some(cal(99)));
     }
 
     #[test]

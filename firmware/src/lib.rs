@@ -9,6 +9,20 @@
 compile_error!(
     "features `board-f411` and `qemu` are exclusive: use `--no-default-features --features qemu`"
 );
+#[cfg(any(
+    all(
+        feature = "hse-8mhz",
+        any(feature = "hse-12mhz", feature = "hse-16mhz", feature = "hse-24mhz")
+    ),
+    all(
+        feature = "hse-12mhz",
+        any(feature = "hse-16mhz", feature = "hse-24mhz")
+    ),
+    all(feature = "hse-16mhz", feature = "hse-24mhz"),
+))]
+compile_error!(
+    "select at most one crystal feature (`hse-8mhz`, `hse-12mhz`, `hse-16mhz`, `hse-24mhz`)"
+);
 #[cfg(not(any(feature = "board-f411", feature = "qemu")))]
 compile_error!("select a board: feature `board-f411` (default) or `qemu`");
 

@@ -5,11 +5,14 @@
 //!
 //! | task      | priority | trigger                    | does |
 //! |-----------|----------|----------------------------|------|
-//! | `sample`  | 3        | TIM3 update (sample clock) | tick count + counts latched at the tick → `Sampler` (overruns counted as drops, counts → D → batch); a full batch goes to the queue with `try_send`, or is dropped and counted; applies a rate change at the period boundary |
+//! | `sample`  | 3        | TIM3 update (sample clock) | 32-bit tick count + counts latched at the tick; a pending rate change written (before D is computed); → `Sampler` (overruns counted as drops, counts → D → batch); a full batch goes to the queue with `try_send`, or is dropped and counted |
 //! | `pace`    | 3        | SysTick monotonic (qemu only) | pends TIM3 once per sample period and counts the tick: QEMU's TIM3 is not periodic |
-//! | `index1/2`| 3        | TIM2/TIM5 CC3 (board only) | index edge latched in hardware → `Encoder::on_index_edge` |
+//! | `index1/2`| 4        | TIM2/TIM5 CC3 (board only) | index edge latched in hardware, read before the pulse's other edge can overwrite it → a queue, `index_apply` pended |
+//! | `index_apply` | 3    | SPI4 vector, pended by `index1/2` (board only) | the queued index edges → `Encoder::on_index_edge` |
 //! | `usb_rx` / `uart_rx` | 2 | OTG_FS (board) / USART2 (qemu) | services the link, greets a host that configured the device, decodes commands, replies through the queue |
 //! | `writer`  | 1        | queue (async)              | frames each message and writes it to the link without blocking the others; discards (and counts) while no host reads |
+//! | `upkeep`  | 1        | spawned by `Stop`          | erases the calibration store's spare block ahead while not sampling |
+//! | idle      | 0        | —                          | feeds the watchdog, sets the status LED, sleeps (`wfi`) |
 //! | SysTick   | 1 (board) / 3 (qemu) | monotonic tick | time base of the writer's waits (and of the qemu pacer); below the sample task on the board |
 //!
 //! The queue holds [`QUEUE_LEN`] messages, of which sample batches may take [`BATCH_QUOTA`], so a
@@ -78,9 +81,10 @@ mod app {
     use jdbb_core::geometry::Kernel;
     use jdbb_core::link::{Outgoing, Presence, ProbeStep};
     use jdbb_core::protocol::{
-        self, Command, CommandError, Decoder, DeviceInfo, DeviceMsg, FrameError, Hello, ResetCause,
-        SampleBatch, MAX_FRAME_LEN, MAX_SAMPLE_RATE_HZ, PROTOCOL_VERSION,
+        self, ClockSource, Command, CommandError, Decoder, DeviceInfo, DeviceMsg, FrameError,
+        Hello, ResetCause, SampleBatch, MAX_FRAME_LEN, MAX_SAMPLE_RATE_HZ, PROTOCOL_VERSION,
     };
+    use jdbb_core::quadrature::IndexEdge;
     use jdbb_core::sampler::{SampleClock, Sampler};
     use jdbb_core::Calibration;
     use jdbb_firmware::board::{self, SampleTimer};
@@ -91,6 +95,11 @@ mod app {
 
     type Tx = Sender<'static, Outgoing, QUEUE_LEN>;
     type Rx = Receiver<'static, Outgoing, QUEUE_LEN>;
+    /// Index edges captured (count at the edge, count after, which way), one queue per encoder.
+    const INDEX_QUEUE: usize = 8;
+    type IndexQueue = heapless::spsc::Queue<(u32, u32, IndexEdge), INDEX_QUEUE>;
+    type IndexTx = heapless::spsc::Producer<'static, (u32, u32, IndexEdge)>;
+    type IndexRx = heapless::spsc::Consumer<'static, (u32, u32, IndexEdge)>;
 
     #[shared]
     struct Shared {
@@ -106,6 +115,10 @@ mod app {
         encoders: board::Encoders,
         batch_tx: Tx,
         rx: Rx,
+        index_tx1: IndexTx,
+        index_tx2: IndexTx,
+        index_rx1: IndexRx,
+        index_rx2: IndexRx,
     }
 
     /// State of the command handler.
@@ -122,9 +135,10 @@ mod app {
         reply_tx: Tx,
         chip_id: [u8; 12],
         reset_cause: ResetCause,
+        clock: ClockSource,
     }
 
-    #[init]
+    #[init(local = [index_q1: IndexQueue = IndexQueue::new(), index_q2: IndexQueue = IndexQueue::new()])]
     fn init(mut cx: init::Context) -> (Shared, Local) {
         let parts = board::init(cx.device, DEFAULT_RATE_HZ);
         Mono::start(cx.core.SYST, parts.systick_hz);
@@ -158,6 +172,7 @@ mod app {
                 reply_tx: reply_tx.clone(),
                 chip_id: parts.chip_id,
                 reset_cause: parts.reset_cause,
+                clock: parts.clock,
             },
         };
         if board::LINK_UP_AT_START {
@@ -168,6 +183,9 @@ mod app {
         writer::spawn().ok();
         #[cfg(feature = "qemu")]
         pace::spawn().ok();
+        // (Unused in the QEMU build, which has no index interrupts.)
+        let (index_tx1, index_rx1) = cx.local.index_q1.split();
+        let (index_tx2, index_rx2) = cx.local.index_q2.split();
         defmt::info!(
             "jdbb firmware {}: {} Hz, sampling {}, reset cause {=u8:#x}",
             board::BOARD,
@@ -190,15 +208,41 @@ mod app {
                 encoders: parts.encoders,
                 batch_tx,
                 rx,
+                index_tx1,
+                index_tx2,
+                index_rx1,
+                index_rx2,
             },
         )
     }
 
+    /// The idle loop feeds the watchdog: a task that never lets the CPU idle (a hang, a spin that
+    /// does not end) resets the chip (board; see `board::f411`), and sets the status LED.
     #[idle]
     fn idle(_: idle::Context) -> ! {
         loop {
+            board::feed_watchdog();
+            let now_ms = Mono::now().ticks() as u64 * 1_000 / super::MONO_HZ as u64;
+            board::indicate(now_ms as u32);
             cortex_m::asm::wfi();
         }
+    }
+
+    /// While not sampling: erase the calibration store's spare block ahead (on the board up to
+    /// 4 s with the whole CPU stalled), so that no store while sampling has to. Spawned by `Stop`.
+    #[task(priority = 1, shared = [timer, control])]
+    async fn upkeep(cx: upkeep::Context) {
+        let upkeep::SharedResources {
+            mut timer,
+            mut control,
+            ..
+        } = cx.shared;
+        // Under the control lock no command (a Start) can come between the check and the erase.
+        control.lock(|c| {
+            if !timer.lock(|t| t.is_running()) {
+                c.state.cal_memory.erase_ahead();
+            }
+        });
     }
 
     /// One tick of the sample clock: the whole on-chip sample path.
@@ -209,8 +253,13 @@ mod app {
         let tx = cx.local.batch_tx;
         (timer, sampler).lock(|t, s| {
             t.clear_update();
-            let batch = encoders.sample(s);
-            if let Some(ticks) = t.apply_pending_rate() {
+            let latch = encoders.latch();
+            // A pending rate change is written first, before this tick's sample is computed, so
+            // that it always lands in the period that just began (see `SampleTimer`).
+            let new_period = t.apply_pending_rate(latch.tick());
+            let batch = encoders.sample(latch, s);
+            if let Some(ticks) = new_period {
+                // After this tick's sample: the period now running keeps its old length.
                 s.set_period(t.clock_hz(), ticks);
             }
             if let Some(batch) = batch {
@@ -240,7 +289,8 @@ mod app {
     /// sample task's interrupt once for every period elapsed on the lossless TIM2 µs count (up to
     /// [`PACE_BURST`] per wake-up, yielding in between so each pend runs the sample task), so the
     /// samples keep their rate on average even though QEMU delivers SysTick ticks irregularly.
-    /// Every pended tick is counted (`board::count_tick`), as TIM4 counts them on the board.
+    /// Every elapsed period is counted (`board::count_ticks`), as TIM4 and TIM1 count them on the
+    /// board; those beyond a burst are overruns.
     #[cfg(feature = "qemu")]
     #[task(priority = 3)]
     async fn pace(_: pace::Context) {
@@ -256,17 +306,25 @@ mod app {
                 continue;
             }
             let mut burst = 0;
-            while now_us() >= next_us && burst < PACE_BURST {
+            while now_us() >= next_us {
+                if burst == PACE_BURST {
+                    // More periods elapsed than a burst catches up: the emulated CPU stalled (a
+                    // flash erase, or QEMU starved by its host). Count them all, as the board's
+                    // tick counter counts ticks while its CPU stalls, and sample once: the sample
+                    // task sees the overrun, the stream the gap.
+                    let missed = (now_us() - next_us) / period_us + 1;
+                    next_us += missed * period_us;
+                    board::count_ticks(missed as u32);
+                    rtic::pend(stm32f4xx_hal::pac::Interrupt::TIM3);
+                    yield_now().await;
+                    break;
+                }
                 next_us += period_us;
-                board::count_tick();
+                board::count_ticks(1);
                 rtic::pend(stm32f4xx_hal::pac::Interrupt::TIM3);
                 yield_now().await;
                 burst += 1;
             }
-            // After a stall of the emulator (host busy) longer than a burst, resume from now: the
-            // skipped periods are simply not sampled (sequence numbers stay contiguous; only the
-            // simulated time runs slower than the host's clock) instead of flooding the queue.
-            next_us = next_us.max(now_us().saturating_sub(PACE_BURST as u64 * period_us));
         }
     }
 
@@ -291,25 +349,52 @@ mod app {
         .await
     }
 
-    /// Encoder 1's index edges (board only).
+    /// Encoder 1's index edges (board only), at the highest priority, above the sample task: the
+    /// edge's count is read from CCR3 before the pulse's other edge can overwrite it, and handed
+    /// to `index_apply` (see README, "Index pulses").
     #[cfg(feature = "board-f411")]
-    #[task(binds = TIM2, priority = 3, shared = [sampler])]
-    fn index1(mut cx: index1::Context) {
-        while let Some((at, now, edge)) = board::take_index(0) {
-            cx.shared
-                .sampler
-                .lock(|s| s.on_index_edge(0, at, now, edge));
+    #[task(binds = TIM2, priority = 4, local = [index_tx1])]
+    fn index1(cx: index1::Context) {
+        while let Some(edge) = board::take_index(0) {
+            hand_over(cx.local.index_tx1, 0, edge);
         }
     }
 
-    /// Encoder 2's index edges (board only).
+    /// Encoder 2's index edges (board only); as `index1`.
     #[cfg(feature = "board-f411")]
-    #[task(binds = TIM5, priority = 3, shared = [sampler])]
-    fn index2(mut cx: index2::Context) {
-        while let Some((at, now, edge)) = board::take_index(1) {
-            cx.shared
-                .sampler
-                .lock(|s| s.on_index_edge(1, at, now, edge));
+    #[task(binds = TIM5, priority = 4, local = [index_tx2])]
+    fn index2(cx: index2::Context) {
+        while let Some(edge) = board::take_index(1) {
+            hand_over(cx.local.index_tx2, 1, edge);
+        }
+    }
+
+    /// An index edge captured on encoder `ch` goes to `index_apply` (pended); one that finds the
+    /// queue full (more than [`INDEX_QUEUE`] − 1 edges before the sample task's priority could
+    /// run) is lost and logged.
+    #[cfg(feature = "board-f411")]
+    #[inline]
+    fn hand_over(tx: &mut IndexTx, ch: usize, (at, now, edge): (u32, u32, IndexEdge)) {
+        if tx.enqueue((at, now, edge)).is_err() {
+            defmt::warn!("index edge of encoder {} lost: queue full", ch + 1);
+        }
+        rtic::pend(stm32f4xx_hal::pac::Interrupt::SPI4);
+    }
+
+    /// The index edges to the sampler, at the sample task's priority (an unused interrupt vector,
+    /// pended by `index1/2`).
+    #[cfg(feature = "board-f411")]
+    #[task(binds = SPI4, priority = 3, shared = [sampler], local = [index_rx1, index_rx2])]
+    fn index_apply(mut cx: index_apply::Context) {
+        for (ch, rx) in [&mut *cx.local.index_rx1, &mut *cx.local.index_rx2]
+            .into_iter()
+            .enumerate()
+        {
+            while let Some((at, now, edge)) = rx.dequeue() {
+                cx.shared
+                    .sampler
+                    .lock(|s| s.on_index_edge(ch, at, now, edge));
+            }
         }
     }
 
@@ -454,6 +539,7 @@ mod app {
             reset_cause: control.reset_cause,
             index: sampler.index_status(),
             overruns: sampler.overruns(),
+            clock: control.clock,
         }
     }
 
@@ -540,6 +626,8 @@ mod app {
             }
             Command::Stop => {
                 timer.lock(|t| t.stop());
+                // Not sampling: the time to erase the calibration store's spare block, if due.
+                upkeep::spawn().ok();
                 let rest = sampler.lock(|s| s.take_batch().map(|b| (s.run(), b)));
                 if let Some((run, rest)) = rest {
                     let n = rest.samples.len() as u32;

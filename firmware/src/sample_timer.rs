@@ -6,14 +6,24 @@
 //!   counts into CCR4 (input capture on TRC; see `board::f411`), so both encoders are read at the
 //!   same instant in hardware, however late the interrupt runs;
 //! - clocks TIM4 (external clock mode 1 on ITR2 = TIM3's TRGO, RM0383 table "TIMx internal trigger
-//!   connection"), a 16-bit count of sample-clock ticks: the sample task learns from it how many
-//!   ticks passed since it last ran (overruns, see `jdbb_core::sampler`).
+//!   connection"), the low 16 bits of the count of sample-clock ticks; TIM4's overflow is its own
+//!   TRGO (`MMS = update`), which clocks TIM1 (external clock mode 1 on ITR3 = TIM4's TRGO), the
+//!   high 16 bits. The sample task learns from the 32-bit count how many ticks passed since it last
+//!   ran (overruns, see `jdbb_core::sampler`): 32 bits, so that even a stall as long as a 128 KiB
+//!   flash erase (4 s, 80 000 periods at 20 kHz) is counted exactly instead of wrapping.
 //!
-//! A new rate is written right after a tick by the sample task ([`SampleTimer::apply_pending_rate`])
-//! into the preloaded PSC/ARR, so the period running then completes with its old length and the
-//! new one starts at the next update event: the sample clock never restarts mid-period.
+//! A new rate is written by the sample task right after the tick it serves, *before* it computes
+//! that tick's sample ([`SampleTimer::apply_pending_rate`]), into the preloaded PSC/ARR, so the
+//! period running then completes with its old length and the new one starts at the next update
+//! event: the sample clock never restarts mid-period. The write is made only with the tick count
+//! unchanged since the tick and at least [`RATE_WRITE_MARGIN_US`] left in the period (interrupts
+//! masked for the two stores), so it always lands before the next update event
+//! (`jdbb_core::sampler::rate_write_lands`, host-tested against a model of the timer); checked
+//! again after the write. Otherwise it waits for the next tick (one period later, and the sampler's clock
+//! switches with it).
 //! (QEMU's TIM3 model cannot do this; the `qemu` board paces the same interrupt from SysTick.)
 
+use jdbb_core::sampler::rate_write_lands;
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::{Enable, Reset};
 
@@ -26,14 +36,29 @@ const SR_UIF: u32 = 1 << 0;
 const EGR_UG: u32 = 1 << 0;
 /// TIM4 slave mode: external clock mode 1 (`SMS = 111`) from ITR2 (`TS = 010`) = TIM3's TRGO.
 const TIM4_SMCR_ECM1_ITR2: u32 = 0b111 | (0b010 << 4);
+/// TIM1 slave mode: external clock mode 1 (`SMS = 111`) from ITR3 (`TS = 011`) = TIM4's TRGO.
+const TIM1_SMCR_ECM1_ITR3: u32 = 0b111 | (0b011 << 4);
 
-/// The sample task's view of the tick counter: TIM4's count of TIM3 update events (wraps at
-/// 2¹⁶), reset to 0 by [`SampleTimer::start`].
+/// Least time left in the period for the sample task to write a new PSC/ARR (µs): far more than
+/// the two stores take, so the write cannot straddle the update event.
+pub const RATE_WRITE_MARGIN_US: u32 = 2;
+
+/// The sample task's view of the tick counter: TIM1:TIM4, the 32-bit count of TIM3 update events
+/// (wraps after 2³² ticks, 2.5 days at 20 kHz), reset to 0 by [`SampleTimer::start`].
 #[inline]
-pub fn tick_count() -> u16 {
-    // SAFETY: read-only access to a counter configured in `SampleTimer::new` and written only by
+pub fn tick_count() -> u32 {
+    // SAFETY: read-only access to counters configured in `SampleTimer::new` and written only by
     // `SampleTimer::start`.
-    unsafe { (*pac::TIM4::ptr()).cnt().read().bits() as u16 }
+    let (lo, hi) = unsafe { (&*pac::TIM4::ptr(), &*pac::TIM1::ptr()) };
+    let h1 = hi.cnt().read().bits() & 0xffff;
+    let l = lo.cnt().read().bits() & 0xffff;
+    let h2 = hi.cnt().read().bits() & 0xffff;
+    if h1 == h2 {
+        (h1 << 16) | l
+    } else {
+        // TIM4 wrapped between the reads: its count now belongs to h2.
+        (h2 << 16) | (lo.cnt().read().bits() & 0xffff)
+    }
 }
 
 /// TIM3 as the sample clock, TIM4 counting its ticks, both from a `clock_hz` timer clock.
@@ -47,12 +72,20 @@ pub struct SampleTimer {
 impl SampleTimer {
     /// Enable TIM3 and TIM4 with a `clock_hz` input clock and program `rate_hz`; the sample clock
     /// stays stopped until [`Self::start`].
-    pub fn new(tim: pac::TIM3, tim4: pac::TIM4, clock_hz: u32, rate_hz: u32) -> Self {
+    pub fn new(
+        tim: pac::TIM3,
+        tim4: pac::TIM4,
+        tim1: pac::TIM1,
+        clock_hz: u32,
+        rate_hz: u32,
+    ) -> Self {
         unsafe {
             pac::TIM3::enable_unchecked();
             pac::TIM3::reset_unchecked();
             pac::TIM4::enable_unchecked();
             pac::TIM4::reset_unchecked();
+            pac::TIM1::enable_unchecked();
+            pac::TIM1::reset_unchecked();
         }
         // Only counter overflow raises the update interrupt, not the UG we use to load PSC/ARR;
         // ARR is preloaded so a new period starts cleanly at an update event.
@@ -61,7 +94,13 @@ impl SampleTimer {
         tim4.arr().write(|w| unsafe { w.bits(0xffff) });
         tim4.smcr()
             .write(|w| unsafe { w.bits(TIM4_SMCR_ECM1_ITR2) });
+        // TIM4's overflow (its update event) is its TRGO, TIM1's clock: the count's high half.
+        tim4.cr2().write(|w| unsafe { w.bits(CR2_MMS_UPDATE) });
         tim4.cr1().write(|w| unsafe { w.bits(CR1_CEN) });
+        tim1.arr().write(|w| unsafe { w.bits(0xffff) });
+        tim1.smcr()
+            .write(|w| unsafe { w.bits(TIM1_SMCR_ECM1_ITR3) });
+        tim1.cr1().write(|w| unsafe { w.bits(CR1_CEN) });
         let mut t = SampleTimer {
             tim,
             clock_hz,
@@ -105,13 +144,33 @@ impl SampleTimer {
         }
     }
 
-    /// Called by the sample task right after a tick: write a rate change asked for while running,
-    /// so that it starts with the period after the current one; returns the new period (ticks)
-    /// for the sampler's clock.
+    /// Called by the sample task right after tick `tick` (the tick count it read), before it
+    /// computes that tick's sample: write a rate change asked for while running, so that it
+    /// starts with the period after the current one; returns the new period (ticks) for the
+    /// sampler's clock, to be set after tick `tick`'s sample. `None` (the change stays pending,
+    /// for the next tick) when the tick count moved on already or less than
+    /// [`RATE_WRITE_MARGIN_US`] is left in the period; see the module docs.
     #[inline]
-    pub fn apply_pending_rate(&mut self) -> Option<u32> {
-        let (psc, arr) = self.pending.take()?;
-        Some(self.write(psc, arr))
+    pub fn apply_pending_rate(&mut self, tick: u32) -> Option<u32> {
+        let (psc, arr) = self.pending?;
+        let margin = self.clock_hz / 1_000_000 * RATE_WRITE_MARGIN_US;
+        let written = cortex_m::interrupt::free(|_| {
+            let left = {
+                let r = self.tim.arr().read().bits() + 1 - self.tim.cnt().read().bits();
+                r * (self.tim.psc().read().bits() + 1)
+            };
+            if !rate_write_lands(tick, tick_count(), left, margin) {
+                return None;
+            }
+            let ticks = self.write(psc, arr);
+            // The write is before the update event that ends this period: the count is still
+            // `tick` (checked, not assumed).
+            (tick_count() == tick).then_some(ticks)
+        });
+        if written.is_some() {
+            self.pending = None;
+        }
+        written
     }
 
     /// Input clock of the timer (Hz).
@@ -144,8 +203,12 @@ impl SampleTimer {
         // than the few timer clocks TIM4's slave controller takes to count it.
         self.tim.egr().write(|w| unsafe { w.bits(EGR_UG) });
         cortex_m::asm::delay(64);
-        // SAFETY: TIM4 is the tick counter, configured in `new`; only this function writes it.
-        unsafe { (*pac::TIM4::ptr()).cnt().write(|w| w.bits(0)) };
+        // SAFETY: TIM4 and TIM1 are the tick counter, configured in `new`; only this function
+        // writes them.
+        unsafe {
+            (*pac::TIM4::ptr()).cnt().write(|w| w.bits(0));
+            (*pac::TIM1::ptr()).cnt().write(|w| w.bits(0));
+        }
         self.tim.sr().write(|w| unsafe { w.bits(0) });
         self.tim.dier().write(|w| unsafe { w.bits(DIER_UIE) });
         self.tim

@@ -145,6 +145,7 @@ fn info(calibration: Calibration) -> DeviceInfo {
             last_pass_count: 0,
         }; 2],
         overruns: 0,
+        clock: jdbb_core::protocol::ClockSource::Emulated,
     }
 }
 
@@ -261,11 +262,17 @@ fn a_device_that_does_not_answer_is_an_error() {
     let o = send_example_to(Behaviour::Mute);
     let (_, err) = text(&o);
     assert_eq!(o.status.code(), Some(1), "{err}");
+    // The wait covers the firmware's worst store, a 4 s flash sector erase (issue 19), with the
+    // 3 s for the link on top: no "failed" for a calibration that is being kept.
     assert!(
-        err.contains("did not answer SetCalibration within 3 s"),
+        err.contains("did not answer SetCalibration within 8 s"),
         "{err}"
     );
-    assert!(t0.elapsed() < std::time::Duration::from_secs(10));
+    let waited = t0.elapsed();
+    assert!(
+        waited >= std::time::Duration::from_secs(7) && waited < std::time::Duration::from_secs(15),
+        "{waited:?}"
+    );
 }
 
 #[test]

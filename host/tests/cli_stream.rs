@@ -139,6 +139,7 @@ fn info() -> DeviceInfo {
             last_pass_count: 0,
         }; 2],
         overruns: 0,
+        clock: jdbb_core::protocol::ClockSource::Emulated,
     }
 }
 

@@ -105,6 +105,7 @@ fn main() -> ! {
             reset_cause: ResetCause::default(),
             index: [Encoder::<32>::new(0).index_status(); 2],
             overruns: 0,
+            clock: jdbb_core::protocol::ClockSource::Emulated,
         }));
         let kernel = Kernel::new(&cal);
         let c1 = (FRAME_RANGE_RAD / cal.enc1.rad_per_count()) as i64;

@@ -213,7 +213,7 @@ fn main() -> ! {
     let instr = |t: u32| (t as f32 / ticks_per_instr) as u32;
     let mut s2 = Sampler::new([0, 0], &test.cal, SampleClock::new(10_000, 10), true);
     let mut worst_tick = 0u32;
-    const TICKS_N: u16 = 4096;
+    const TICKS_N: u32 = 4096;
     for tick in 1..=TICKS_N {
         let raw = table[tick as usize % TABLE_LEN];
         let t = ticks(|| {
@@ -229,7 +229,7 @@ fn main() -> ! {
         instr(worst_tick),
         instr(t_overrun)
     );
-    for tick in 1..=5u16 {
+    for tick in 1..=5u32 {
         black_box(s2.sample_at_tick(TICKS_N + 3 + tick, |_| table[0]));
     }
     let t_stop = ticks(|| {

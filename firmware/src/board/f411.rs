@@ -1,4 +1,4 @@
-//! STM32F411CEU6 "Black Pill" (25 MHz crystal).
+//! STM32F411CEU6 "Black Pill" (25 MHz crystal, or another: see [`HSE_HZ`]).
 //!
 //! | signal              | pin  | peripheral            |
 //! |---------------------|------|-----------------------|
@@ -20,20 +20,33 @@
 //! The calibration is kept in flash sectors 6 and 7 (offsets 256–512 KiB, 2 × 128 KiB, the HAL's
 //! erase size) with [`jdbb_core::store`]: `memory.x` gives the program the first 256 KiB only.
 //! Writing one record stalls the CPU's instruction fetch for ~2 ms (about 110 bytes programmed one
-//! at a time, 16 µs each, as the HAL programs); every 512th store also erases a 128 KiB sector,
-//! 2–4 s (the F411 datasheet's figures for byte-wide erase). A calibration sent while
-//! sampling may therefore cost samples (counted as overruns and drops). An F411xC (256 KiB) has no
+//! at a time, 16 µs each, as the HAL programs). Every 512th store needs a 128 KiB sector erased,
+//! 2 s typical, 4 s max (DS10314, x8 parallelism as the HAL erases), during which the single-bank
+//! flash stalls every instruction fetch, so no task runs whatever its priority: the spare sector is
+//! therefore erased *ahead*, at power-up and whenever sampling stops (`jdbb_core::store`,
+//! `CalStore::erase_spare`), never in the store itself unless 512 stores came without a stop. A
+//! stall is never silent: the sample clock's 32-bit tick count keeps counting (see
+//! `crate::sample_timer`), so the missed ticks show as overruns and drops with their sequence
+//! numbers and time skipped. An F411xC (256 KiB) has no
 //! sectors 6 and 7: there the calibration is not kept (logged at start-up).
 //!
-//! Clocks: HSE 25 MHz → PLL → SYSCLK 96 MHz (48 MHz for USB), APB1 48 MHz, timer clock 96 MHz,
-//! with the regulator in voltage scale 1 (needed above 84 MHz).
+//! Clocks: HSE 25 MHz ([`HSE_HZ`], other crystals by cargo feature) → PLL → SYSCLK 96 MHz (48 MHz
+//! for USB), APB1 48 MHz, timer clock 96 MHz, with the regulator in voltage scale 1 (needed above
+//! 84 MHz). `init` first returns the clocks to their reset state (HSI, PLL off: the ROM DFU
+//! bootloader leaves its PLL running), then starts the crystal and locks the PLL once itself, every
+//! wait bounded, before the HAL (whose waits are not) programs them; the crystal is measured
+//! against HSI first (`crystal_measure`, `jdbb_core::clock`). No crystal, or not the build's: the
+//! firmware runs on HSI, `DeviceInfo.clock` says `Internal` and the LED flashes twice every 2 s; a PLL that does not lock: nothing runs, the LED
+//! flashes three times. The independent watchdog (started first, fed from the idle loop) resets a
+//! firmware that hangs, after 5.6–15.4 s; `DeviceInfo.reset_cause` then says `WATCHDOG`.
 
 use core::mem::MaybeUninit;
-use core::sync::atomic::{AtomicBool, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use super::Parts;
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
-use jdbb_core::protocol::{Board, ResetCause, SampleBatch};
+use jdbb_core::clock::{crystal_check, crystal_hz};
+use jdbb_core::protocol::{Board, ClockSource, ResetCause, SampleBatch};
 use jdbb_core::quadrature::IndexEdge;
 use jdbb_core::reset;
 use jdbb_core::sampler::Sampler;
@@ -153,25 +166,96 @@ fn serial_number(id: &[u8; 12]) -> &'static str {
     core::str::from_utf8(buf).unwrap_or("0")
 }
 
-/// Bring up the board: regulator and clocks, both encoder timers with index and sample latches,
-/// the sample clock at `rate_hz`, USB.
+/// Bring up the board: watchdog, regulator and clocks (every wait bounded), both encoder timers
+/// with index and sample latches, the sample clock at `rate_hz`, the calibration store (its spare
+/// block erased ahead), USB.
 pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
     let reset_cause = take_reset_cause(&dp.RCC);
+    // First, so that every wait after it is bounded by it too.
+    watchdog_start(&dp.IWDG, &dp.DBGMCU);
+    led_init(&dp.RCC);
+    // Started from the ROM DFU bootloader (`dfu-util ... :leave`) the PLL may still run, and then
+    // VOS and PLLCFGR cannot be written (RM0383 §5.1.3, §6.3.2): back to the reset state first.
+    if !clocks_to_reset_state(&dp.RCC) {
+        defmt::error!(
+            "clock start failed: HSI or the clock switch did not answer (LED: 4 flashes)"
+        );
+        clock_failure(4);
+    }
     // Voltage scale 1 before the PLL starts (RM0383 §5.1.3): the reset value, scale 2, allows
     // HCLK ≤ 84 MHz only. VOS can be written only while the PLL is off and takes effect when it
     // locks.
     dp.RCC.apb1enr().modify(|_, w| w.pwren().set_bit());
     cortex_m::asm::dsb();
     dp.PWR.cr().modify(|_, w| w.vos().scale1());
+    let mut crystal = hse_start(&dp.RCC);
+    if crystal {
+        // Only a crystal of the build's frequency may drive the PLL (see `jdbb_core::clock`).
+        match crystal_measure(&dp.RCC) {
+            Reading::Hz(hz) if crystal_check(hz, HSE_HZ) => {
+                defmt::info!("crystal measured at {=u32} Hz against HSI", hz);
+            }
+            Reading::Hz(hz) => {
+                defmt::error!(
+                    "crystal measured at {=u32} Hz, the build is for {=u32} Hz: not used \
+                     (build with the matching hse-... feature)",
+                    hz,
+                    HSE_HZ
+                );
+                crystal = false;
+            }
+            Reading::TooFast => {
+                defmt::error!(
+                    "crystal far faster than the build's {=u32} Hz: not used",
+                    HSE_HZ
+                );
+                crystal = false;
+            }
+            Reading::NoEdges => {
+                defmt::warn!("the crystal could not be measured: used as built");
+            }
+        }
+        if !crystal {
+            hse_stop(&dp.RCC);
+        }
+    }
+    let pll_src_hz = if crystal { HSE_HZ } else { HSI_HZ };
+    if !pll_locks(&dp.RCC, crystal, pll_src_hz) {
+        defmt::error!("clock start failed: the PLL did not lock (LED: 3 flashes)");
+        clock_failure(3);
+    }
+    if !crystal {
+        LED_FLASHES.store(2, Ordering::Relaxed);
+    }
+    // The HAL's own waits for HSERDY and PLLRDY are unbounded; they return at once now: the
+    // crystal is running (or not asked for) and the PLL just locked from the same source.
     let rcc = dp.RCC.constrain();
-    let clocks = rcc
-        .cfgr
-        .use_hse(25.MHz())
-        .sysclk(96.MHz())
-        .require_pll48clk()
-        .freeze();
+    let cfgr = if crystal {
+        rcc.cfgr.use_hse(HSE_HZ.Hz())
+    } else {
+        rcc.cfgr
+    };
+    let clocks = cfgr.sysclk(96.MHz()).require_pll48clk().freeze();
     if dp.PWR.csr().read().vosrdy().bit_is_clear() {
         defmt::warn!("regulator not ready in voltage scale 1");
+    }
+    if crystal {
+        defmt::info!("clocks from the {=u32} Hz crystal", HSE_HZ);
+    } else {
+        defmt::error!(
+            "not running from the {=u32} Hz crystal: on the internal oscillator (HSI, ±1 %: \
+             time stamps and the USB clock are off by up to 1 %; LED flashes twice)",
+            HSE_HZ
+        );
+    }
+    // The bootloader may have left the USB core running: reset it before the driver takes it.
+    // SAFETY: a reset pulse on the OTG FS peripheral, before anything uses it.
+    unsafe {
+        let rcc = &*pac::RCC::ptr();
+        rcc.ahb2rstr()
+            .modify(|r, w| w.bits(r.bits() | AHB2RSTR_OTGFSRST));
+        rcc.ahb2rstr()
+            .modify(|r, w| w.bits(r.bits() & !AHB2RSTR_OTGFSRST));
     }
     let gpioa = dp.GPIOA.split();
     let gpiob = dp.GPIOB.split();
@@ -213,6 +297,11 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
         encoder_timer(1).cnt().read().bits(),
     ];
 
+    // The calibration store, its spare block erased now if it must be (up to 4 s, before USB
+    // enumerates and with nothing sampling), so that no store while sampling has to erase.
+    let mut cal_memory = CalMemory::open(dp.FLASH);
+    cal_memory.erase_ahead();
+
     // USB FS CDC-ACM.
     let chip_id = chip_id();
     let usb = USB::new(
@@ -242,14 +331,288 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
             serial,
             configured: false,
         },
-        timer: SampleTimer::new(dp.TIM3, dp.TIM4, clocks.timclk1().raw(), rate_hz),
+        timer: SampleTimer::new(dp.TIM3, dp.TIM4, dp.TIM1, clocks.timclk1().raw(), rate_hz),
         systick_hz: clocks.sysclk().raw(),
         initial_raw,
         index_raw: None,
         chip_id,
         reset_cause,
-        cal_memory: CalMemory::open(dp.FLASH),
+        cal_memory,
+        clock: if crystal {
+            ClockSource::Crystal
+        } else {
+            ClockSource::Internal
+        },
     }
+}
+
+/// Crystal (HSE) frequency (Hz): 25 MHz (the WeAct Black Pill), or the cargo feature `hse-8mhz`,
+/// `hse-12mhz`, `hse-16mhz` or `hse-24mhz`.
+pub const HSE_HZ: u32 = if cfg!(feature = "hse-8mhz") {
+    8_000_000
+} else if cfg!(feature = "hse-12mhz") {
+    12_000_000
+} else if cfg!(feature = "hse-16mhz") {
+    16_000_000
+} else if cfg!(feature = "hse-24mhz") {
+    24_000_000
+} else {
+    25_000_000
+};
+const HSI_HZ: u32 = 16_000_000;
+
+// RCC_CR bits (RM0383 §6.3.1).
+const CR_HSION: u32 = 1 << 0;
+const CR_HSIRDY: u32 = 1 << 1;
+const CR_HSEON: u32 = 1 << 16;
+const CR_HSERDY: u32 = 1 << 17;
+const CR_HSEBYP: u32 = 1 << 18;
+const CR_PLLON: u32 = 1 << 24;
+const CR_PLLRDY: u32 = 1 << 25;
+const CR_PLLI2SON: u32 = 1 << 26;
+const CR_PLLI2SRDY: u32 = 1 << 27;
+/// RCC_CFGR.SWS (bits 3:2), 00 = HSI.
+const CFGR_SWS: u32 = 0b11 << 2;
+/// RCC_PLLCFGR's reserved bits, kept as they are.
+const PLLCFGR_RESERVED: u32 = 0xf0bc_8000;
+const AHB2RSTR_OTGFSRST: u32 = 1 << 7;
+
+/// Bounds of the clock start-up waits, in polls of a register (each ≥ 4 cycles of the 16 MHz HSI,
+/// so ≥ 250 ns): HSI and the clock switch 25 ms (they take a few µs); the crystal 100 ms (DS10314:
+/// start-up 2 ms typical); the PLL 25 ms (lock time 100 µs typical, 200 µs max).
+const WAIT_HSI: u32 = 100_000;
+const WAIT_HSE: u32 = 400_000;
+const WAIT_PLL: u32 = 100_000;
+
+/// Poll `done` up to `polls` times; whether it came true.
+fn wait(polls: u32, done: impl Fn() -> bool) -> bool {
+    for _ in 0..polls {
+        if done() {
+            return true;
+        }
+    }
+    done()
+}
+
+/// The clocks as after a reset, whoever ran before (the ROM bootloader): HSI on and selected as
+/// SYSCLK, prescalers at 1, the PLLs and the crystal off. Whether every step finished in time.
+fn clocks_to_reset_state(rcc: &pac::RCC) -> bool {
+    let cr = || rcc.cr().read().bits();
+    // SAFETY (all register writes below): bit patterns from RM0383 §6.3; nothing else uses the
+    // clocks yet.
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() | CR_HSION) });
+    let mut ok = wait(WAIT_HSI, || cr() & CR_HSIRDY != 0);
+    // SW = HSI, AHB/APB prescalers 1, MCOs off.
+    rcc.cfgr().write(|w| unsafe { w.bits(0) });
+    ok &= wait(WAIT_HSI, || rcc.cfgr().read().bits() & CFGR_SWS == 0);
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !(CR_PLLON | CR_PLLI2SON)) });
+    ok &= wait(WAIT_PLL, || cr() & (CR_PLLRDY | CR_PLLI2SRDY) == 0);
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !CR_HSEON) });
+    ok &= wait(WAIT_HSE, || cr() & CR_HSERDY == 0);
+    // HSEBYP is writable only with the crystal off.
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !CR_HSEBYP) });
+    ok
+}
+
+/// Start the crystal; whether it was ready within [`WAIT_HSE`] (if not, it is switched off again).
+fn hse_start(rcc: &pac::RCC) -> bool {
+    // SAFETY: HSEON, RM0383 §6.3.1.
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() | CR_HSEON) });
+    if wait(WAIT_HSE, || rcc.cr().read().bits() & CR_HSERDY != 0) {
+        return true;
+    }
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !CR_HSEON) });
+    false
+}
+
+/// Switch the crystal off (it is not the build's).
+fn hse_stop(rcc: &pac::RCC) {
+    // SAFETY: HSEON, RM0383 §6.3.1; nothing runs from HSE.
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !CR_HSEON) });
+    wait(WAIT_HSE, || rcc.cr().read().bits() & CR_HSERDY == 0);
+}
+
+/// The crystal measured against HSI.
+enum Reading {
+    /// Its frequency (Hz).
+    Hz(u32),
+    /// Its divided edges came faster than they could be read: far above the build's frequency.
+    TooFast,
+    /// No edge within the bound: not measured.
+    NoEdges,
+}
+
+/// Edges of `HSE_RTC` per TIM11 capture (input prescaler /8), and captures measured.
+const EDGES_PER_CAPTURE: u32 = 8;
+const CAPTURES: u32 = 64;
+
+/// Measure the running crystal against HSI (SYSCLK = HSI, prescalers 1: TIM11 counts at 16 MHz):
+/// TIM11 CH1 captures every 8th edge of `HSE_RTC` (the crystal divided by RTCPRE, set for 1 MHz
+/// from the build's crystal: RM0383 TIM11_OR `TI1_RMP = 10`, "for measurement purposes") 64
+/// times, 512 µs with the right crystal. TIM11 and RTCPRE are left as at reset.
+fn crystal_measure(rcc: &pac::RCC) -> Reading {
+    const RTCPRE: u32 = 0x1f << 16;
+    const APB2ENR_TIM11EN: u32 = 1 << 18;
+    const SR_CC1IF: u32 = 1 << 1;
+    const SR_CC1OF: u32 = 1 << 9;
+    let divider = HSE_HZ / 1_000_000;
+    // SAFETY (all writes below): RCC_CFGR.RTCPRE and TIM11's registers, RM0383 §6.3.3 and §14.5;
+    // TIM11 is used for nothing else.
+    rcc.cfgr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !RTCPRE | (divider << 16)) });
+    rcc.apb2enr()
+        .modify(|r, w| unsafe { w.bits(r.bits() | APB2ENR_TIM11EN) });
+    cortex_m::asm::dsb();
+    let t = unsafe { &*pac::TIM11::ptr() };
+    unsafe {
+        t.or().write(|w| w.bits(0b10)); // TI1 = HSE_RTC
+        t.psc().write(|w| w.bits(0));
+        t.arr().write(|w| w.bits(0xffff));
+        t.ccmr1_input().write(|w| w.bits(0b01 | (0b11 << 2))); // IC1 on TI1, every 8th edge
+        t.ccer().write(|w| w.bits(1)); // CC1E, rising edges
+        t.sr().write(|w| w.bits(0));
+        t.cr1().write(|w| w.bits(1));
+    }
+    let capture = || -> Option<u16> {
+        wait(WAIT_PLL, || t.sr().read().bits() & SR_CC1IF != 0)
+            .then(|| t.ccr1().read().bits() as u16) // reading CCR1 clears CC1IF
+    };
+    let mut reading = Reading::NoEdges;
+    if let Some(mut prev) = capture() {
+        let mut cycles: u32 = 0;
+        let mut complete = true;
+        for _ in 0..CAPTURES {
+            let Some(c) = capture() else {
+                complete = false;
+                break;
+            };
+            cycles += u32::from(c.wrapping_sub(prev));
+            prev = c;
+        }
+        reading = if t.sr().read().bits() & SR_CC1OF != 0 {
+            Reading::TooFast
+        } else if !complete {
+            Reading::NoEdges
+        } else {
+            crystal_hz(cycles, CAPTURES * EDGES_PER_CAPTURE, divider, HSI_HZ)
+                .map_or(Reading::TooFast, Reading::Hz)
+        };
+    }
+    unsafe {
+        t.cr1().write(|w| w.bits(0));
+        t.ccer().write(|w| w.bits(0));
+        t.or().write(|w| w.bits(0));
+    }
+    rcc.apb2enr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !APB2ENR_TIM11EN) });
+    rcc.cfgr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !RTCPRE) });
+    reading
+}
+
+/// Lock the PLL once from the crystal (`hse`) or HSI at `src_hz` (a whole number of MHz) with the
+/// firmware's VCO (1 MHz in, 192 MHz, /2 = 96 MHz, /4 = 48 MHz), then switch it off again for the
+/// HAL to program (PLLCFGR may be written only while it is off). Whether it locked, and stopped,
+/// within [`WAIT_PLL`].
+fn pll_locks(rcc: &pac::RCC, hse: bool, src_hz: u32) -> bool {
+    let m = src_hz / 1_000_000;
+    let fields = m | (192 << 6) | (u32::from(hse) << 22) | (4 << 24); // PLLP = 00: /2
+                                                                      // SAFETY: RM0383 §6.3.2, with the PLL off (`clocks_to_reset_state`).
+    rcc.pllcfgr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & PLLCFGR_RESERVED | fields) });
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() | CR_PLLON) });
+    let locked = wait(WAIT_PLL, || rcc.cr().read().bits() & CR_PLLRDY != 0);
+    rcc.cr()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !CR_PLLON) });
+    let stopped = wait(WAIT_PLL, || rcc.cr().read().bits() & CR_PLLRDY == 0);
+    locked && stopped
+}
+
+/// The clocks cannot run USB (the caller logged why): flash the LED `flashes` times every 2 s,
+/// forever (the watchdog fed: no reset loop). Nothing else runs; power-cycle after fixing the
+/// board.
+fn clock_failure(flashes: u32) -> ! {
+    let mut t_ms: u32 = 0;
+    loop {
+        feed_watchdog();
+        led(jdbb_core::clock::blink(flashes, t_ms));
+        // ≥ 1 ms at the 16 MHz HSI (`delay` waits at least that many cycles).
+        cortex_m::asm::delay(HSI_HZ / 1000);
+        t_ms = t_ms.wrapping_add(1);
+    }
+}
+
+/// Flashes of the status LED every 2 s while running: 1 = all well, 2 = the crystal did not
+/// start (running on HSI).
+static LED_FLASHES: AtomicU32 = AtomicU32::new(1);
+
+/// The Black Pill's LED: PC13, lit when low.
+fn led_init(rcc: &pac::RCC) {
+    rcc.ahb1enr().modify(|_, w| w.gpiocen().set_bit());
+    cortex_m::asm::dsb();
+    led(false);
+    // SAFETY: PC13 as a push-pull output (MODER13 = 01); PC13 is used for nothing else.
+    unsafe {
+        let c = &*pac::GPIOC::ptr();
+        c.moder()
+            .modify(|r, w| w.bits(r.bits() & !(0b11 << 26) | (0b01 << 26)));
+    }
+}
+
+fn led(on: bool) {
+    // SAFETY: BSRR sets or resets PC13 only.
+    unsafe {
+        let c = &*pac::GPIOC::ptr();
+        c.bsrr()
+            .write(|w| w.bits(if on { 1 << (13 + 16) } else { 1 << 13 }));
+    }
+}
+
+/// The status LED at `t_ms` (called from the idle loop): see [`LED_FLASHES`].
+pub fn indicate(t_ms: u32) {
+    led(jdbb_core::clock::blink(
+        LED_FLASHES.load(Ordering::Relaxed),
+        t_ms,
+    ));
+}
+
+/// IWDG prescaler /64 (`PR = 4`) and reload 4095: the watchdog resets the chip after
+/// 4096 · 64 / f_LSI = 5.6 s at the fastest LSI (47 kHz), 8.2 s typical (32 kHz), 15.4 s at the
+/// slowest (17 kHz; DS10314's LSI range): longer than the longest stall of the firmware, a 128 KiB
+/// sector erase (4 s max, DS10314 at x8 parallelism, as the HAL erases).
+const IWDG_PR_DIV64: u32 = 4;
+const IWDG_RELOAD: u32 = 4095;
+
+/// Start the independent watchdog (it cannot be stopped again until reset); it stops while a
+/// debugger halts the core. Fed from the idle loop ([`feed_watchdog`]).
+fn watchdog_start(iwdg: &pac::IWDG, dbg: &pac::DBGMCU) {
+    // SAFETY: key and register values from RM0383 §16.4; DBG_IWDG_STOP is bit 12 of
+    // DBGMCU_APB1_FZ.
+    unsafe {
+        dbg.apb1_fz().modify(|r, w| w.bits(r.bits() | (1 << 12)));
+        iwdg.kr().write(|w| w.bits(0xcccc));
+        iwdg.kr().write(|w| w.bits(0x5555));
+        iwdg.pr().write(|w| w.bits(IWDG_PR_DIV64));
+        iwdg.rlr().write(|w| w.bits(IWDG_RELOAD));
+    }
+    // PVU/RVU: the values reach the LSI domain within a few LSI periods (≤ 5 at /64: ~2 ms).
+    wait(WAIT_PLL, || iwdg.sr().read().bits() == 0);
+    feed_watchdog();
+}
+
+/// Reload the independent watchdog.
+#[inline]
+pub fn feed_watchdog() {
+    // SAFETY: the reload key, RM0383 §16.4.
+    unsafe { (*pac::IWDG::ptr()).kr().write(|w| w.bits(0xaaaa)) };
 }
 
 /// Offset (from the start of flash) of the calibration store: sector 6.
@@ -309,9 +672,38 @@ impl CalMemory {
         self.0.as_ref().and_then(CalStore::load)
     }
 
-    /// Keep `cal` in flash; whether it was kept.
+    /// Keep `cal` in flash; whether it was kept. Writes one record (~2 ms); erases a sector first
+    /// (2–4 s, the whole CPU stalled) only if the spare was not erased ahead.
     pub fn store(&mut self, cal: &Calibration) -> bool {
-        self.0.as_mut().is_some_and(|s| s.store(cal).is_ok())
+        let Some(s) = self.0.as_mut() else {
+            return false;
+        };
+        if s.store_would_erase().unwrap_or(false) {
+            defmt::warn!("this store erases a flash sector: the CPU stalls for 2-4 s");
+        }
+        feed_watchdog();
+        s.store(cal).is_ok()
+    }
+
+    /// Erase the store's spare sector if it is not erased yet (2–4 s, the whole CPU stalled:
+    /// call it only while not sampling); whether it erased.
+    pub fn erase_ahead(&mut self) -> bool {
+        let Some(s) = self.0.as_mut() else {
+            return false;
+        };
+        feed_watchdog();
+        match s.erase_spare() {
+            Ok(erased) => {
+                if erased {
+                    defmt::info!("calibration store: spare sector erased ahead");
+                }
+                erased
+            }
+            Err(_) => {
+                defmt::warn!("calibration store: erasing the spare sector failed");
+                false
+            }
+        }
     }
 }
 
@@ -337,7 +729,7 @@ impl Encoders {
     /// The tick count and the two counters latched at that tick. Retried if a tick comes while
     /// reading, so the three values always belong together.
     #[inline]
-    fn latched(&self) -> (u16, [u32; 2]) {
+    fn latched(&self) -> (u32, [u32; 2]) {
         let mut tick = tick_count();
         for _ in 0..3 {
             let raw = [
@@ -360,11 +752,32 @@ impl Encoders {
         )
     }
 
-    /// One tick of the sample clock: the latched counts to the sampler.
+    /// First thing at a tick of the sample clock: the tick count and the counts latched at it.
     #[inline]
-    pub fn sample(&mut self, s: &mut Sampler) -> Option<SampleBatch> {
+    pub fn latch(&mut self) -> Latch {
         let (tick, raw) = self.latched();
-        s.sample_at_tick(tick, |_| raw)
+        Latch { tick, raw }
+    }
+
+    /// The latched tick's sample, to the sampler.
+    #[inline]
+    pub fn sample(&mut self, latch: Latch, s: &mut Sampler) -> Option<SampleBatch> {
+        s.sample_at_tick(latch.tick, |_| latch.raw)
+    }
+}
+
+/// What the hardware latched at a tick of the sample clock.
+#[derive(Clone, Copy)]
+pub struct Latch {
+    tick: u32,
+    raw: [u32; 2],
+}
+
+impl Latch {
+    /// The tick count (see [`crate::sample_timer`]).
+    #[inline]
+    pub fn tick(&self) -> u32 {
+        self.tick
     }
 }
 

@@ -3,18 +3,23 @@
 //!
 //! - [`BOARD`], [`SIMULATED`]: what `DeviceInfo` and the status bits report;
 //! - `init`: clocks, the raw-count source, the link, the sample timer, returned as [`Parts`];
-//! - `Encoders::sample(&mut Sampler) -> Option<SampleBatch>`: one tick of the sample clock — the
-//!   hardware's tick count and the two counters' values at that tick, handed to
+//! - `Encoders::latch() -> Latch` then `Encoders::sample(Latch, &mut Sampler) ->
+//!   Option<SampleBatch>`: one tick of the sample clock — the hardware's 32-bit tick count (and,
+//!   on the board, the two counters latched at that tick), then the tick's sample through
 //!   `Sampler::sample_at_tick`;
 //! - `SampleTimer`: the sample clock (`set_rate` deferred to a period boundary while running,
-//!   `apply_pending_rate` from the sample task, `start`/`stop`, `clear_update`);
+//!   `apply_pending_rate(tick)` from the sample task between the two calls above, `start`/`stop`,
+//!   `clear_update`);
+//! - `feed_watchdog`, `indicate(t_ms)`: the idle loop's duties (the board's watchdog and status
+//!   LED; nothing on QEMU);
 //! - `Link::{poll, take_change, read, write, drained, discard_pending}`: the byte link to the host
 //!   (non-blocking), whether it came up or went down, and its transmit buffer;
 //! - [`LINK_UP_AT_START`]: whether a host may be listening at power-up (UART) or only once the
 //!   link reports it came up (USB).
-//! - `CalMemory::{load, store}`: where the calibration is kept across power cycles — flash on the
-//!   board ([`jdbb_core::store`] over sectors 6 and 7), RAM on QEMU, which does not emulate flash
-//!   writes (so there it lasts until QEMU is restarted).
+//! - `CalMemory::{load, store, erase_ahead}`: where the calibration is kept across power cycles —
+//!   [`jdbb_core::store`] over flash sectors 6 and 7 on the board, over a RAM "flash" whose erase
+//!   stalls the CPU on QEMU, which does not emulate flash writes (so there it lasts until QEMU is
+//!   restarted); `erase_ahead` erases the spare block while not sampling.
 
 #[cfg(feature = "board-f411")]
 mod f411;
@@ -48,4 +53,6 @@ pub struct Parts {
     pub reset_cause: jdbb_core::protocol::ResetCause,
     /// The calibration kept across power cycles.
     pub cal_memory: CalMemory,
+    /// What the clocks run from (the crystal, or the internal oscillator when it did not start).
+    pub clock: jdbb_core::protocol::ClockSource,
 }

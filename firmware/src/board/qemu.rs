@@ -16,11 +16,13 @@
 //!   is paced in software: [`SampleTimer`] here only holds the period (whole µs), and the
 //!   application's `pace` task, woken every 1 ms by the SysTick monotonic, pends the TIM3
 //!   interrupt once for every period elapsed on TIM2's count ([`pace_clock_raw_us`]), counting
-//!   each pended tick ([`count_tick`], the tick count the real board keeps in TIM4) — the very
+//!   each tick ([`count_ticks`], the tick count the real board keeps in TIM4 and TIM1) — the very
 //!   same sample task then runs. QEMU computes TIM2's count from its virtual clock, so no period is
 //!   lost when QEMU delivers SysTick interrupts late or merged (it does on a loaded host: a 10 kHz
-//!   monotonic alone ran at ~60 % of real time). After a stall of the emulator longer than a burst
-//!   the pacer resumes from the present instead of flooding the queue.
+//!   monotonic alone ran at ~60 % of real time). When more periods elapsed than a burst catches
+//!   up (the emulated CPU stalled, e.g. in a [`RamFlash`] erase, or the host starved QEMU), the
+//!   rest are counted as ticks without a sample, so the sample task sees overruns exactly as on
+//!   the board.
 //! - Cost: the simulation (the default instrument, `Calibration::DEFAULT`: 2²³ counts/rev) runs in
 //!   software f64 on the emulated M4F, ~36 000 instructions per sample (`scripts/fw-cycles.sh`;
 //!   ~94 000 for an instrument with eccentric encoders, whose inverse iterates), so on QEMU's
@@ -36,6 +38,7 @@ use jdbb_core::protocol::{Board, ResetCause, SampleBatch};
 use jdbb_core::sampler::Sampler;
 use jdbb_core::scenario::raw_of;
 use jdbb_core::sim::CircularTest;
+use jdbb_core::store::CalStore;
 use stm32f4xx_hal::{pac, prelude::*};
 
 use crate::scenario::Scenario;
@@ -77,7 +80,12 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
         // QEMU models no unique ID (reading its address would fault) and no reset flags.
         chip_id: [0; 12],
         reset_cause: ResetCause::default(),
-        cal_memory: CalMemory(None),
+        cal_memory: {
+            let mut m = CalMemory::open();
+            m.erase_ahead();
+            m
+        },
+        clock: jdbb_core::protocol::ClockSource::Emulated,
     }
 }
 
@@ -149,12 +157,19 @@ impl Encoders {
         enc
     }
 
-    /// One tick of the sample clock: the pacer's tick count, and the simulated counters at the
-    /// tick's time, to the sampler.
+    /// First thing at a tick of the sample clock: the pacer's tick count (the simulated counters
+    /// are computed for the tick's time by [`Self::sample`]).
     #[inline]
-    pub fn sample(&mut self, s: &mut Sampler) -> Option<SampleBatch> {
-        let tick = TICKS.load(Ordering::Relaxed) as u16;
-        s.sample_at_tick(tick, |t_us| self.read(t_us))
+    pub fn latch(&mut self) -> Latch {
+        Latch {
+            tick: TICKS.load(Ordering::Relaxed),
+        }
+    }
+
+    /// The latched tick's sample: the simulated counters at the tick's time, to the sampler.
+    #[inline]
+    pub fn sample(&mut self, latch: Latch, s: &mut Sampler) -> Option<SampleBatch> {
+        s.sample_at_tick(latch.tick, |t_us| self.read(t_us))
     }
 
     /// The simulated counters' raw values for the sample taken at `t_us` (the extended counts
@@ -171,6 +186,20 @@ impl Encoders {
             Source::Scenario(s) => self.last = s.raw_at(t_us),
         }
         self.last
+    }
+}
+
+/// What the board latched at a tick of the sample clock: here only the tick count.
+#[derive(Clone, Copy)]
+pub struct Latch {
+    tick: u32,
+}
+
+impl Latch {
+    /// The tick count.
+    #[inline]
+    pub fn tick(&self) -> u32 {
+        self.tick
     }
 }
 
@@ -215,10 +244,11 @@ impl Link {
 /// Ticks of the sample clock pended by the pacer since sampling started (the real board's TIM4).
 static TICKS: AtomicU32 = AtomicU32::new(0);
 
-/// The pacer pends one more tick of the sample clock.
+/// The pacer counts `n` more ticks of the sample clock (more than one: ticks the emulated CPU
+/// missed, as the board's TIM4 counts them while its CPU stalls).
 #[inline]
-pub fn count_tick() {
-    TICKS.fetch_add(1, Ordering::Relaxed);
+pub fn count_ticks(n: u32) {
+    TICKS.fetch_add(n, Ordering::Relaxed);
 }
 
 /// Period of the running sample clock in µs, 0 when stopped; read by the pacer.
@@ -269,10 +299,15 @@ impl SampleTimer {
         ticks
     }
 
-    /// Called by the sample task right after a tick: apply a rate change asked for while running
-    /// from the next period on; returns the new period for the sampler's clock.
+    /// Called by the sample task right after tick `tick`, before it computes that tick's sample:
+    /// apply a rate change asked for while running from the next period on; returns the new
+    /// period for the sampler's clock, to be set after tick `tick`'s sample. The pacer runs at the
+    /// sample task's priority, so the tick count cannot move meanwhile (checked all the same).
     #[inline]
-    pub fn apply_pending_rate(&mut self) -> Option<u32> {
+    pub fn apply_pending_rate(&mut self, tick: u32) -> Option<u32> {
+        if TICKS.load(Ordering::Relaxed) != tick {
+            return None;
+        }
         let ticks = self.pending.take()?;
         self.period_ticks = ticks;
         PACE_PERIOD.store(ticks, Ordering::Relaxed);
@@ -321,19 +356,115 @@ impl SampleTimer {
     pub fn clear_update(&mut self) {}
 }
 
-/// The calibration kept across resets: in RAM here, since QEMU does not emulate flash writes (it
-/// lasts until QEMU is restarted). The board keeps it in flash (`jdbb_core::store`).
-pub struct CalMemory(Option<jdbb_core::Calibration>);
+/// Erase block of the RAM flash (and block of the calibration store: 4 records).
+const RAM_FLASH_BLOCK: u32 = 1024;
+/// How long an erase of the RAM flash holds the emulated CPU (µs of emulated time), with every
+/// interrupt masked: the board's single-bank flash stalls every instruction fetch for a 128 KiB
+/// erase (2–4 s); shorter here so that tests stay quick, and long enough (1 000 periods at 5 kHz)
+/// to see a stall in the stream.
+pub const ERASE_STALL_US: u32 = 200_000;
 
-impl CalMemory {
-    /// The calibration stored last, if any.
-    pub fn load(&self) -> Option<jdbb_core::Calibration> {
-        self.0
+/// NOR flash in RAM for the calibration store, with the NOR rules that matter (erased = 0xFF,
+/// whole-block erases) and an erase that stalls the CPU like the board's ([`ERASE_STALL_US`]).
+pub struct RamFlash(&'static mut [u8; 2 * RAM_FLASH_BLOCK as usize]);
+
+impl embedded_storage::nor_flash::ErrorType for RamFlash {
+    type Error = embedded_storage::nor_flash::NorFlashErrorKind;
+}
+
+impl embedded_storage::nor_flash::ReadNorFlash for RamFlash {
+    const READ_SIZE: usize = 1;
+
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        let o = offset as usize;
+        let src = self
+            .0
+            .get(o..o + bytes.len())
+            .ok_or(Self::Error::OutOfBounds)?;
+        bytes.copy_from_slice(src);
+        Ok(())
     }
 
-    /// Keep `cal`; whether it was kept.
-    pub fn store(&mut self, cal: &jdbb_core::Calibration) -> bool {
-        self.0 = Some(*cal);
-        true
+    fn capacity(&self) -> usize {
+        self.0.len()
     }
 }
+
+impl embedded_storage::nor_flash::NorFlash for RamFlash {
+    const WRITE_SIZE: usize = 1;
+    const ERASE_SIZE: usize = RAM_FLASH_BLOCK as usize;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        let range = self
+            .0
+            .get_mut(from as usize..to as usize)
+            .ok_or(Self::Error::OutOfBounds)?;
+        range.fill(0xff);
+        cortex_m::interrupt::free(|_| {
+            let t0 = pace_clock_raw_us();
+            while pace_clock_raw_us().wrapping_sub(t0) < ERASE_STALL_US {
+                cortex_m::asm::delay(10_000);
+            }
+        });
+        Ok(())
+    }
+
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        let o = offset as usize;
+        let dst = self
+            .0
+            .get_mut(o..o + bytes.len())
+            .ok_or(Self::Error::OutOfBounds)?;
+        // NOR programming only clears bits.
+        for (d, b) in dst.iter_mut().zip(bytes) {
+            *d &= *b;
+        }
+        Ok(())
+    }
+}
+
+/// The calibration kept across resets: the board's store (`jdbb_core::store`) over a RAM flash
+/// ([`RamFlash`]: QEMU does not emulate flash writes), so it lasts until QEMU is restarted, and
+/// its erases stall the CPU as the board's do.
+pub struct CalMemory(Option<CalStore<RamFlash>>);
+
+impl CalMemory {
+    fn open() -> Self {
+        let mem = cortex_m::singleton!(: [u8; 2 * RAM_FLASH_BLOCK as usize] =
+            [0xff; 2 * RAM_FLASH_BLOCK as usize]);
+        CalMemory(mem.and_then(|m| CalStore::open(RamFlash(m), 0, RAM_FLASH_BLOCK).ok()))
+    }
+
+    /// The calibration stored last, if any.
+    pub fn load(&self) -> Option<jdbb_core::Calibration> {
+        self.0.as_ref().and_then(CalStore::load)
+    }
+
+    /// Keep `cal`; whether it was kept. Erases a block first (a stall of [`ERASE_STALL_US`]) only
+    /// if the spare was not erased ahead.
+    pub fn store(&mut self, cal: &jdbb_core::Calibration) -> bool {
+        let Some(s) = self.0.as_mut() else {
+            return false;
+        };
+        if s.store_would_erase().unwrap_or(false) {
+            defmt::warn!("this store erases a block: the CPU stalls");
+        }
+        s.store(cal).is_ok()
+    }
+
+    /// Erase the store's spare block if it is not erased yet (call it only while not sampling);
+    /// whether it erased.
+    pub fn erase_ahead(&mut self) -> bool {
+        self.0
+            .as_mut()
+            .is_some_and(|s| s.erase_spare().unwrap_or(false))
+    }
+}
+
+/// No watchdog in QEMU's model: nothing to feed.
+#[inline]
+pub fn feed_watchdog() {}
+
+/// No LED in QEMU's model.
+#[inline]
+pub fn indicate(_t_ms: u32) {}

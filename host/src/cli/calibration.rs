@@ -6,7 +6,7 @@ use jdbb_core::calib::{Calibration, EncoderCal};
 use super::output::emit;
 use crate::instrument::file::read_calibration;
 use crate::instrument::ARCSEC_RAD;
-use crate::link::calibration::{self, HANDSHAKE_TIMEOUT, REPLY_TIMEOUT};
+use crate::link::calibration::{self, HANDSHAKE_TIMEOUT, REPLY_TIMEOUT, STORE_REPLY_TIMEOUT};
 use crate::link::stream::{describe_info, Stream};
 use crate::Result;
 
@@ -59,7 +59,7 @@ fn send(args: &SendArgs) -> Result<()> {
     let cal = read_calibration(&args.file)?;
     let mut stream = Stream::open(&args.port)?;
     calibration::connect(&mut stream, HANDSHAKE_TIMEOUT)?;
-    let report = calibration::send_calibration(&mut stream, &cal, REPLY_TIMEOUT)?;
+    let report = calibration::send_calibration(&mut stream, &cal, STORE_REPLY_TIMEOUT)?;
     let mut text = format!(
         "sent {} to {}\ndevice: {}\n",
         args.file.display(),

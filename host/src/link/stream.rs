@@ -38,8 +38,8 @@ use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
 use jdbb_core::protocol::{
-    self, Command, CommandError, DeviceInfo, DeviceMsg, FrameError, Hello, Sample, SampleBatch,
-    MAX_FRAME_LEN,
+    self, ClockSource, Command, CommandError, DeviceInfo, DeviceMsg, FrameError, Hello, Sample,
+    SampleBatch, MAX_FRAME_LEN,
 };
 
 use crate::{Error, Result};
@@ -873,13 +873,14 @@ pub fn interrupt_flag() -> Arc<AtomicBool> {
     .clone()
 }
 
-/// One line about the device: board, firmware, protocol, sample rate, bar lengths, serial number
-/// and why it last started (flagged when it reset itself after a crash).
+/// One line about the device: board, firmware, protocol, sample rate, bar lengths, serial number,
+/// why it last started (flagged when it reset itself after a crash) and what its clocks run from
+/// (flagged when it is not the crystal).
 pub fn describe_info(info: &DeviceInfo) -> String {
     let [a, b, c] = info.firmware_version;
     let serial: String = info.chip_id.iter().map(|b| format!("{b:02X}")).collect();
     format!(
-        "{:?}, firmware {a}.{b}.{c}, protocol {}, {} Hz, L1 {} mm, L2 {} mm, {}, serial {serial}, reset {:#04x}{}",
+        "{:?}, firmware {a}.{b}.{c}, protocol {}, {} Hz, L1 {} mm, L2 {} mm, {}, serial {serial}, reset {:#04x}{}, clock {}",
         info.board,
         info.protocol_version,
         info.sample_rate_hz,
@@ -891,6 +892,12 @@ pub fn describe_info(info: &DeviceInfo) -> String {
             " (it crashed and reset itself)"
         } else {
             ""
+        },
+        match info.clock {
+            ClockSource::Crystal => "crystal",
+            ClockSource::Internal =>
+                "INTERNAL (the crystal did not start: time stamps and the sample rate are off by up to 1 %)",
+            ClockSource::Emulated => "emulated",
         }
     )
 }
@@ -976,6 +983,7 @@ pub(crate) mod tests {
                 last_pass_count: 0,
             }; 2],
             overruns: 0,
+            clock: protocol::ClockSource::Emulated,
         })
     }
 
@@ -1006,6 +1014,22 @@ pub(crate) mod tests {
 
     fn seqs(samples: &[SeqSample]) -> Vec<u64> {
         samples.iter().map(|s| s.seq).collect()
+    }
+
+    #[test]
+    fn the_device_line_says_what_the_clocks_run_from() {
+        let DeviceMsg::Info(mut i) = info() else {
+            unreachable!()
+        };
+        assert!(describe_info(&i).ends_with(", clock emulated"));
+        i.clock = ClockSource::Crystal;
+        assert!(describe_info(&i).ends_with(", clock crystal"));
+        // A board whose crystal did not start runs on the internal oscillator: flagged, with
+        // what it costs.
+        i.clock = ClockSource::Internal;
+        let line = describe_info(&i);
+        assert!(line.contains("clock INTERNAL"), "{line}");
+        assert!(line.contains("off by up to 1 %"), "{line}");
     }
 
     #[test]
