@@ -13,8 +13,8 @@ use jdbb::circular::report::summary;
 use jdbb::circular::sync::{data_path, synchronise, Record};
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
-    Axis, BacklashEnds, Bow, Cyclic, Dialect, MachineErrors, Recording, SimConfig, Simulation,
-    Squareness,
+    Axis, BacklashEnds, Bow, Cyclic, Dialect, LateralPlay, MachineErrors, Recording, SimConfig,
+    Simulation, Squareness,
 };
 
 const CENTRE: [f64; 3] = [100.0, 50.0, -20.0];
@@ -365,5 +365,27 @@ fn lost_motion_per_end_on_220_degrees() {
             f.effect.param_names()[k],
             summary(&d)
         );
+    }
+}
+
+#[test]
+fn lateral_play_on_220_degrees() {
+    // Each axis's carriage shifts 6 µm across to the other with its direction: Z's reverses at
+    // the data arc's ends, X's mid-arc; each is named alone.
+    let p = arc_plan(Plane::Zx);
+    for (axis, toward, name, seed) in [
+        (Axis::Z, Axis::X, "lateral_play_z_x", 51),
+        (Axis::X, Axis::Z, "lateral_play_x_z", 52),
+    ] {
+        let errors = MachineErrors {
+            lateral_play: vec![LateralPlay {
+                axis,
+                toward,
+                um: 6.0,
+            }],
+            ..MachineErrors::default()
+        };
+        let d = diagnose_record(&p, &record(&p, errors, seed), [None; 3]);
+        assert_only(&d, name, 6.0);
     }
 }
