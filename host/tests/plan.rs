@@ -438,7 +438,14 @@ fn every_dialect_parses_back_to_the_plan() {
             odd.overshoot_deg = 200.0;
             odd.dwell_s = 0.25;
             odd.reversal_dwell_s = 2.5;
-            for s in [spec(&[90.0, 85.0], &[0.0], plane, dialect), odd] {
+            // The vertical-plane test's partial arc: 220° from −20°, ends off the axes.
+            let partial = spec(&[90.0, 85.0], &[0.0, 10.0], plane, dialect).with_arc(220.0);
+            let mut partial = PlanSpec {
+                start_deg: -20.0,
+                ..partial
+            };
+            partial.reversal_dwell_s = 0.5;
+            for s in [spec(&[90.0, 85.0], &[0.0], plane, dialect), odd, partial] {
                 let p = plan(&s, &cal).unwrap();
                 assert_eq!(p.program, dialect.program_name());
                 let back = Plan::from_json(Path::new("plan.json"), &p.to_json()).unwrap();
@@ -721,7 +728,9 @@ fn plan_json_round_trips_and_bad_files_name_the_place() {
     assert_eq!(back.to_json(), text);
     let v: serde_json::Value = serde_json::from_str(&text).unwrap();
     assert_eq!(v["format"], "jdbb-plan");
-    assert_eq!(v["version"], 1);
+    assert_eq!(v["version"], 2);
+    assert_eq!(v["arc"]["sweep_deg"], 360.0);
+    assert_eq!(v["arc"]["data_sweep_deg"], 360.0);
     assert_eq!(v["purpose"], "machine-test");
     assert_eq!(v["segments"][0]["kind"], "rapid");
     assert_eq!(v["segments"][1]["kind"], "stop");
@@ -741,7 +750,7 @@ fn plan_json_round_trips_and_bad_files_name_the_place() {
     // Another version or format.
     let e = Plan::from_json(
         Path::new("p.json"),
-        &text.replace("\"version\": 1", "\"version\": 7"),
+        &text.replace("\"version\": 2", "\"version\": 7"),
     )
     .unwrap_err();
     assert!(e.to_string().contains("version 7"), "{e}");
@@ -873,6 +882,44 @@ fn command_refuses_what_cannot_be_meant() {
         "not a finite number",
     );
     fails(&with(&["--centre", "0,0,0"]), "--radius");
+    for bad in ["0", "-20", "360.5", "inf"] {
+        let want = if bad == "inf" {
+            "not a finite number"
+        } else {
+            "the arc each circle runs is above 0° and at most 360°"
+        };
+        fails(
+            &with(&["--radius", "90", "--centre", "0,0,0", "--arc-deg", bad]),
+            want,
+        );
+    }
+    fails(
+        &with(&["--radius", "90", "--centre", "0,0,0", "--arc-deg", "40"]),
+        "leave no data arc",
+    );
+    fails(
+        &with(&[
+            "--calibration-test",
+            "--centre",
+            "0,0,0",
+            "--arc-deg",
+            "220",
+        ]),
+        "cannot be used with",
+    );
+    fails(
+        &with(&[
+            "--radius",
+            "90",
+            "--centre",
+            "0,0,0",
+            "--arc-deg",
+            "220",
+            "--lead-in-deg",
+            "200",
+        ]),
+        "leave no data arc",
+    );
     assert!(!Path::new(out).exists(), "nothing written on refusal");
     // An existing plan is kept unless --force.
     let ok = with(&["--radius", "90", "--centre", "0,0,0"]);
@@ -938,4 +985,283 @@ fn command_reads_a_calibration_and_plans_the_calibration_test() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("cal.toml:2:"), "{err}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Partial arcs (issue 15 §4).
+
+/// The angle (degrees) of `p` about circle `c`'s centre in `plane`, from its first axis.
+fn angle_deg(plane: Plane, centre: &[f64; 3], p: &[f64; 3]) -> f64 {
+    let (i, j, _) = plane.axes();
+    (p[j] - centre[j]).atan2(p[i] - centre[i]).to_degrees()
+}
+
+#[test]
+fn a_partial_arc_stays_on_its_arc_and_runs_it_both_ways() {
+    // The vertical-plane test: 220° from −20° in zx, lead-in and overshoot 20° from inside it,
+    // so the data arc is 0° to 180°, ccw then cw.
+    let mut s = spec(&[90.0, 85.0], &[0.0], Plane::Zx, Dialect::Linuxcnc).with_arc(220.0);
+    s.start_deg = -20.0;
+    let p = plan(&s, &Calibration::DEFAULT).unwrap();
+    assert_eq!(
+        (
+            p.arc.start_deg,
+            p.arc.sweep_deg,
+            p.arc.lead_in_deg,
+            p.arc.overshoot_deg,
+            p.arc.data_start_deg,
+            p.arc.data_sweep_deg
+        ),
+        (-20.0, 220.0, 20.0, 20.0, 0.0, 180.0)
+    );
+    for (k, circle) in p.circles.iter().enumerate() {
+        // The arcs of circle k between its feed-in and feed-out, in order.
+        let arcs: Vec<(Sense, String, f64, f64)> = p
+            .segments
+            .iter()
+            .filter_map(|sg| match sg {
+                Segment::Arc {
+                    circle,
+                    sense,
+                    role,
+                    start_deg,
+                    sweep_deg,
+                    ..
+                } if *circle == k => Some((
+                    *sense,
+                    serde_json::to_value(role)
+                        .unwrap()
+                        .as_str()
+                        .unwrap()
+                        .to_string(),
+                    *start_deg,
+                    *sweep_deg,
+                )),
+                _ => None,
+            })
+            .collect();
+        let want = [
+            (Sense::Ccw, "lead_in", 340.0, 20.0),
+            (Sense::Ccw, "data", 0.0, 180.0),
+            (Sense::Ccw, "overshoot", 180.0, 20.0),
+            (Sense::Cw, "lead_in", 200.0, -20.0),
+            (Sense::Cw, "data", 180.0, -180.0),
+            (Sense::Cw, "overshoot", 0.0, -20.0),
+        ];
+        assert_eq!(arcs.len(), want.len(), "{arcs:?}");
+        for (got, want) in arcs.iter().zip(want) {
+            assert_eq!((got.0, got.1.as_str()), (want.0, want.1), "{arcs:?}");
+            assert!(
+                (got.2 - want.2).abs() < 1e-9 && (got.3 - want.3).abs() < 1e-9,
+                "{arcs:?}"
+            );
+        }
+        // Every point of every arc of the circle is on [−20°, 200°]; the arc ends are on the
+        // 1 µm grid and within 0.71 µm of the circle (ends at −20° and 200° are off the axes).
+        for (n, sg) in p.segments.iter().enumerate() {
+            let Segment::Arc {
+                circle: ci,
+                from_mm,
+                to_mm,
+                ..
+            } = sg
+            else {
+                continue;
+            };
+            if *ci != k {
+                continue;
+            }
+            let len = p.length_mm(n);
+            for m in 0..=200 {
+                let q = p.position_at(n, len * m as f64 / 200.0);
+                let mut a = angle_deg(Plane::Zx, &circle.centre_mm, &q);
+                if a < -90.0 {
+                    a += 360.0;
+                }
+                assert!(
+                    (-20.0 - 1e-6..=200.0 + 1e-6).contains(&a),
+                    "segment {n}: {a}° is off the arc"
+                );
+            }
+            for end in [from_mm, to_mm] {
+                for x in end {
+                    assert!(
+                        ((x * 1000.0) - (x * 1000.0).round()).abs() < 1e-6,
+                        "{end:?}"
+                    );
+                }
+                let r = d(&circle.centre_mm, end);
+                assert!((r - circle.radius_mm).abs() <= 0.71e-3, "{end:?}: r {r}");
+            }
+        }
+    }
+    // The ends of the arc are off the axes: the feed-in at −20°, the reversal at 200°.
+    let a = match &p.segments[6] {
+        Segment::Arc { from_mm, .. } => angle_deg(Plane::Zx, &p.circles[0].centre_mm, from_mm),
+        other => panic!("{other:?}"),
+    };
+    assert!((a + 20.0).abs() < 1e-3, "{a}");
+    // Time: 2 × 220° per circle at 1000 mm/min, take-up, feed-ins and feed-outs, dwells.
+    let arcs_mm: f64 = [90.0, 85.0]
+        .iter()
+        .map(|r| 2.0 * 220f64.to_radians() * r)
+        .sum();
+    let lines_mm: f64 = p
+        .segments
+        .iter()
+        .filter(|sg| matches!(sg, Segment::Line { .. }))
+        .map(Segment::length_mm)
+        .sum();
+    let dwells: f64 = p
+        .segments
+        .iter()
+        .filter_map(|sg| match sg {
+            Segment::Dwell { seconds } => Some(*seconds),
+            _ => None,
+        })
+        .sum();
+    let want = (arcs_mm + lines_mm) / 1000.0 * 60.0 + dwells;
+    assert!((p.nominal_duration_s() - want).abs() < 1e-6);
+    // In yz from −20° the arc stays above −R·sin 20° below the table ball's centre.
+    let mut s = spec(&[90.0], &[0.0], Plane::Yz, Dialect::Linuxcnc).with_arc(220.0);
+    s.start_deg = -20.0;
+    let p = plan(&s, &Calibration::DEFAULT).unwrap();
+    let (lo, hi) = p.travel_mm();
+    let below = p.centre_mm[2] - lo[2];
+    assert!(
+        (below - 90.0 * 20f64.to_radians().sin()).abs() < 2e-3,
+        "{below}"
+    );
+    assert!((hi[2] - p.centre_mm[2] - 90.0).abs() < 1e-3);
+    assert!((hi[1] - lo[1] - 180.0).abs() < 1e-3);
+}
+
+#[test]
+fn lead_in_and_overshoot_of_a_partial_arc_come_from_inside_it() {
+    // 150° from 30° with no lead-in and a 10° overshoot: data 30° to 170°, the machine within
+    // 30°..180°; without lead-in and overshoot the data arc is the whole arc.
+    let mut s = spec(&[90.0], &[0.0], Plane::Xy, Dialect::Grbl);
+    s.arc_deg = 150.0;
+    s.start_deg = 30.0;
+    s.lead_in_deg = 0.0;
+    s.overshoot_deg = 10.0;
+    let p = plan(&s, &Calibration::DEFAULT).unwrap();
+    assert_eq!((p.arc.data_start_deg, p.arc.data_sweep_deg), (30.0, 140.0));
+    let data: Vec<(f64, f64)> = p
+        .segments
+        .iter()
+        .filter_map(|sg| match sg {
+            Segment::Arc {
+                role: jdbb::circular::plan::ArcRole::Data,
+                start_deg,
+                sweep_deg,
+                ..
+            } => Some((*start_deg, *sweep_deg)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(data, vec![(30.0, 140.0), (170.0, -140.0)]);
+    check_program(&p, &write_program(&p, Dialect::Grbl), Dialect::Grbl);
+    s.overshoot_deg = 0.0;
+    let p = plan(&s, &Calibration::DEFAULT).unwrap();
+    assert_eq!((p.arc.data_start_deg, p.arc.data_sweep_deg), (30.0, 150.0));
+    assert!(p.segments.iter().all(|sg| !matches!(
+        sg,
+        Segment::Arc {
+            role: jdbb::circular::plan::ArcRole::LeadIn | jdbb::circular::plan::ArcRole::Overshoot,
+            ..
+        }
+    )));
+}
+
+#[test]
+fn version_1_plans_still_read_as_full_circles() {
+    // A plan written before partial arcs: version 1, no `arc`. Its arc is the full circle its
+    // segments run (here from 37° with a 45° lead-in and a 200° overshoot).
+    let mut s = spec(&[90.0], &[0.0], Plane::Xy, Dialect::Linuxcnc);
+    s.start_deg = 37.0;
+    s.lead_in_deg = 45.0;
+    s.overshoot_deg = 200.0;
+    let p = plan(&s, &Calibration::DEFAULT).unwrap();
+    let mut v: serde_json::Value = serde_json::from_str(&p.to_json()).unwrap();
+    v.as_object_mut().unwrap().remove("arc");
+    v["version"] = 1.into();
+    let old = Plan::from_json(Path::new("old.json"), &v.to_string()).unwrap();
+    assert_eq!(old.version, 1);
+    assert_eq!(old.arc, p.arc);
+    assert_eq!(old.segments, p.segments);
+    assert!(!old.arc.is_partial());
+    // A version-2 plan without its arc, or with an arc that is none, is refused.
+    let mut v: serde_json::Value = serde_json::from_str(&p.to_json()).unwrap();
+    v["arc"]["sweep_deg"] = 400.0.into();
+    let e = Plan::from_json(Path::new("p.json"), &v.to_string()).unwrap_err();
+    assert!(e.to_string().contains("`arc`"), "{e}");
+    v.as_object_mut().unwrap().remove("arc");
+    let e = Plan::from_json(Path::new("p.json"), &v.to_string()).unwrap_err();
+    assert!(e.to_string().contains("arc"), "{e}");
+}
+
+#[test]
+fn command_plans_the_vertical_plane_test() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("yz");
+    let o = jdbb(&[
+        "plan",
+        "--radius",
+        "90",
+        "--plane",
+        "yz",
+        "--arc-deg",
+        "220",
+        "--start-deg",
+        "-20",
+        "--feed",
+        "1000",
+        "--centre",
+        "100,50,-20",
+        "--dialect",
+        "fanuc",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        stdout.contains("arc:                 220° from -20° to 200° of the plane's first axis (y), not beyond: lead-in 20°, data 0° to 180°, overshoot 20°, each way"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("note: the arc passes 30.782 mm below the table ball's centre"),
+        "{stdout}"
+    );
+    assert!(!stdout.contains("must reach it"), "{stdout}");
+    let p = Plan::read(&out.join("plan.json")).unwrap();
+    assert!(p.arc.is_partial());
+    let program = std::fs::read_to_string(out.join(&p.program)).unwrap();
+    check_program(&p, &program, Dialect::Fanuc);
+    // At 2000 mm/min the 2 mm feed-in is too short to reach the feed, which the synchronisation
+    // of a partial arc needs: (33.3 mm/s)² / 300 mm/s² / 0.8 = 4.63 mm.
+    let o = jdbb(&[
+        "plan",
+        "--radius",
+        "90",
+        "--plane",
+        "yz",
+        "--arc-deg",
+        "220",
+        "--start-deg",
+        "-20",
+        "--feed",
+        "2000",
+        "--centre",
+        "100,50,-20",
+        "--out",
+        dir.path().join("fast").to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success());
+    assert!(
+        stdout.contains("needs a feed-in of 4.7 mm or more (--feed-in-mm), this one is 2.0 mm"),
+        "{stdout}"
+    );
 }

@@ -40,7 +40,7 @@ fn run(plan: &Plan, errors: MachineErrors, seed: u64, rate_hz: f64) -> Diagnosis
     let mut cfg = SimConfig::new(Dialect::LinuxCnc, CENTRE);
     cfg.errors = errors;
     cfg.machine.feed_override_pct = 97.0 + (seed % 5) as f64;
-    cfg.instrument.clock_ppm = if seed % 2 == 0 { 41.0 } else { -33.0 };
+    cfg.instrument.clock_ppm = if seed.is_multiple_of(2) { 41.0 } else { -33.0 };
     cfg.instrument.start_delay_s = 2.0 + (seed % 3) as f64;
     cfg.instrument.noise_um = 0.2;
     cfg.instrument.seed = seed;

@@ -103,6 +103,23 @@ pub struct CircleDoc {
     pub bidirectional: Option<ZoneDoc>,
 }
 
+/// The arc one circle's samples cover (`arcs[]`: degrees from the plane's first axis).
+#[derive(Debug, Clone, Deserialize)]
+pub struct ArcDoc {
+    pub start_deg: f64,
+    pub sweep_deg: f64,
+    /// Whether it is a partial arc (the diagnosis' own verdict).
+    #[serde(default)]
+    pub partial: bool,
+}
+
+/// A candidate a partial arc barely tells from others: `names` (it first), `free_fraction`.
+#[derive(Debug, Clone, Deserialize)]
+pub struct WeakOnArcDoc {
+    pub names: Vec<String>,
+    pub free_fraction: f64,
+}
+
 /// `tolerance` of the file: the limit on G and the verdict.
 #[derive(Debug, Clone, Deserialize)]
 pub struct ToleranceDoc {
@@ -146,6 +163,12 @@ pub struct DiagnosisDoc {
     pub pitch_mm: BTreeMap<String, Option<f64>>,
     #[serde(default)]
     pub circles: Vec<CircleDoc>,
+    /// Per circle, the arc its samples cover (absent before partial arcs: full circles).
+    #[serde(default)]
+    pub arcs: Vec<ArcDoc>,
+    /// On a partial arc, the candidates it barely tells from others (see the report's docs).
+    #[serde(default)]
+    pub weak_on_arc: Vec<WeakOnArcDoc>,
     #[serde(default)]
     pub minimum_zone: Option<Figures>,
     #[serde(default)]

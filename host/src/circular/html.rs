@@ -379,6 +379,30 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
             escape(&g.join(", "))
         );
     }
+    for (k, a) in doc.arcs.iter().enumerate().filter(|(_, a)| a.partial) {
+        let start = if a.start_deg > 180.0 {
+            a.start_deg - 360.0
+        } else {
+            a.start_deg
+        };
+        let _ = writeln!(
+            h,
+            "<p class=\"note\">Partial arc: circle {} covers {:.0}° ({:.0}° to {:.0}°). The set-up and the scale are less sure than on a full circle (their ± says by how much).</p>",
+            k + 1,
+            a.sweep_deg,
+            start,
+            start + a.sweep_deg
+        );
+    }
+    for w in &doc.weak_on_arc {
+        let _ = writeln!(
+            h,
+            "<p class=\"note\">Weak on this arc: only {:.2} % of {}'s shape is its own beside {}; where one of them is named, the others are its alternative.</p>",
+            100.0 * w.free_fraction,
+            escape(&w.names[0]),
+            escape(&w.names[1..].join(", "))
+        );
+    }
 
     // G and H.
     let _ = writeln!(

@@ -94,6 +94,14 @@
 //! lsq_circular_deviation_g_um  only in files upgraded from format 1: their G about the
 //!                          least-squares centre, kept (not written by this version)
 //! candidates[]             the candidate effects that were tried
+//! arcs[]                   per circle (as `circles`): {start_deg, sweep_deg, partial}, the arc
+//!                          its samples cover in the plane, degrees from the plane's first axis
+//!                          (360 a full circle); on a partial arc `harmonics_um` is empty
+//! weak_on_arc[]            on a partial arc, {names, free_fraction}: a candidate (first) whose
+//!                          shape is its own by less than 1 % (free_fraction) beside the set-up
+//!                          components and scales named after it; tried, and where one of them
+//!                          is named the others are its alternative. A candidate with nothing of
+//!                          its own is not tried and is in `confounded`
 //! ```
 //!
 //! Added for acting on a diagnosis (issue 10); every field is optional to a reader, so a file
@@ -256,15 +264,57 @@ pub fn summary(d: &Diagnosis) -> String {
             um(c.h_um)
         );
     }
-    // A harmonic's amplitude from m samples of noise σ has a standard error of about σ·√(2/m).
-    let harmonic_sigma = noise * (2.0 / d.samples.max(1) as f64).sqrt();
-    let h: Vec<String> = d
-        .harmonics_um
+    let partial: Vec<String> = d
+        .arcs
         .iter()
         .enumerate()
-        .map(|(k, a)| format!("{}:{}", k + 1, format_to(*a, harmonic_sigma)))
+        .filter(|(_, a)| a.is_partial())
+        .map(|(k, a)| {
+            // From −180° up, so an arc across the first axis reads −20° to 200°.
+            let start = if a.start_deg > 180.0 {
+                a.start_deg - 360.0
+            } else {
+                a.start_deg
+            };
+            format!(
+                "circle {} covers {:.0}° ({:.0}° to {:.0}° from {} towards {})",
+                k + 1,
+                a.sweep_deg,
+                start,
+                start + a.sweep_deg,
+                ["x", "y", "z"][d.plane.0],
+                ["x", "y", "z"][d.plane.1]
+            )
+        })
         .collect();
-    let _ = writeln!(s, "residual harmonics vs angle (order:µm): {}", h.join(" "));
+    if partial.is_empty() {
+        // A harmonic's amplitude from m samples of noise σ has a standard error of about
+        // σ·√(2/m).
+        let harmonic_sigma = noise * (2.0 / d.samples.max(1) as f64).sqrt();
+        let h: Vec<String> = d
+            .harmonics_um
+            .iter()
+            .enumerate()
+            .map(|(k, a)| format!("{}:{}", k + 1, format_to(*a, harmonic_sigma)))
+            .collect();
+        let _ = writeln!(s, "residual harmonics vs angle (order:µm): {}", h.join(" "));
+    } else {
+        let _ = writeln!(
+            s,
+            "partial arc: {}; the set-up and scale are less sure than on a full circle (their σ says by how much), residual harmonics are not shown (they need the whole circle), and what the arc barely tells apart is said here",
+            partial.join(", ")
+        );
+        for w in &d.weak_on_arc {
+            let _ = writeln!(
+                s,
+                "weak on this arc: only {:.2} % of {}'s shape is its own beside {} (its σ some {:.0} times that of a shape of its own): where one of them is named, the others are its alternative",
+                100.0 * w.free_fraction,
+                w.names[0],
+                w.names[1..].join(", "),
+                1.0 / w.free_fraction.sqrt()
+            );
+        }
+    }
     s
 }
 
@@ -366,6 +416,12 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
         "circular_deviation_g_um": num(d.circular_deviation_g_um),
         "hysteresis_h_um": num(d.hysteresis_h_um),
         "candidates": d.candidates,
+        "arcs": d.arcs.iter().map(|a| json!({
+            "start_deg": num(a.start_deg), "sweep_deg": num(a.sweep_deg), "partial": a.is_partial(),
+        })).collect::<Vec<_>>(),
+        "weak_on_arc": d.weak_on_arc.iter().map(|w| json!({
+            "names": w.names, "free_fraction": num(w.free_fraction),
+        })).collect::<Vec<_>>(),
     });
     add_zones_and_shares(&mut v, d);
     v
@@ -544,8 +600,9 @@ pub fn sync_json(plan: &Plan, s: &Sync) -> serde_json::Value {
     })
 }
 
-/// What the diagnosis JSON says of the plan (`plan`): the file, dialect, feed and circles, so a
-/// report and the machine's history can tell which test this was.
+/// What the diagnosis JSON says of the plan (`plan`): the file, dialect, feed, the arc every
+/// circle runs (plan.json's `arc`: a full circle or a partial arc) and the circles, so a report
+/// and the machine's history can tell which test this was.
 pub fn plan_json(file: &std::path::Path, plan: &Plan) -> serde_json::Value {
     use serde_json::json;
     json!({
@@ -556,6 +613,7 @@ pub fn plan_json(file: &std::path::Path, plan: &Plan) -> serde_json::Value {
         "plane": plan.plane.name(),
         "feed_mm_min": plan.feed_mm_min,
         "centre_mm": plan.centre_mm,
+        "arc": plan.arc,
         "circles": plan.circles.iter().map(|c| json!({
             "radius_mm": c.radius_mm, "height_mm": c.height_mm, "d_mm": c.d_mm,
             "plane": c.plane.name(), "feed_mm_min": c.feed_mm_min,

@@ -123,6 +123,66 @@ pub fn split_runs_at(
     (circles, runs)
 }
 
+/// The arc a circle's samples cover in the main plane: where it starts and how far it goes
+/// (degrees, ccw). 360° for a full circle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ArcCover {
+    /// Start of the arc, degrees in [0, 360) from the plane's first axis towards its second.
+    pub start_deg: f64,
+    /// Its length (degrees): 360 minus the largest gap the samples leave.
+    pub sweep_deg: f64,
+}
+
+impl ArcCover {
+    /// Whether the samples leave a gap of more than [`PARTIAL_ARC_GAP_DEG`]: a partial arc.
+    pub fn is_partial(&self) -> bool {
+        self.sweep_deg < 360.0 - PARTIAL_ARC_GAP_DEG
+    }
+}
+
+/// A circle whose samples leave an angular gap wider than this (degrees) is a partial arc (the
+/// synchronisation's gaps at axis reversals are a few hundredths of a degree).
+pub const PARTIAL_ARC_GAP_DEG: f64 = 10.0;
+
+/// The arc each circle's samples cover ([`ArcCover`], in `circles`' order), on 1° bins: the
+/// largest run of empty bins, around the circle, is the gap.
+pub fn arc_cover(angle: &[f64], runs: &[Run], n_circles: usize) -> Vec<ArcCover> {
+    (0..n_circles)
+        .map(|c| {
+            let mut filled = [false; 360];
+            for run in runs.iter().filter(|r| r.circle == c) {
+                for i in run.range.clone() {
+                    let deg = angle[i].to_degrees().rem_euclid(360.0);
+                    filled[(deg as usize).min(359)] = true;
+                }
+            }
+            if filled.iter().all(|&f| f) || !filled.iter().any(|&f| f) {
+                return ArcCover {
+                    start_deg: 0.0,
+                    sweep_deg: if filled[0] { 360.0 } else { 0.0 },
+                };
+            }
+            // Largest circular run of empty bins; the arc starts after it.
+            let (mut best, mut best_end, mut run) = (0usize, 0usize, 0usize);
+            for k in 0..720 {
+                if filled[k % 360] {
+                    run = 0;
+                } else {
+                    run += 1;
+                    if run > best {
+                        best = run.min(360);
+                        best_end = k % 360;
+                    }
+                }
+            }
+            ArcCover {
+                start_deg: ((best_end + 1) % 360) as f64,
+                sweep_deg: (360 - best) as f64,
+            }
+        })
+        .collect()
+}
+
 /// `a` wrapped into [−π, π].
 pub fn wrap_pi(a: f64) -> f64 {
     let w = a.rem_euclid(std::f64::consts::TAU);
@@ -294,6 +354,31 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn arc_cover_finds_the_arc_a_circle_covers() {
+        // A full circle both ways; a 180° arc from 0° both ways; an arc across 0°, from 300°
+        // over 120°, with a 0.5° gap (a reversal guard) inside it.
+        let mut t = vec![];
+        let mut p = vec![];
+        let mut add = |(tt, pp): (Vec<f64>, Vec<[f64; 3]>)| {
+            t.extend(tt);
+            p.extend(pp);
+        };
+        add(arc(50.0, 0.0, 0.0, 0.5, 720, 0.0));
+        add(arc(60.0, 0.0, 0.25, 0.5, 360, 8.0));
+        add(arc(60.0, 0.0, 179.75, -0.5, 360, 12.0));
+        add(arc(70.0, 0.0, 300.25, 0.5, 120, 20.0));
+        add(arc(70.0, 0.0, 0.75, 0.5, 120, 21.2));
+        let (circles, runs) = split_runs(&t, &p, (0, 1), MAX_RUN_STEP_RAD);
+        let a = arc_cover(&angles(&p, (0, 1)), &runs, circles.len());
+        assert_eq!(a.len(), 3);
+        assert_eq!((a[0].start_deg, a[0].sweep_deg), (0.0, 360.0));
+        assert!(!a[0].is_partial());
+        assert_eq!((a[1].start_deg, a[1].sweep_deg), (0.0, 180.0));
+        assert!(a[1].is_partial());
+        assert_eq!((a[2].start_deg, a[2].sweep_deg), (300.0, 121.0));
     }
 
     #[test]

@@ -40,7 +40,10 @@
 //!    feed override), the acceleration, and the data arcs used with their sample counts.
 //!
 //! Only the data arcs go to the diagnosis; the lead-in and overshoot arcs, the ramps and the
-//! dwells are left out. The axis reversals of the whole motion (including those in the lead-in,
+//! dwells are left out. A partial arc (`jdbb plan --arc-deg`) is the same to all of this: its
+//! runs are the arc counter-clockwise and the same arc back clockwise, each from rest to rest,
+//! with the reversal dwell between them, and its data arcs the part of each between the lead-in
+//! and the overshoot (`tests/tests/arc_hidden.rs` runs the 220° test). The axis reversals of the whole motion (including those in the lead-in,
 //! overshoot and at the sense reversal) are handed to the path, for the reversal spike.
 //!
 //! May use: [`super::plan`], [`super::path`], [`crate::numerics::lsq`], [`crate::table`].
@@ -805,17 +808,23 @@ pub fn synchronise(plan: &Plan, rec: &Record) -> Result<Sync> {
                 ),
             ));
         }
+        // On a partial arc the runs are short: their time fixes only a combination of the arcs'
+        // speed and acceleration, so the speed must come from a feed-in that cruised.
+        let lines = line_speed(&ramp_in, &ramp_out);
+        if plan.arc.is_partial() && !lines.1.is_finite() {
+            let a = ramp_in.profile.accel_mm_s2;
+            let need = (speed0 * speed0 / a / (1.0 - MIN_CRUISE_FRACTION) * 2.0).ceil() / 2.0;
+            return Err(err(
+                cross_in,
+                format!(
+                    "{what}: its feed-in of {:.3} mm never reached the feed (the machine accelerated at {a:.0} mm/s² towards {:.1} mm/s), so the feed is not measured, and on a partial arc the arcs' time cannot tell their speed from their acceleration; plan the test again with --feed-in-mm {need} or more (keeping the feed-in start in the instrument's range), or a lower --feed",
+                    ramp_in.profile.length_mm,
+                    speed0
+                ),
+            ));
+        }
         // The timeline of the runs and the data arcs on it (see `arc_motion`).
-        let timing = arc_motion(
-            plan,
-            rec,
-            &items,
-            &lengths,
-            t_arcs.0,
-            avail,
-            line_speed(&ramp_in, &ramp_out),
-            accel,
-        );
+        let timing = arc_motion(plan, rec, &items, &lengths, t_arcs.0, avail, lines, accel);
         let (runs, data) = timeline(
             plan,
             rec,
@@ -1031,17 +1040,29 @@ fn timeline(
 /// reversal and its trapezoid is the whole motion; the feed-out always starts with one, and
 /// carries that axis's backlash step and reversal spike, which bias its speed by far more than
 /// its σ says (a 4 µm spike of 25 ms moved it by 6·10⁻⁴). So the feed-in's speed is taken, and
-/// the feed-out's only when the feed-in's fit gave no standard error.
+/// the feed-out's only when the feed-in's fit gave no standard error. A ramp that cruises over
+/// less than [`MIN_CRUISE_FRACTION`] of its length has not measured the feed (its "speed" is
+/// the peak of a near-triangle, a percent off at 2000 mm/min on a 2 mm feed-in): its speed
+/// comes with no standard error, and the arcs' speed is then searched in their data. The
+/// acceleration check in [`arc_motion`] cannot be relied on to catch it: a partial arc's runs
+/// are short, and a speed 1 % off still leaves them a plausible acceleration.
 fn line_speed(feed_in: &Ramp, feed_out: &Ramp) -> (f64, f64) {
     let usable = |r: &Ramp| {
         let s = r.speed_sigma_mm_s;
-        (s.is_finite() && s > 0.0).then_some((r.profile.speed_mm_s, s))
+        let p = &r.profile;
+        let cruise = p.length_mm - p.speed_mm_s * p.speed_mm_s / p.accel_mm_s2;
+        (s.is_finite() && s > 0.0 && cruise >= MIN_CRUISE_FRACTION * p.length_mm)
+            .then_some((p.speed_mm_s, s))
     };
     usable(feed_in).or_else(|| usable(feed_out)).unwrap_or((
         0.5 * (feed_in.profile.speed_mm_s + feed_out.profile.speed_mm_s),
         f64::INFINITY,
     ))
 }
+
+/// Least part of a ramp's length spent at its cruising speed for its fitted speed to count as
+/// the feed (`line_speed`).
+pub const MIN_CRUISE_FRACTION: f64 = 0.2;
 
 /// At most this many data samples of a circle enter the search of the arcs' speed
 /// ([`speed_from_data`]); more are taken at an even stride.

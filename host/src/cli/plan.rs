@@ -5,13 +5,14 @@ use jdbb_core::calib::Calibration;
 
 use super::output::{emit, write_file};
 use crate::circular::plan::build::{
-    DEFAULT_CORNER_DWELL_S, DEFAULT_DWELL_S, DEFAULT_FEED_IN_MM, DEFAULT_LEAD_IN_DEG,
-    DEFAULT_OVERSHOOT_DEG,
+    DEFAULT_ARC_DEG, DEFAULT_CORNER_DWELL_S, DEFAULT_DWELL_S, DEFAULT_FEED_IN_MM,
 };
 use crate::circular::plan::{
-    calibration_circles, default_calibration_distances, gcode, instrument, machine_test_circles,
-    plan, write_program, Dialect, Plan, PlanSpec, Plane, Purpose,
+    calibration_circles, default_calibration_distances, default_lead_in_overshoot, gcode,
+    instrument, machine_test_circles, plan, write_program, Dialect, LineRole, Plan, PlanSpec,
+    Plane, Purpose, Segment,
 };
+use crate::circular::sync::MIN_CRUISE_FRACTION;
 use crate::{Error, Result};
 
 /// Arguments of `jdbb plan`.
@@ -45,15 +46,23 @@ pub struct PlanArgs {
     /// Ball distance of a sphere of the calibration test, mm (repeat; default: 4 over the range).
     #[arg(long = "distance", value_name = "MM", requires = "calibration_test", value_parser = super::args::positive)]
     pub distances_mm: Vec<f64>,
-    /// Angle where each circle starts and ends, degrees from the plane's first axis.
+    /// Angle where each circle starts and ends, degrees from the plane's first axis towards its
+    /// second (xy: from x, yz: from y, zx: from z).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = super::args::finite)]
     pub start_deg: f64,
-    /// Lead-in arc before the 360° of data, degrees.
-    #[arg(long, default_value_t = DEFAULT_LEAD_IN_DEG, value_parser = super::args::non_negative)]
-    pub lead_in_deg: f64,
-    /// Overshoot arc after the 360° of data, degrees.
-    #[arg(long, default_value_t = DEFAULT_OVERSHOOT_DEG, value_parser = super::args::non_negative)]
-    pub overshoot_deg: f64,
+    /// The arc each circle runs, degrees (above 0, at most 360): below 360 the machine stays on
+    /// the arc from --start-deg over this many degrees (the vertical-plane test: --arc-deg 220
+    /// --start-deg -20), runs it ccw, then back cw.
+    #[arg(long, default_value_t = DEFAULT_ARC_DEG, allow_negative_numbers = true, value_parser = super::args::finite, conflicts_with = "calibration_test")]
+    pub arc_deg: f64,
+    /// Lead-in arc before the data arc, degrees (default 180; on a partial arc 20, taken from
+    /// inside the arc).
+    #[arg(long, value_parser = super::args::non_negative)]
+    pub lead_in_deg: Option<f64>,
+    /// Overshoot arc after the data arc, degrees (default 180; on a partial arc 20, taken from
+    /// inside the arc).
+    #[arg(long, value_parser = super::args::non_negative)]
+    pub overshoot_deg: Option<f64>,
     /// Length of the radial feed-in onto each circle (and feed-out), mm.
     #[arg(long, default_value_t = DEFAULT_FEED_IN_MM, value_parser = super::args::positive)]
     pub feed_in_mm: f64,
@@ -122,6 +131,7 @@ pub fn run(args: &PlanArgs) -> Result<()> {
             machine_test_circles(&args.radii_mm, &args.heights_mm),
         )
     };
+    let (lead_in_deg, overshoot_deg) = default_lead_in_overshoot(args.arc_deg);
     let spec = PlanSpec {
         purpose,
         circles,
@@ -130,8 +140,9 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         centre_mm: args.centre,
         dialect: args.dialect,
         start_deg: args.start_deg,
-        lead_in_deg: args.lead_in_deg,
-        overshoot_deg: args.overshoot_deg,
+        arc_deg: args.arc_deg,
+        lead_in_deg: args.lead_in_deg.unwrap_or(lead_in_deg),
+        overshoot_deg: args.overshoot_deg.unwrap_or(overshoot_deg),
         feed_in_mm: args.feed_in_mm,
         dwell_s: args.dwell_s,
         reversal_dwell_s: args.reversal_dwell_s.unwrap_or(args.dwell_s),
@@ -179,6 +190,9 @@ fn duration(s: f64) -> String {
     }
 }
 
+/// A slow machine's acceleration (mm/s²), for the feed-in a partial arc needs.
+const SLOW_ACCEL_MM_S2: f64 = 300.0;
+
 /// What the operator needs: where the table ball goes, where to mount, the distances used.
 fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String {
     let inst = &plan.instrument;
@@ -193,6 +207,29 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
         gcode::number(plan.feed_mm_min),
         plan.dialect.name()
     );
+    let arc = &plan.arc;
+    if arc.is_partial() {
+        // Degrees to the millidegree, without trailing zeros (220, -20, 37.5).
+        let deg = |x: f64| {
+            let r = (x * 1000.0).round() / 1000.0;
+            if r == 0.0 {
+                0.0
+            } else {
+                r
+            }
+        };
+        t += &format!(
+            "arc:                 {}° from {}° to {}° of the plane's first axis ({}), not beyond: lead-in {}°, data {}° to {}°, overshoot {}°, each way\n",
+            deg(arc.sweep_deg),
+            deg(arc.start_deg),
+            deg(arc.start_deg + arc.sweep_deg),
+            ["x", "y", "z"][plan.plane.axes().0],
+            deg(arc.lead_in_deg),
+            deg(arc.data_start_deg),
+            deg(arc.data_start_deg + arc.data_sweep_deg),
+            deg(arc.overshoot_deg),
+        );
+    }
     t += &format!("table ball centre:   {}\n", point(&plan.centre_mm));
     t += &format!(
         "start point:         {}  (the program stops here: mount the instrument, then cycle start)\n",
@@ -219,12 +256,47 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
         "spindle ball travel: X {:.3}..{:.3}  Y {:.3}..{:.3}  Z {:.3}..{:.3} mm\n",
         lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
     );
-    if plan.plane != Plane::Xy {
+    let below_mm = plan.centre_mm[2] - lo[2];
+    if plan.plane != Plane::Xy && !arc.is_partial() {
         t += &format!(
             "note: in plane {} half of each circle passes below the table ball's centre (Z {:.3}): the table ball must stand high enough for the spindle to get there\n",
             plan.plane.name(),
             lo[2]
         );
+    } else if plan.plane != Plane::Xy && below_mm > 1e-3 {
+        t += &format!(
+            "note: the arc passes {below_mm:.3} mm below the table ball's centre (Z {:.3}): the table ball must stand high enough for the spindle to get there\n",
+            lo[2]
+        );
+        if plan.plane == Plane::Zx {
+            t += "note: in plane zx angles run from z towards x; the arc that stays above the table from -20° to 200° of x is --start-deg -110\n";
+        }
+    }
+    if arc.is_partial() {
+        // The synchronisation takes a partial arc's feed from the feed-in's cruise
+        // (`circular::sync`): the feed-in must be long enough to reach the feed.
+        let v = plan.feed_mm_min / 60.0;
+        let need = v * v / SLOW_ACCEL_MM_S2 / (1.0 - MIN_CRUISE_FRACTION);
+        let feed_in = plan
+            .segments
+            .iter()
+            .find(|s| {
+                matches!(
+                    s,
+                    Segment::Line {
+                        role: LineRole::FeedIn,
+                        ..
+                    }
+                )
+            })
+            .map_or(0.0, Segment::length_mm);
+        if feed_in < need {
+            t += &format!(
+                "note: on a partial arc the feed is measured on the feed-in, which must reach it: at {} mm/min a machine accelerating at {SLOW_ACCEL_MM_S2} mm/s² needs a feed-in of {:.1} mm or more (--feed-in-mm), this one is {feed_in:.1} mm\n",
+                gcode::number(plan.feed_mm_min),
+                (need * 10.0).ceil() / 10.0
+            );
+        }
     }
     if plan.dialect == Dialect::Marlin && plan.plane != Plane::Xy {
         t += "note: Marlin selects G18/G19 only with CNC_WORKSPACE_PLANES; without it these arcs run in XY\n";

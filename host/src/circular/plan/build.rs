@@ -3,15 +3,22 @@
 use jdbb_core::calib::Calibration;
 
 use super::{
-    instrument, line_d_range, ArcRole, Circle, Dialect, Instrument, LineRole, Plan, Plane, Purpose,
-    Segment, Sense, FORMAT, GRID_MM, MAX_ARC_DEG, VERSION,
+    instrument, line_d_range, ArcRole, Circle, CircleArc, Dialect, Instrument, LineRole, Plan,
+    Plane, Purpose, Segment, Sense, FORMAT, GRID_MM, MAX_ARC_DEG, VERSION,
 };
 use crate::{Error, Result};
 
-/// Default lead-in and overshoot arcs (degrees).
+/// Default lead-in arc of a full circle (degrees).
 pub const DEFAULT_LEAD_IN_DEG: f64 = 180.0;
-/// Default overshoot arc (degrees).
+/// Default overshoot arc of a full circle (degrees).
 pub const DEFAULT_OVERSHOOT_DEG: f64 = 180.0;
+/// Default arc each circle runs (degrees): a full circle.
+pub const DEFAULT_ARC_DEG: f64 = 360.0;
+/// Default lead-in and overshoot of a partial arc (degrees), taken from inside the arc: the
+/// vertical-plane test's 220° is 20° + 180° of data + 20° (the ballbar makers' partial arc).
+pub const PARTIAL_LEAD_IN_DEG: f64 = 20.0;
+/// Default overshoot of a partial arc (degrees); see [`PARTIAL_LEAD_IN_DEG`].
+pub const PARTIAL_OVERSHOOT_DEG: f64 = 20.0;
 /// Default feed-in length (mm).
 pub const DEFAULT_FEED_IN_MM: f64 = 2.0;
 /// Default dwell (s).
@@ -52,6 +59,9 @@ pub struct PlanSpec {
     pub dialect: Dialect,
     /// θ0, where each circle starts and ends (degrees from +i towards +j).
     pub start_deg: f64,
+    /// The arc A each circle runs (degrees, 0 < A ≤ 360): 360 a full circle; below, the
+    /// machine stays on [θ0, θ0 + A] and the lead-in and overshoot are taken from inside it.
+    pub arc_deg: f64,
     pub lead_in_deg: f64,
     pub overshoot_deg: f64,
     pub feed_in_mm: f64,
@@ -82,6 +92,7 @@ impl PlanSpec {
             centre_mm,
             dialect,
             start_deg: 0.0,
+            arc_deg: DEFAULT_ARC_DEG,
             lead_in_deg: DEFAULT_LEAD_IN_DEG,
             overshoot_deg: DEFAULT_OVERSHOOT_DEG,
             feed_in_mm: DEFAULT_FEED_IN_MM,
@@ -91,9 +102,28 @@ impl PlanSpec {
         }
     }
 
+    /// The same test on a partial arc of `arc_deg` from the same start, with the partial arc's
+    /// default lead-in and overshoot ([`PARTIAL_LEAD_IN_DEG`], [`PARTIAL_OVERSHOOT_DEG`]) when
+    /// `arc_deg` is below 360 (the full circle's otherwise).
+    pub fn with_arc(self, arc_deg: f64) -> PlanSpec {
+        let (lead_in_deg, overshoot_deg) = default_lead_in_overshoot(arc_deg);
+        PlanSpec {
+            arc_deg,
+            lead_in_deg,
+            overshoot_deg,
+            ..self
+        }
+    }
+
+    /// Whether each circle runs a partial arc (below 360°).
+    pub fn is_partial(&self) -> bool {
+        self.arc_deg < 360.0
+    }
+
     /// Check the numbers that do not depend on the instrument: feed (0.1 to 100 000 mm/min),
-    /// angles (start within ±360°, lead-in and overshoot 0 to 360°), feed-in above 0 and below
-    /// every radius, dwells 0 to 600 s, at least one circle. The message names the option.
+    /// angles (start within ±360°, arc above 0 and at most 360°, lead-in and overshoot 0 to 360°
+    /// and, on a partial arc, leaving a data arc inside it), feed-in above 0 and below every
+    /// radius, dwells 0 to 600 s, at least one circle. The message names the option.
     pub fn validate(&self) -> Result<()> {
         let usage = |m: String| Err(Error::Usage(m));
         if self.circles.is_empty() {
@@ -111,6 +141,12 @@ impl PlanSpec {
                 self.start_deg
             ));
         }
+        if !(self.arc_deg > 0.0 && self.arc_deg <= 360.0) {
+            return usage(format!(
+                "--arc-deg {}: the arc each circle runs is above 0° and at most 360° (360: a full circle; 220 from --start-deg -20: the vertical-plane test)",
+                self.arc_deg
+            ));
+        }
         for (name, v) in [
             ("--lead-in-deg", self.lead_in_deg),
             ("--overshoot-deg", self.overshoot_deg),
@@ -118,6 +154,12 @@ impl PlanSpec {
             if !(0.0..=360.0).contains(&v) {
                 return usage(format!("{name} {v}: an arc of 0 to 360°"));
             }
+        }
+        if self.is_partial() && self.lead_in_deg + self.overshoot_deg >= self.arc_deg {
+            return usage(format!(
+                "--arc-deg {}: on a partial arc the lead-in ({}°) and the overshoot ({}°) are taken from inside the arc and leave no data arc; give a smaller --lead-in-deg or --overshoot-deg, or a longer arc",
+                self.arc_deg, self.lead_in_deg, self.overshoot_deg
+            ));
         }
         for (name, v) in [
             ("--dwell-s", self.dwell_s),
@@ -159,6 +201,16 @@ impl PlanSpec {
             }
         }
         Ok(())
+    }
+}
+
+/// Default (lead-in, overshoot) in degrees for an arc of `arc_deg`: 180° each on a full circle,
+/// 20° each (from inside the arc) on a partial arc.
+pub fn default_lead_in_overshoot(arc_deg: f64) -> (f64, f64) {
+    if arc_deg < 360.0 {
+        (PARTIAL_LEAD_IN_DEG, PARTIAL_OVERSHOOT_DEG)
+    } else {
+        (DEFAULT_LEAD_IN_DEG, DEFAULT_OVERSHOOT_DEG)
     }
 }
 
@@ -327,18 +379,27 @@ pub fn plan(spec: &PlanSpec, cal: &Calibration) -> Result<Plan> {
             point: &point,
             out: &mut segments,
         };
-        let (lead, over) = (spec.lead_in_deg, spec.overshoot_deg);
+        let span = circle_arc(spec);
+        let (lead, data, over) = (span.lead_in_deg, span.data_sweep_deg, span.overshoot_deg);
         arcs.sweep(lead, ArcRole::LeadIn);
-        arcs.sweep(360.0, ArcRole::Data);
+        arcs.sweep(data, ArcRole::Data);
         arcs.sweep(over, ArcRole::Overshoot);
         if reversal_dwell > 0.0 {
             arcs.out.push(Segment::Dwell {
                 seconds: reversal_dwell,
             });
         }
-        arcs.sweep(-lead, ArcRole::LeadIn);
-        arcs.sweep(-360.0, ArcRole::Data);
-        arcs.sweep(-over, ArcRole::Overshoot);
+        if spec.is_partial() {
+            // Back over the same arc: the ccw overshoot is the cw lead-in, the ccw lead-in the
+            // cw overshoot, so the machine never leaves [θ0, θ0 + A].
+            arcs.sweep(-over, ArcRole::LeadIn);
+            arcs.sweep(-data, ArcRole::Data);
+            arcs.sweep(-lead, ArcRole::Overshoot);
+        } else {
+            arcs.sweep(-lead, ArcRole::LeadIn);
+            arcs.sweep(-data, ArcRole::Data);
+            arcs.sweep(-over, ArcRole::Overshoot);
+        }
         let end = arcs.at;
         if corner_dwell > 0.0 {
             segments.push(Segment::Dwell {
@@ -370,11 +431,37 @@ pub fn plan(spec: &PlanSpec, cal: &Calibration) -> Result<Plan> {
         feed_mm_min: feed,
         instrument: inst,
         start_mm,
+        arc: circle_arc(spec),
         circles,
         segments,
     };
     check_range(&plan)?;
     Ok(plan)
+}
+
+/// The arc each circle of `spec` runs, with its lead-in, data arc and overshoot (degrees; the
+/// start angle as given, not wrapped).
+fn circle_arc(spec: &PlanSpec) -> CircleArc {
+    let (theta0, lead, over) = (spec.start_deg, spec.lead_in_deg, spec.overshoot_deg);
+    if spec.is_partial() {
+        CircleArc {
+            start_deg: theta0,
+            sweep_deg: spec.arc_deg,
+            lead_in_deg: lead,
+            overshoot_deg: over,
+            data_start_deg: theta0 + lead,
+            data_sweep_deg: spec.arc_deg - lead - over,
+        }
+    } else {
+        CircleArc {
+            start_deg: theta0,
+            sweep_deg: 360.0,
+            lead_in_deg: lead,
+            overshoot_deg: over,
+            data_start_deg: theta0 + lead,
+            data_sweep_deg: 360.0,
+        }
+    }
 }
 
 /// Refuse a circle (0-based `k`) whose D or feed-in start is outside the range, naming the range

@@ -108,8 +108,17 @@ pub fn write_program(plan: &Plan, dialect: Dialect) -> String {
         o.line(&format!("O{FANUC_PROGRAM_NUMBER} (JDBB BALLBAR)"));
     }
     let c = &plan.centre_mm;
+    let arc = if plan.arc.is_partial() {
+        format!(
+            "each a {}-degree arc from {} degrees, ccw then back cw",
+            number(plan.arc.sweep_deg),
+            number(plan.arc.start_deg)
+        )
+    } else {
+        "each ccw then cw".to_string()
+    };
     o.comment(&format!(
-        "jdbb plan, {}: {} circles in plane {}, each ccw then cw, feed {} mm/min",
+        "jdbb plan, {}: {} circles in plane {}, {arc}, feed {} mm/min",
         plan.purpose.name(),
         plan.circles.len(),
         plan.plane.name(),

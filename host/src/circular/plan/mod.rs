@@ -29,10 +29,27 @@
 //!    `--corner-dwell-s`;
 //! 7. the feed-out: a line back to P_in, and a dwell of `--dwell-s`.
 //!
+//! **Partial arcs** (`--arc-deg A`, 0 < A < 360; default 360, the full circle above): the
+//! machine never leaves the arc [θ0, θ0 + A] — in a vertical plane a full circle would run the
+//! spindle into the table, and the ballbar test there is 220° (`--start-deg -20 --arc-deg 220`:
+//! −20° to 200° from the plane's first axis). The lead-in and overshoot cannot reach past the
+//! arc's ends, so they are taken **from inside it** (default L = O = 20° on a partial arc):
+//! step 4 is lead-in θ0 → θ0 + L, data θ0 + L → θ0 + A − O, overshoot up to θ0 + A; step 6 runs
+//! the same arc back, θ0 + A → θ0 + A − O (the cw lead-in), the data arc cw, θ0 + L → θ0 (the
+//! cw overshoot). **The data arc is [θ0 + L, θ0 + A − O]** (180° for the 220° test: 0° to 180°),
+//! both senses; L + O < A, else the plan is refused. Both ends of the arc are axis reversals of
+//! every moving axis (the sense reverses there), and the lead-in and overshoot keep the steps,
+//! dead bands and spikes of those reversals off the data arc. `--lead-in-deg 0 --overshoot-deg
+//! 0` makes the data arc the whole arc (then the data start from rest, and a run of the 220° test
+//! so planned named a 0.05 µm reversal spike that was not there). The synchronisation needs the
+//! feed-in of a partial arc to reach the feed ([`crate::circular::sync`]): `jdbb plan` says so
+//! when `--feed-in-mm` is short for the feed.
+//!
 //! A dwell of 0 s is left out. Arcs are split into equal pieces of at most 180° (a full circle or
 //! an arc over 180° is ambiguous or controller-dependent with I/J/K), so with the defaults
 //! (L = O = 180°) each direction is 4 arcs of 180°, and every arc end lies on an axis of its
-//! circle.
+//! circle; on the 220° test each direction is 20°, 180° and 20°, and the ends at −20° and 200°
+//! are off the axes, rounded to the grid (below).
 //!
 //! **Range.** D = √(R² + H²) on a circle; every point the program visits with the instrument
 //! mounted — circles, feed-in starts, moves between circles — stays within the instrument's range
@@ -61,16 +78,18 @@
 //! lean azimuth about the B1–B2 line (gravity and the bars' spin in their cups decide it), so the
 //! split of φ between the two frames is measured, not planned.
 //!
-//! # plan.json (version 1)
+//! # plan.json (version 2)
 //!
 //! ```json
 //! {
-//!   "format": "jdbb-plan", "version": 1, "purpose": "machine-test",
+//!   "format": "jdbb-plan", "version": 2, "purpose": "machine-test",
 //!   "program": "ballbar.ngc", "dialect": "linuxcnc", "units": "mm", "plane": "xy",
 //!   "centre_mm": [100.0, 50.0, -20.0], "feed_mm_min": 1000.0,
 //!   "instrument": {"l1_mm": 50.0, "l2_mm": 50.0, "frame_range_deg": 75.0, "margin_mm": 0.5,
 //!                  "d_min_mm": 79.836, "d_max_mm": 99.5},
 //!   "start_mm": [188.0, 50.0, -20.0],
+//!   "arc": {"start_deg": 0.0, "sweep_deg": 360.0, "lead_in_deg": 180.0, "overshoot_deg": 180.0,
+//!           "data_start_deg": 180.0, "data_sweep_deg": 360.0},
 //!   "circles": [{"index": 0, "radius_mm": 90.0, "height_mm": 0.0, "centre_mm": [100.0, 50.0, -20.0],
 //!                "d_mm": 90.0, "plane": "xy", "feed_mm_min": 1000.0}],
 //!   "segments": [
@@ -94,6 +113,12 @@
 //!   table ball: subtract `centre_mm`. `start_mm` is where the operator mounts the instrument.
 //! - `instrument`: bar lengths, the frames' range, the margin, and the range of D every mounted
 //!   segment keeps (margin included).
+//! - `arc` (new in version 2): the arc every circle runs, in degrees from the plane's first axis
+//!   towards the second — `start_deg` θ0 (as given), `sweep_deg` A (360: a full circle),
+//!   `lead_in_deg` L, `overshoot_deg` O, and the data arc: from `data_start_deg` (θ0 + L) over
+//!   `data_sweep_deg` (360 on a full circle, A − L − O on a partial arc), in both senses. A
+//!   version-1 plan (before partial arcs) is read as a full circle, its arc taken from its first
+//!   circle's segments.
 //! - `segments` are in execution order and tile the program's motion exactly: every G0, G1, G2,
 //!   G3, G4 and M0 of the program is one segment, in order, and each motion starts where the
 //!   previous one ended. `rapid` (G0; the first segment; its `from_mm` is its `to_mm`, because
@@ -120,16 +145,17 @@ pub mod build;
 pub mod gcode;
 
 pub use build::{
-    calibration_circles, default_calibration_distances, machine_test_circles, plan, CircleSpec,
-    PlanSpec,
+    calibration_circles, default_calibration_distances, default_lead_in_overshoot,
+    machine_test_circles, plan, CircleSpec, PlanSpec,
 };
 pub use gcode::write_program;
 pub use jdbb_core::geometry::FRAME_RANGE_RAD;
 
 /// The `format` of a plan.json.
 pub const FORMAT: &str = "jdbb-plan";
-/// The plan.json version this code writes and reads.
-pub const VERSION: u32 = 1;
+/// The plan.json version this code writes (it reads this one and version 1, which had no `arc`:
+/// every circle full).
+pub const VERSION: u32 = 2;
 /// Grid of every position in a plan and its program (mm): 1 µm.
 pub const GRID_MM: f64 = 0.001;
 /// How far inside the instrument's mechanical range every D of a plan stays (mm), for set-up
@@ -277,7 +303,7 @@ pub enum LineRole {
 pub enum ArcRole {
     /// Before the data arc: the machine reaches steady motion.
     LeadIn,
-    /// The 360° the diagnosis uses.
+    /// The arc the diagnosis uses: 360° on a full circle, [θ0 + L, θ0 + A − O] on a partial arc.
     Data,
     /// After the data arc, before the reversal or the feed-out.
     Overshoot,
@@ -351,6 +377,68 @@ impl Instrument {
             self.frame_range_deg.round(),
             self.margin_mm
         )
+    }
+}
+
+/// The arc every circle of a plan runs (degrees from the plane's first axis towards the second;
+/// see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CircleArc {
+    /// θ0: where each circle starts and ends.
+    pub start_deg: f64,
+    /// A: 360 for a full circle, less for a partial arc [θ0, θ0 + A].
+    pub sweep_deg: f64,
+    /// L: the lead-in (on a partial arc from inside the arc).
+    pub lead_in_deg: f64,
+    /// O: the overshoot (on a partial arc from inside the arc).
+    pub overshoot_deg: f64,
+    /// Where the data arc starts (ccw): θ0 + L.
+    pub data_start_deg: f64,
+    /// The data arc's length: 360 on a full circle, A − L − O on a partial arc.
+    pub data_sweep_deg: f64,
+}
+
+impl CircleArc {
+    /// Whether the circles run a partial arc.
+    pub fn is_partial(&self) -> bool {
+        self.sweep_deg < 360.0
+    }
+
+    /// The arc of a version-1 plan (full circles, from before `arc` existed), from the first
+    /// circle's ccw arcs: θ0 where its first arc starts, L and O the sums of its ccw lead-in
+    /// and overshoot sweeps.
+    fn of_full_circles(segments: &[Segment]) -> CircleArc {
+        let ccw = |want: ArcRole| {
+            segments
+                .iter()
+                .filter_map(|s| match s {
+                    Segment::Arc {
+                        circle: 0,
+                        sense: Sense::Ccw,
+                        role,
+                        sweep_deg,
+                        ..
+                    } if *role == want => Some(*sweep_deg),
+                    _ => None,
+                })
+                .sum::<f64>()
+        };
+        let start_deg = segments
+            .iter()
+            .find_map(|s| match s {
+                Segment::Arc { start_deg, .. } => Some(*start_deg),
+                _ => None,
+            })
+            .unwrap_or(0.0);
+        let lead_in_deg = ccw(ArcRole::LeadIn);
+        CircleArc {
+            start_deg,
+            sweep_deg: 360.0,
+            lead_in_deg,
+            overshoot_deg: ccw(ArcRole::Overshoot),
+            data_start_deg: start_deg + lead_in_deg,
+            data_sweep_deg: 360.0,
+        }
     }
 }
 
@@ -494,6 +582,8 @@ pub struct Plan {
     pub instrument: Instrument,
     /// Where the operator mounts the instrument (the first feed-in start).
     pub start_mm: [f64; 3],
+    /// The arc every circle runs (version 2; filled in from the segments for version 1).
+    pub arc: CircleArc,
     pub circles: Vec<Circle>,
     pub segments: Vec<Segment>,
 }
@@ -518,18 +608,39 @@ impl Plan {
                 format!("not a plan: `format` is not \"{FORMAT}\"; write one with `jdbb plan`"),
             ));
         }
-        if head.get("version").and_then(|v| v.as_u64()) != Some(VERSION as u64) {
+        let version = head.get("version").and_then(|v| v.as_u64());
+        if version != Some(VERSION as u64) && version != Some(1) {
             return Err(Error::input(
                 path,
                 1,
                 0,
                 format!(
-                    "plan version {} is not {VERSION}, the version this jdbb reads; make the plan again with this jdbb",
+                    "plan version {} is not 1 or {VERSION}, the versions this jdbb reads; make the plan again with this jdbb",
                     head.get("version").map_or("missing".into(), |v| v.to_string())
                 ),
             ));
         }
-        let plan: Plan = serde_json::from_str(text).map_err(|e| json_error(path, &e))?;
+        let plan: Plan = if version == Some(1) {
+            // Version 1 had no `arc`: full circles, whose arc the segments tell.
+            let v1: PlanV1 = serde_json::from_str(text).map_err(|e| json_error(path, &e))?;
+            v1.into_plan()
+        } else {
+            serde_json::from_str(text).map_err(|e| json_error(path, &e))?
+        };
+        if !(plan.arc.sweep_deg > 0.0
+            && plan.arc.sweep_deg <= 360.0
+            && plan.arc.data_sweep_deg > 0.0
+            && plan.arc.data_sweep_deg <= 360.0
+            && plan.arc.start_deg.is_finite()
+            && plan.arc.data_start_deg.is_finite())
+        {
+            return Err(Error::input(
+                path,
+                1,
+                0,
+                "`arc` is not an arc of above 0° and at most 360° with a data arc inside; make the plan again with `jdbb plan`".to_string(),
+            ));
+        }
         plan.check_chain().map_err(|m| {
             Error::input(
                 path,
@@ -721,6 +832,46 @@ impl Plan {
             .iter()
             .filter_map(Segment::nominal_duration_s)
             .sum()
+    }
+}
+
+/// A version-1 plan.json: a version-2 one without `arc`.
+#[derive(Deserialize)]
+struct PlanV1 {
+    format: String,
+    version: u32,
+    purpose: Purpose,
+    program: String,
+    dialect: Dialect,
+    units: String,
+    plane: Plane,
+    centre_mm: [f64; 3],
+    feed_mm_min: f64,
+    instrument: Instrument,
+    start_mm: [f64; 3],
+    circles: Vec<Circle>,
+    segments: Vec<Segment>,
+}
+
+impl PlanV1 {
+    /// The plan, with the arc of its full circles.
+    fn into_plan(self) -> Plan {
+        Plan {
+            arc: CircleArc::of_full_circles(&self.segments),
+            format: self.format,
+            version: self.version,
+            purpose: self.purpose,
+            program: self.program,
+            dialect: self.dialect,
+            units: self.units,
+            plane: self.plane,
+            centre_mm: self.centre_mm,
+            feed_mm_min: self.feed_mm_min,
+            instrument: self.instrument,
+            start_mm: self.start_mm,
+            circles: self.circles,
+            segments: self.segments,
+        }
     }
 }
 
