@@ -158,7 +158,7 @@ pub fn read_record_with_path(
     pitch_mm: [Option<f64>; 3],
 ) -> Result<(Path, Vec<f64>)> {
     // The path: t_s strictly increasing.
-    let mut nt = Table::open(nominal)?;
+    let mut nt = Table::open_with(nominal, crate::fsio::Limit::Table)?;
     let ncols = nt.require(&["t_s", "x_mm", "y_mm", "z_mm"])?;
     let mut nom: Vec<[f64; 4]> = vec![];
     let mut nom_last = nt.header_line();

@@ -27,10 +27,7 @@ impl Current {
 
     /// Read `path` in the format of `controller`.
     pub fn read(path: &Path, controller: Controller) -> Result<Current> {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::InputFile {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text = crate::table::read_text(path)?;
         let mut c = match controller {
             Controller::LinuxCnc => super::linuxcnc::parse_current(path, &text)?,
             Controller::GrblHal => super::grblhal::parse_current(path, &text)?,

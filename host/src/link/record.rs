@@ -115,35 +115,7 @@ pub fn partial_path(out: &Path) -> PathBuf {
 /// to be replaced. A symbolic link, a directory, a device (`/dev/null`), a pipe or a socket is
 /// refused whatever `force` says. Touches nothing.
 pub fn check_output(out: &Path, force: bool) -> Result<()> {
-    let meta = match fs::symlink_metadata(out) {
-        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(()),
-        Err(source) => {
-            return Err(Error::File {
-                action: "cannot check",
-                path: out.to_path_buf(),
-                source,
-            })
-        }
-        Ok(m) => m,
-    };
-    let t = meta.file_type();
-    let what = if t.is_symlink() {
-        "a symbolic link"
-    } else if t.is_dir() {
-        "a directory"
-    } else if !t.is_file() {
-        "a device, pipe or socket"
-    } else if force {
-        return Ok(());
-    } else {
-        return Err(Error::OutputExists {
-            path: out.to_path_buf(),
-        });
-    };
-    Err(Error::OutputNotAFile {
-        path: out.to_path_buf(),
-        what,
-    })
+    crate::fsio::check_destination(out, force)
 }
 
 /// Create the work file `partial` (it must not exist: never an existing file, never through a
