@@ -83,11 +83,17 @@ pub fn run(args: &RecordArgs) -> Result<()> {
     } else {
         finish_output(&partial, &args.out, args.force)
     };
+    let suspects = out.check.suspects;
     emit(&format!(
-        "recorded {} ({}): {}",
+        "recorded {} ({}): {}{}",
         args.out.display(),
         end.describe(),
-        summary(stream.stats(), seconds)
+        summary(stream.stats(), seconds),
+        if suspects.total() > 0 {
+            format!("; {suspects}")
+        } else {
+            String::new()
+        }
     ))?;
     let failed = match end {
         End::Lost(e) | End::NotStarted(e) | End::Write(e) => Some(e),
