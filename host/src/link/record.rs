@@ -501,11 +501,25 @@ mod tests {
         );
         let n = check.suspects;
         assert_eq!(
-            (n.d_not_finite, n.d_impossible, n.counts_out_of_range, n.time_back, n.time_still),
+            (
+                n.d_not_finite,
+                n.d_impossible,
+                n.counts_out_of_range,
+                n.time_back,
+                n.time_still
+            ),
             (2, 2, 1, 1, 1)
         );
-        assert_eq!(text.lines().filter(|l| l.starts_with(SUSPECT_PREFIX)).count(), 7);
-        assert!(text.contains("# suspect: 1,200,0,5,NaN: D is not finite"), "{text}");
+        assert_eq!(
+            text.lines()
+                .filter(|l| l.starts_with(SUSPECT_PREFIX))
+                .count(),
+            7
+        );
+        assert!(
+            text.contains("# suspect: 1,200,0,5,NaN: D is not finite"),
+            "{text}"
+        );
         assert!(n.to_string().starts_with("suspect samples 7 "), "{n}");
         // The file stays readable by the one CSV reader: the suspects are skipped.
         let csv = format!("{CSV_HEADER}{text}");
