@@ -30,6 +30,11 @@ pub const MIN_ARC_DEG: f64 = 180.0;
 /// Positions closer than this to the table ball (mm) cannot be a ball bar's: the bar has a length.
 const MIN_RADIUS_MM: f64 = 1.0;
 
+/// Largest |D − nominal distance| (mm) of a sample: a ball bar measures machine errors of µm to
+/// a few hundred µm; a D 5 mm off the nominal path is a wrong column, a glitch or another test,
+/// and would swamp the diagnosis (one D of 1e6 mm gave G = 1e9 µm).
+pub const MAX_DEVIATION_MM: f64 = 5.0;
+
 /// Read `t_s,x_mm,y_mm,z_mm,d_mm`. Returns the path (with `pitch_mm` applied) and D.
 pub fn read_samples(file: &FsPath, pitch_mm: [Option<f64>; 3]) -> Result<(Path, Vec<f64>)> {
     samples_from(Table::open(file)?, pitch_mm)
@@ -74,7 +79,17 @@ fn samples_from(mut table: Table, pitch_mm: [Option<f64>; 3]) -> Result<(Path, V
                 format!("d_mm is {}; a ball distance is positive", v[4]),
             ));
         }
-        if (v[1] * v[1] + v[2] * v[2] + v[3] * v[3]).sqrt() < MIN_RADIUS_MM {
+        let nominal_mm = (v[1] * v[1] + v[2] * v[2] + v[3] * v[3]).sqrt();
+        if (v[4] - nominal_mm).abs() > MAX_DEVIATION_MM {
+            return Err(row.error(
+                &cols[4],
+                format!(
+                    "d_mm is {} but the nominal distance is {nominal_mm:.3} mm; more than {MAX_DEVIATION_MM} mm apart is not a machine's error (a wrong column, a glitch, another test)",
+                    v[4]
+                ),
+            ));
+        }
+        if nominal_mm < MIN_RADIUS_MM {
             return Err(row.error(
                 &cols[1],
                 format!(

@@ -104,7 +104,7 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             print(&text)
         }
         HistoryCommand::List { machine: None } => {
-            let h = History::open(&path)?;
+            let h = History::open_existing(&path)?;
             let mut s = String::new();
             let machines = h.machines()?;
             if machines.is_empty() {
@@ -118,7 +118,7 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
         HistoryCommand::List {
             machine: Some(machine),
         } => {
-            let h = History::open(&path)?;
+            let h = History::open_existing(&path)?;
             let runs = h.runs(machine)?;
             let mut s = String::new();
             let _ = writeln!(s, "machine {machine}: {} runs", runs.len());
@@ -172,7 +172,7 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             if let Some(file) = plot {
                 crate::fsio::check_destination(file, *force)?;
             }
-            let h = History::open(&path)?;
+            let h = History::open_existing(&path)?;
             let runs = h.runs(machine)?;
             let trends = trend::trend(&runs, effect.as_deref())?;
             let mut s = trend::render(machine, &runs, &trends);

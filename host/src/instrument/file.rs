@@ -39,7 +39,7 @@ pub fn parse_calibration(path: &Path, text: &str) -> Result<Calibration> {
 /// Words for a [`CalibrationError`].
 pub fn why(e: CalibrationError) -> &'static str {
     match e {
-        CalibrationError::BarLength => "a bar length is not a finite positive number below 10 m (mm)",
+        CalibrationError::BarLength => "a bar length is not between 1 mm and 10 m (a bar is centimetres long: a smaller or larger number is a typing or unit error)",
         CalibrationError::Resolution => "an encoder has fewer than 4 counts per revolution",
         CalibrationError::ZeroOffset => "a fine zero (zero_offset_rad), with the eccentricity, is beyond 0.01 rad: set zero_count instead",
         CalibrationError::Eccentricity => "an eccentricity is negative or beyond 0.01 rad, or its phase beyond ±2π",
