@@ -862,3 +862,304 @@ fn absurd_rotary_lengths_are_refused_before_the_algebra() {
         }
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// Garbage passed on.
+
+#[test]
+fn a_misspelled_calibration_key_is_an_error_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    record_and_calibration(d);
+    calibrator_samples(d);
+    let skewed = format!("axes_skew_rads = 1.5e-5\n{CAL_TOML}");
+    fs::write(d.join("typo.toml"), &skewed).unwrap();
+    let e = fails_in(
+        d,
+        &[
+            "recompute",
+            "--record",
+            "rec.csv",
+            "--calibration",
+            "typo.toml",
+            "-o",
+            "o.csv",
+        ],
+        2,
+        "typo.toml:1:1",
+    );
+    assert!(e.contains("axes_skew_rads"), "{e}");
+    fails_in(
+        d,
+        &[
+            "calibrate",
+            "--samples",
+            "cal.csv",
+            "--nominal",
+            "typo.toml",
+        ],
+        2,
+        "axes_skew_rads",
+    );
+    let in_table = CAL_TOML.replace(
+        "zero_count = 0\ndirection",
+        "zero_count = 0\nzero_ofset_rad = 1e-4\ndirection",
+    );
+    fs::write(d.join("typo2.toml"), in_table).unwrap();
+    fails_in(
+        d,
+        &[
+            "calibrate",
+            "--samples",
+            "cal.csv",
+            "--nominal",
+            "typo2.toml",
+        ],
+        2,
+        "zero_ofset_rad",
+    );
+    // The JSON calibration of `diagnose --calibration` too.
+    samples(d);
+    fs::write(
+        d.join("cal.json"),
+        r#"{"l1_mm":50,"l2_mm":50,"axes_skew":1e-5,"enc1":{"counts_per_rev":8388608,"zero_count":0,"direction":"Positive"},"enc2":{"counts_per_rev":8388608,"zero_count":0,"direction":"Positive"}}"#,
+    )
+    .unwrap();
+    fails_in(
+        d,
+        &[
+            "diagnose",
+            "--samples",
+            "s.csv",
+            "--calibration",
+            "cal.json",
+        ],
+        2,
+        "axes_skew",
+    );
+    assert!(!d.join("o.csv").exists());
+}
+
+#[test]
+fn an_absurd_bar_length_is_refused_before_the_device() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for l in ["1e-300", "0.5", "20000.0"] {
+        fs::write(
+            d.join("bad.toml"),
+            CAL_TOML.replace("l1_mm = 50.0", &format!("l1_mm = {l}")),
+        )
+        .unwrap();
+        // The file is checked before the port: the error is the bar, not the missing port.
+        fails_in(
+            d,
+            &[
+                "calibration",
+                "send",
+                "--port",
+                "/dev/ttyJDBB-none",
+                "--file",
+                "bad.toml",
+            ],
+            2,
+            "between 1 mm and 10 m",
+        );
+    }
+}
+
+#[test]
+fn compensate_refuses_absurd_settings_and_another_controllers_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    diagnosis(d);
+    // A backlash of 1e6 µm in the diagnosis is not `$160=1000` (the sign that grblHAL takes).
+    let mut doc: serde_json::Value =
+        serde_json::from_str(&fs::read_to_string(d.join("diag.json")).unwrap()).unwrap();
+    for e in doc["effects"].as_array_mut().unwrap() {
+        if e["name"] == "backlash_x" {
+            e["value"] = serde_json::json!(-1e6);
+            for v in e["params"].as_object_mut().unwrap().values_mut() {
+                *v = serde_json::json!(-1e6);
+            }
+        }
+    }
+    fs::write(d.join("huge.json"), serde_json::to_string(&doc).unwrap()).unwrap();
+    for c in ["grblhal", "linuxcnc", "marlin"] {
+        let o = run_in(
+            d,
+            &["compensate", "--diagnosis", "huge.json", "--controller", c],
+        );
+        let e = err(&o);
+        assert_eq!(
+            o.status.code(),
+            Some(2),
+            "{c}: {e} {}",
+            String::from_utf8_lossy(&o.stdout)
+        );
+        assert!(e.contains("repair"), "{c}: {e}");
+    }
+    // Zero steps per mm in force is not `M92 X0`.
+    fs::write(d.join("marlin.txt"), "M92 X0 Y80 Z400\n").unwrap();
+    fails_in(
+        d,
+        &[
+            "compensate",
+            "--diagnosis",
+            "diag.json",
+            "--controller",
+            "marlin",
+            "--current",
+            "marlin.txt",
+        ],
+        2,
+        "steps per mm are above 0",
+    );
+    // Another controller's file as --current.
+    fs::write(d.join("grbl.txt"), "$100=80.0\n$101=80.0\n$160=0.01\n").unwrap();
+    fails_in(
+        d,
+        &[
+            "compensate",
+            "--diagnosis",
+            "diag.json",
+            "--controller",
+            "linuxcnc",
+            "--current",
+            "grbl.txt",
+        ],
+        2,
+        "--controller grblhal",
+    );
+}
+
+#[test]
+fn one_sample_far_off_the_path_is_refused_not_diagnosed() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    samples(d);
+    let text = fs::read_to_string(d.join("s.csv")).unwrap();
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    let mut f: Vec<String> = lines[10].split(',').map(str::to_string).collect();
+    f[4] = "1000000".into();
+    lines[10] = f.join(",");
+    fs::write(d.join("glitch.csv"), lines.join("\n")).unwrap();
+    fails_in(
+        d,
+        &["diagnose", "--samples", "glitch.csv"],
+        2,
+        "glitch.csv:11:",
+    );
+}
+
+#[test]
+fn plan_json_circles_units_and_keys_are_checked_against_the_segments() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok_in(
+        d,
+        &[
+            "plan", "--radius", "90", "--feed", "1000", "--centre", "0,0,0", "--out", "p",
+        ],
+    );
+    fs::write(
+        d.join("rec.csv"),
+        "seq,t_us,enc1,enc2,d_mm\n0,0,0,0,90\n1,100,0,0,90\n",
+    )
+    .unwrap();
+    let plan: serde_json::Value =
+        serde_json::from_str(&fs::read_to_string(d.join("p/plan.json")).unwrap()).unwrap();
+    let cases: Vec<(&str, Box<dyn Fn(&mut serde_json::Value)>, &str)> = vec![
+        (
+            "units",
+            Box::new(|p| p["units"] = "in".into()),
+            "`units` is \"in\"",
+        ),
+        (
+            "radius",
+            Box::new(|p| p["circles"][0]["radius_mm"] = 45.0.into()),
+            "circle 0",
+        ),
+        (
+            "d",
+            Box::new(|p| p["circles"][0]["d_mm"] = 91.0.into()),
+            "circle 0",
+        ),
+        (
+            "key",
+            Box::new(|p| p["feed_mm_minute"] = 1000.into()),
+            "feed_mm_minute",
+        ),
+    ];
+    for (name, edit, want) in cases {
+        let mut p = plan.clone();
+        edit(&mut p);
+        let f = format!("{name}.json");
+        fs::write(d.join(&f), serde_json::to_string_pretty(&p).unwrap()).unwrap();
+        fails_in(
+            d,
+            &["diagnose", "--record", "rec.csv", "--plan", &f],
+            2,
+            want,
+        );
+    }
+}
+
+/// Run `args` in `dir` as user and group nobody (65534).
+fn run_as_nobody(dir: &Path, args: &[&str]) -> Output {
+    let mut c = jdbb();
+    c.current_dir(dir).args(args);
+    // SAFETY: async-signal-safe libc calls between fork and exec.
+    unsafe {
+        c.pre_exec(|| {
+            if libc::setgroups(0, std::ptr::null()) != 0
+                || libc::setgid(65534) != 0
+                || libc::setuid(65534) != 0
+            {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    c.output().unwrap()
+}
+
+#[test]
+fn history_reads_a_read_only_database_and_never_creates_one_by_mistake() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    diagnosis(d);
+    history(d);
+    // A mistyped --db: an error, and no empty database made.
+    for cmd in [
+        vec!["list"],
+        vec!["list", "--machine", "m1"],
+        vec!["trend", "--machine", "m1"],
+    ] {
+        let mut args = vec!["history", "--db", "hh.sqlite"];
+        args.extend(cmd);
+        fails_in(d, &args, 2, "check --db");
+    }
+    assert!(!d.join("hh.sqlite").exists());
+    // A database the user may only read (another user's, in a directory not theirs).
+    // SAFETY: getuid has no preconditions.
+    if unsafe { libc::getuid() } != 0 {
+        eprintln!("not root: cannot play another user; the read-only case is not run");
+        return;
+    }
+    use std::os::unix::fs::PermissionsExt;
+    fs::set_permissions(d, fs::Permissions::from_mode(0o755)).unwrap();
+    fs::set_permissions(d.join("h.sqlite"), fs::Permissions::from_mode(0o644)).unwrap();
+    let before = fs::read(d.join("h.sqlite")).unwrap();
+    for cmd in [
+        vec!["list"],
+        vec!["list", "--machine", "m1"],
+        vec!["trend", "--machine", "m1"],
+    ] {
+        let mut args = vec!["history", "--db", "h.sqlite"];
+        args.extend(cmd.iter().copied());
+        let o = run_as_nobody(d, &args);
+        assert!(o.status.success(), "{cmd:?}: {}", err(&o));
+        assert!(String::from_utf8_lossy(&o.stdout).contains("m1"));
+    }
+    assert_eq!(fs::read(d.join("h.sqlite")).unwrap(), before);
+}
