@@ -80,21 +80,21 @@ fn samples_from(mut table: Table, pitch_mm: [Option<f64>; 3]) -> Result<(Path, V
             ));
         }
         let nominal_mm = (v[1] * v[1] + v[2] * v[2] + v[3] * v[3]).sqrt();
-        if (v[4] - nominal_mm).abs() > MAX_DEVIATION_MM {
-            return Err(row.error(
-                &cols[4],
-                format!(
-                    "d_mm is {} but the nominal distance is {nominal_mm:.3} mm; more than {MAX_DEVIATION_MM} mm apart is not a machine's error (a wrong column, a glitch, another test)",
-                    v[4]
-                ),
-            ));
-        }
         if nominal_mm < MIN_RADIUS_MM {
             return Err(row.error(
                 &cols[1],
                 format!(
                     "the position ({}, {}, {}) mm is at the table ball; positions are the spindle ball's, relative to the table ball",
                     v[1], v[2], v[3]
+                ),
+            ));
+        }
+        if (v[4] - nominal_mm).abs() > MAX_DEVIATION_MM {
+            return Err(row.error(
+                &cols[4],
+                format!(
+                    "d_mm is {} but the nominal distance is {nominal_mm:.3} mm; more than {MAX_DEVIATION_MM} mm apart is not a machine's error (a wrong column, a glitch, another test)",
+                    v[4]
                 ),
             ));
         }
@@ -360,10 +360,10 @@ mod tests {
         assert!(e.to_string().contains("moves no axis"), "{e}");
         // A straight line past the table ball.
         let line: String = std::iter::once("t_s,x_mm,y_mm,z_mm,d_mm\n".to_string())
-            .chain(
-                (0..40)
-                    .map(|i| format!("{i},{},{},0,50\n", i as f64 - 20.0, 30.0 + 0.5 * i as f64)),
-            )
+            .chain((0..40).map(|i| {
+                let (x, y) = (i as f64 - 20.0, 30.0 + 0.5 * i as f64);
+                format!("{i},{x},{y},0,{}\n", x.hypot(y))
+            }))
             .collect();
         let e = parse_samples(f, &line, [None; 3]).unwrap_err();
         assert!(e.to_string().contains("needs arcs of at least 180°"), "{e}");
