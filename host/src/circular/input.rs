@@ -127,10 +127,8 @@ fn samples_from(mut table: Table, pitch_mm: [Option<f64>; 3]) -> Result<(Path, V
             ));
         }
     }
-    check_circular(&path).map_err(|m| Error::Input {
-        location: file.display().to_string(),
-        message: m,
-    })?;
+    // What the whole file shows is reported at its end, as the count of samples is.
+    check_circular(&path).map_err(|m| Error::input(&file, last_line, 0, m))?;
     Ok((path, d))
 }
 
