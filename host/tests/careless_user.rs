@@ -1163,3 +1163,58 @@ fn history_reads_a_read_only_database_and_never_creates_one_by_mistake() {
     }
     assert_eq!(fs::read(d.join("h.sqlite")).unwrap(), before);
 }
+
+#[test]
+fn a_record_with_a_hole_inside_the_data_arcs_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok_in(
+        d,
+        &[
+            "plan",
+            "--radius",
+            "90",
+            "--feed",
+            "2000",
+            "--centre",
+            "100,50,-20",
+            "--out",
+            "p",
+        ],
+    );
+    let text = fs::read_to_string(data("examples/ballbar-backlash.csv")).unwrap();
+    // Rows with t_us in [from, to) removed: a hole in the record.
+    let cut = |from: u64, to: u64| -> String {
+        text.lines()
+            .enumerate()
+            .filter(|(i, l)| {
+                *i == 0 || {
+                    let t: u64 = l.split(',').nth(1).unwrap().parse().unwrap();
+                    t < from || t >= to
+                }
+            })
+            .map(|(_, l)| format!("{l}\n"))
+            .collect()
+    };
+    // The data arcs of this record are at 14.0–31.3 s and 49.8–67.1 s.
+    fs::write(d.join("hole.csv"), cut(18_000_000, 26_000_000)).unwrap();
+    let e = fails_in(
+        d,
+        &["diagnose", "--record", "hole.csv", "--plan", "p/plan.json"],
+        2,
+        "hole.csv:",
+    );
+    assert!(e.contains("a hole of") && e.contains("ccw data arc"), "{e}");
+    // A hole outside the data arcs (between the directions) is no harm.
+    fs::write(d.join("between.csv"), cut(40_000_000, 45_000_000)).unwrap();
+    ok_in(
+        d,
+        &[
+            "diagnose",
+            "--record",
+            "between.csv",
+            "--plan",
+            "p/plan.json",
+        ],
+    );
+}

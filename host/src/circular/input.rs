@@ -17,6 +17,7 @@ use std::path::Path as FsPath;
 
 use super::model::{Axis, Path};
 use super::runs::{main_plane, split_runs, MAX_RUN_STEP_RAD};
+use super::sync::{Record, Sync};
 use crate::table::Table;
 use crate::{Error, Result};
 
@@ -130,6 +131,64 @@ fn samples_from(mut table: Table, pitch_mm: [Option<f64>; 3]) -> Result<(Path, V
     // What the whole file shows is reported at its end, as the count of samples is.
     check_circular(&path).map_err(|m| Error::input(&file, last_line, 0, m))?;
     Ok((path, d))
+}
+
+/// Longest interval between two record samples on a data arc, in median sample intervals: a
+/// longer one is a hole (samples lost: a cable pulled, a full queue), and the arc would be
+/// diagnosed as if whole.
+pub const MAX_HOLE_INTERVALS: f64 = 20.0;
+
+/// Shortest interval (s) called a hole whatever the sample rate: 50 ms.
+pub const MIN_HOLE_S: f64 = 0.05;
+
+/// Refuse a record with a hole inside one of the plan's data arcs as synchronised (`sync`): a
+/// gap between samples (or between an arc's start or end and its nearest sample) longer than
+/// [`MAX_HOLE_INTERVALS`] median intervals and [`MIN_HOLE_S`]. The error names the line after
+/// the hole and its length.
+pub fn check_holes(rec: &Record, sync: &Sync) -> Result<()> {
+    let t = &rec.t_s;
+    // The median of up to 10 000 intervals: the sample interval.
+    let mut dts: Vec<f64> = t.windows(2).take(10_000).map(|w| w[1] - w[0]).collect();
+    if dts.is_empty() {
+        return Ok(());
+    }
+    dts.sort_by(f64::total_cmp);
+    let limit = (MAX_HOLE_INTERVALS * dts[dts.len() / 2]).max(MIN_HOLE_S);
+    for (k, c) in sync.circles.iter().enumerate() {
+        for a in &c.data {
+            let i0 = t.partition_point(|&x| x < a.t_start_s);
+            let i1 = t.partition_point(|&x| x <= a.t_end_s);
+            let mut prev = (a.t_start_s, i0);
+            let ends = (i0..i1)
+                .map(|i| (t[i], i))
+                .chain(std::iter::once((a.t_end_s, i1)));
+            for (x, i) in ends {
+                let gap = x - prev.0;
+                if gap > limit {
+                    let line = rec.line_of(i.min(t.len().saturating_sub(1)));
+                    return Err(Error::input(
+                        &rec.path,
+                        line,
+                        0,
+                        format!(
+                            "the record has a hole of {gap:.3} s ({:.3}..{:.3} s after its first sample) inside circle {}'s {} data arc ({:.3}..{:.3} s): samples were lost there, and the arc cannot be diagnosed as if whole; record the test again (a hole is more than {MAX_HOLE_INTERVALS} sample intervals and {MIN_HOLE_S} s)",
+                            prev.0,
+                            x,
+                            k + 1,
+                            match a.sense {
+                                super::plan::Sense::Ccw => "ccw",
+                                super::plan::Sense::Cw => "cw",
+                            },
+                            a.t_start_s,
+                            a.t_end_s
+                        ),
+                    ));
+                }
+                prev = (x, i);
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Whether `path` is a circular test the diagnosis can work on: it moves, and draws at least one

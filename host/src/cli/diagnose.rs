@@ -5,7 +5,7 @@ use super::output::{emit, json_text, print};
 use crate::circular::diagnose::{diagnose, Options};
 use crate::circular::document::DiagnosisDoc;
 use crate::circular::html::report_html;
-use crate::circular::input::{read_record_with_path, read_samples};
+use crate::circular::input::{check_holes, read_record_with_path, read_samples};
 use crate::circular::model::parse_pitch;
 use crate::circular::plan::Plan;
 use crate::circular::plot::write_report;
@@ -137,6 +137,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             let plan = Plan::read(plan_file)?;
             let rec = Record::read(record)?;
             let sync = synchronise(&plan, &rec)?;
+            check_holes(&rec, &sync)?;
             let data = data_path(&plan, &rec, &sync, pitch)?;
             synced = Some((plan_file, plan, sync));
             data
