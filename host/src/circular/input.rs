@@ -17,7 +17,7 @@ use std::path::Path as FsPath;
 
 use super::model::{Axis, Path};
 use super::runs::{main_plane, split_runs, MAX_RUN_STEP_RAD};
-use super::sync::{Record, Sync};
+use super::sync::{Record, Sync, MAX_DATA_SAMPLES};
 use crate::table::Table;
 use crate::{Error, Result};
 
@@ -50,12 +50,141 @@ pub fn parse_samples(
     samples_from(Table::from_text(file, text)?, pitch_mm)
 }
 
-fn samples_from(mut table: Table, pitch_mm: [Option<f64>; 3]) -> Result<(Path, Vec<f64>)> {
+fn samples_from(table: Table, pitch_mm: [Option<f64>; 3]) -> Result<(Path, Vec<f64>)> {
+    samples_binned(table, pitch_mm, MAX_DATA_SAMPLES)
+}
+
+/// Samples held, the running means of consecutive raw samples ([`Bins::halve`]).
+struct Bins {
+    t: Vec<f64>,
+    p: Vec<[f64; 3]>,
+    d: Vec<f64>,
+    /// Mean distance |p| of each bin's raw samples: the bin's position is put at this distance
+    /// (a mean of points on an arc lies inside it), so D − |p| is the mean of the raw ones.
+    r: Vec<f64>,
+    /// Raw samples in each.
+    n: Vec<u32>,
+    /// Raw samples per bin for new rows (a power of two).
+    width: u32,
+}
+
+impl Bins {
+    /// Add one raw sample: into the last bin if it is not full, else a new one.
+    fn push(&mut self, t: f64, p: [f64; 3], d: f64) {
+        let r = super::plan::dist(&p, &[0.0; 3]);
+        if let Some(k) = self.n.len().checked_sub(1) {
+            if self.n[k] < self.width && self.joins(k, &p) {
+                let (a, b) = (f64::from(self.n[k]), 1.0);
+                let m = |x: f64, y: f64| (a * x + b * y) / (a + b);
+                self.t[k] = m(self.t[k], t);
+                self.p[k] = std::array::from_fn(|j| m(self.p[k][j], p[j]));
+                self.d[k] = m(self.d[k], d);
+                self.r[k] = m(self.r[k], r);
+                self.n[k] += 1;
+                return;
+            }
+        }
+        self.t.push(t);
+        self.p.push(p);
+        self.d.push(d);
+        self.r.push(r);
+        self.n.push(1);
+    }
+
+    /// The bins' times, positions (at their mean distance) and D.
+    fn finish(self) -> (Vec<f64>, Vec<[f64; 3]>, Vec<f64>) {
+        let p = self
+            .p
+            .iter()
+            .zip(&self.r)
+            .map(|(p, &r)| {
+                let len = super::plan::dist(p, &[0.0; 3]);
+                if len > 0.0 {
+                    std::array::from_fn(|j| p[j] * r / len)
+                } else {
+                    *p
+                }
+            })
+            .collect();
+        (self.t, p, self.d)
+    }
+
+    /// Whether `p` continues bin `k` (no jump: a step at most twice the one before it).
+    fn joins(&self, k: usize, p: &[f64; 3]) -> bool {
+        if k == 0 {
+            return true;
+        }
+        let step = |a: &[f64; 3], b: &[f64; 3]| super::plan::dist(a, b);
+        let before = step(&self.p[k - 1], &self.p[k]) / f64::from(self.n[k - 1].max(1));
+        step(&self.p[k], p) <= 2.0 * before * f64::from(self.width) + 1e-9
+    }
+
+    /// Merge neighbouring bins pairwise (not across a jump), doubling the width.
+    fn halve(&mut self) {
+        let len = self.n.len();
+        let (mut t, mut p, mut d, mut r, mut n) = (
+            Vec::with_capacity(len / 2 + 1),
+            Vec::with_capacity(len / 2 + 1),
+            Vec::with_capacity(len / 2 + 1),
+            Vec::with_capacity(len / 2 + 1),
+            Vec::with_capacity(len / 2 + 1),
+        );
+        let mut k = 0;
+        while k < len {
+            let pair = k + 1 < len && {
+                let step = super::plan::dist(&self.p[k], &self.p[k + 1]);
+                let near = |i: usize, j: usize| super::plan::dist(&self.p[i], &self.p[j]);
+                let before = if k > 0 { near(k - 1, k) } else { step };
+                let after = if k + 2 < len {
+                    near(k + 1, k + 2)
+                } else {
+                    step
+                };
+                step <= 2.0 * before.max(after) + 1e-9
+            };
+            if pair {
+                let (a, b) = (f64::from(self.n[k]), f64::from(self.n[k + 1]));
+                let m = |x: f64, y: f64| (a * x + b * y) / (a + b);
+                t.push(m(self.t[k], self.t[k + 1]));
+                p.push(std::array::from_fn(|j| m(self.p[k][j], self.p[k + 1][j])));
+                d.push(m(self.d[k], self.d[k + 1]));
+                r.push(m(self.r[k], self.r[k + 1]));
+                n.push(self.n[k] + self.n[k + 1]);
+                k += 2;
+            } else {
+                t.push(self.t[k]);
+                p.push(self.p[k]);
+                d.push(self.d[k]);
+                r.push(self.r[k]);
+                n.push(self.n[k]);
+                k += 1;
+            }
+        }
+        (self.t, self.p, self.d, self.r, self.n) = (t, p, d, r, n);
+        self.width *= 2;
+    }
+}
+
+/// [`samples_from`] holding at most about `max` samples: beyond, consecutive samples are
+/// averaged in bins (never across a jump in position), as `diagnose --record --plan` bins the
+/// data arcs ([`MAX_DATA_SAMPLES`]), so a file of any length is diagnosed in bounded memory.
+fn samples_binned(
+    mut table: Table,
+    pitch_mm: [Option<f64>; 3],
+    max: usize,
+) -> Result<(Path, Vec<f64>)> {
     const NAMES: [&str; 5] = ["t_s", "x_mm", "y_mm", "z_mm", "d_mm"];
     let cols = table.require(&NAMES)?;
-    let mut t: Vec<f64> = Vec::new();
-    let mut p = Vec::new();
-    let mut d = Vec::new();
+    let mut bins = Bins {
+        t: Vec::new(),
+        p: Vec::new(),
+        d: Vec::new(),
+        r: Vec::new(),
+        n: Vec::new(),
+        width: 1,
+    };
+    let mut prev_t: Option<f64> = None;
+    let mut raw = 0usize;
     let mut last_line = table.header_line();
     while let Some(row) = table.next_row()? {
         last_line = row.line();
@@ -63,7 +192,7 @@ fn samples_from(mut table: Table, pitch_mm: [Option<f64>; 3]) -> Result<(Path, V
         for (k, c) in cols.iter().enumerate() {
             v[k] = row.number(c)?;
         }
-        if let Some(&prev) = t.last() {
+        if let Some(prev) = prev_t {
             if v[0] <= prev {
                 return Err(row.error(
                     &cols[0],
@@ -99,19 +228,25 @@ fn samples_from(mut table: Table, pitch_mm: [Option<f64>; 3]) -> Result<(Path, V
                 ),
             ));
         }
-        t.push(v[0]);
-        p.push([v[1], v[2], v[3]]);
-        d.push(v[4]);
+        prev_t = Some(v[0]);
+        raw += 1;
+        bins.push(v[0], [v[1], v[2], v[3]], v[4]);
+        if bins.n.len() >= 2 * max.max(MIN_SAMPLES) {
+            bins.halve();
+        }
     }
+    if bins.n.len() > max.max(MIN_SAMPLES) {
+        bins.halve();
+    }
+    let (t, p, d) = bins.finish();
     let file = table.path().to_path_buf();
-    if t.len() < MIN_SAMPLES {
+    if raw < MIN_SAMPLES {
         return Err(Error::input(
             &file,
             last_line,
             0,
             format!(
-                "only {} samples; a diagnosis needs at least {MIN_SAMPLES} (a full circle each way)",
-                t.len()
+                "only {raw} samples; a diagnosis needs at least {MIN_SAMPLES} (a full circle each way)"
             ),
         ));
     }
@@ -353,6 +488,50 @@ mod tests {
             text.push_str(&format!("50,{i},{},{},0\n", 50.0 * a.cos(), 50.0 * a.sin()));
         }
         text
+    }
+
+    #[test]
+    fn long_sample_files_are_binned_in_bounded_memory_never_across_a_jump() {
+        // Two circles (R 50 then R 60, a jump between them), ccw then cw, 4 000 samples each
+        // way, D = R + 2 µm·cos 3θ.
+        let mut text = String::from("t_s,x_mm,y_mm,z_mm,d_mm\n");
+        let mut i = 0;
+        for r in [50.0, 60.0] {
+            for k in (0..4000).chain((0..4000).rev()) {
+                let a = (k as f64 * 0.09).to_radians();
+                let d = r + 0.002 * (3.0 * a).cos();
+                text += &format!(
+                    "{},{},{},0,{d}\n",
+                    i as f64 * 1e-3,
+                    r * a.cos(),
+                    r * a.sin()
+                );
+                i += 1;
+            }
+        }
+        // Bins of 16 samples (1.44°), far below a run's largest step.
+        let table = Table::from_text(FsPath::new("s.csv"), &text).unwrap();
+        let (path, d) = samples_binned(table, [None; 3], 1000).unwrap();
+        assert!(
+            d.len() <= 1000 && d.len() >= 500,
+            "{} samples held",
+            d.len()
+        );
+        for (p, d) in path.p_mm.iter().zip(&d) {
+            let r = (p[0] * p[0] + p[1] * p[1]).sqrt();
+            // A bin's mean lies on its circle (to the chord of a few samples) and D follows it.
+            assert!(
+                (r - 50.0).abs() < 1e-3 || (r - 60.0).abs() < 1e-3,
+                "a bin across the jump: r = {r}"
+            );
+            let a = p[1].atan2(p[0]);
+            let want = r.round() + 0.002 * (3.0 * a).cos();
+            assert!((d - want).abs() < 2e-4, "D {d} vs {want}");
+        }
+        // Below the bound nothing is binned.
+        let table = Table::from_text(FsPath::new("s.csv"), &text).unwrap();
+        let (_, all) = samples_binned(table, [None; 3], 20_000).unwrap();
+        assert_eq!(all.len(), 16_000);
     }
 
     #[test]
