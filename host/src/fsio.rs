@@ -61,8 +61,8 @@ pub fn remove_staged() {
 }
 
 /// Make Ctrl-C (and SIGTERM, SIGHUP) end the process within milliseconds with exit code 130,
-/// after removing what it staged ([`remove_staged`]): for commands that compute for long and
-/// write their outputs only at the end (`simulate`, `diagnose`, `calibrate`, `rrsps`). A rename
+/// after removing what it staged ([`remove_staged`]): for every command but those that
+/// talk to a device (`record`, `live`, `calibration`), which end their session themselves. A rename
 /// in progress finishes first (it holds the same lock), so an output is whole or absent.
 pub fn exit_on_interrupt() {
     // A second handler cannot be installed (a command that has its own, such as `record`,

@@ -77,7 +77,6 @@ pub fn run(args: &CalibrateArgs) -> Result<()> {
         }
         crate::fsio::check_destination(out, args.force)?;
     }
-    crate::fsio::exit_on_interrupt();
     let opts = Options {
         extended: args.extended,
         ..Options::default()

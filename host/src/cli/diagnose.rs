@@ -121,7 +121,6 @@ fn add_run_facts(
 
 /// Run `jdbb diagnose`.
 pub fn run(args: &DiagnoseArgs) -> Result<()> {
-    crate::fsio::exit_on_interrupt();
     if let Some(dir) = &args.report {
         // Before the work: a report directory that will be refused is refused at once.
         check_dir_destination(dir, args.force)?;

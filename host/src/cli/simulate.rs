@@ -56,7 +56,6 @@ pub struct SimulateArgs {
 
 /// Run `jdbb simulate`.
 pub fn run(args: &SimulateArgs) -> Result<()> {
-    crate::fsio::exit_on_interrupt();
     if let Some(file) = &args.out {
         // Before the work: a destination that will be refused is refused at once.
         check_destination(file, args.force)?;
