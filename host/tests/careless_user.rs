@@ -1068,7 +1068,8 @@ fn plan_json_circles_units_and_keys_are_checked_against_the_segments() {
     .unwrap();
     let plan: serde_json::Value =
         serde_json::from_str(&fs::read_to_string(d.join("p/plan.json")).unwrap()).unwrap();
-    let cases: Vec<(&str, Box<dyn Fn(&mut serde_json::Value)>, &str)> = vec![
+    type Edit = Box<dyn Fn(&mut serde_json::Value)>;
+    let cases: Vec<(&str, Edit, &str)> = vec![
         (
             "units",
             Box::new(|p| p["units"] = "in".into()),

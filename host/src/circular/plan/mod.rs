@@ -569,7 +569,7 @@ impl Plan {
             let d = c.radius_mm.hypot(c.height_mm);
             if c.index != k
                 || !(c.radius_mm > 0.0 && c.radius_mm.is_finite())
-                || !((c.d_mm - d).abs() <= TOL_MM)
+                || (c.d_mm - d).abs().partial_cmp(&TOL_MM) != Some(std::cmp::Ordering::Less)
                 || c.plane != self.plane
             {
                 return Err(format!(
