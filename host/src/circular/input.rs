@@ -64,6 +64,11 @@ struct Bins {
     r: Vec<f64>,
     /// Raw samples in each.
     n: Vec<u32>,
+    /// Whether a bin begins at a reversal of an axis (or a jump): never merged with the one
+    /// before, so no bin averages across a backlash step.
+    fence: Vec<bool>,
+    /// The last raw position and the step that led to it.
+    last: Option<([f64; 3], [f64; 3])>,
     /// Raw samples per bin for new rows (a power of two).
     width: u32,
 }
@@ -72,8 +77,26 @@ impl Bins {
     /// Add one raw sample: into the last bin if it is not full, else a new one.
     fn push(&mut self, t: f64, p: [f64; 3], d: f64) {
         let r = super::plan::dist(&p, &[0.0; 3]);
+        // A reversal: an axis that moved one way now moves the other.
+        let reversal = self.last.is_some_and(|(q, step)| {
+            (0..3).any(|j| {
+                let now = p[j] - q[j];
+                now * step[j] < 0.0
+            })
+        });
+        self.last = Some(match self.last {
+            Some((q, step)) => {
+                let now: [f64; 3] = std::array::from_fn(|j| p[j] - q[j]);
+                // A standing axis keeps the direction it had.
+                (
+                    p,
+                    std::array::from_fn(|j| if now[j] != 0.0 { now[j] } else { step[j] }),
+                )
+            }
+            None => (p, [0.0; 3]),
+        });
         if let Some(k) = self.n.len().checked_sub(1) {
-            if self.n[k] < self.width && self.joins(k, &p) {
+            if !reversal && self.n[k] < self.width && self.joins(k, &p) {
                 let (a, b) = (f64::from(self.n[k]), 1.0);
                 let m = |x: f64, y: f64| (a * x + b * y) / (a + b);
                 self.t[k] = m(self.t[k], t);
@@ -84,11 +107,17 @@ impl Bins {
                 return;
             }
         }
+        let fence = reversal
+            || self
+                .n
+                .last()
+                .is_some_and(|_| !self.joins(self.n.len() - 1, &p));
         self.t.push(t);
         self.p.push(p);
         self.d.push(d);
         self.r.push(r);
         self.n.push(1);
+        self.fence.push(fence);
     }
 
     /// The bins' times, positions (at their mean distance) and D.
@@ -119,10 +148,21 @@ impl Bins {
         step(&self.p[k], p) <= 2.0 * before * f64::from(self.width) + 1e-9
     }
 
-    /// Merge neighbouring bins pairwise (not across a jump), doubling the width.
+    /// Merge neighbouring bins pairwise, doubling the width: not across a reversal or a jump,
+    /// unless that would leave more than three quarters of them (noisy positions reverse at
+    /// every sample): then all pairs, so memory stays bounded whatever the file.
     fn halve(&mut self) {
+        let before = self.n.len();
+        self.halve_pairs(false);
+        if self.n.len() > before / 4 * 3 {
+            self.halve_pairs(true);
+        }
+    }
+
+    fn halve_pairs(&mut self, all: bool) {
         let len = self.n.len();
-        let (mut t, mut p, mut d, mut r, mut n) = (
+        let (mut t, mut p, mut d, mut r, mut n, mut fence) = (
+            Vec::with_capacity(len / 2 + 1),
             Vec::with_capacity(len / 2 + 1),
             Vec::with_capacity(len / 2 + 1),
             Vec::with_capacity(len / 2 + 1),
@@ -131,7 +171,7 @@ impl Bins {
         );
         let mut k = 0;
         while k < len {
-            let pair = k + 1 < len && {
+            let pair = k + 1 < len && (all || !self.fence[k + 1]) && {
                 let step = super::plan::dist(&self.p[k], &self.p[k + 1]);
                 let near = |i: usize, j: usize| super::plan::dist(&self.p[i], &self.p[j]);
                 let before = if k > 0 { near(k - 1, k) } else { step };
@@ -140,7 +180,7 @@ impl Bins {
                 } else {
                     step
                 };
-                step <= 2.0 * before.max(after) + 1e-9
+                all || step <= 2.0 * before.max(after) + 1e-9
             };
             if pair {
                 let (a, b) = (f64::from(self.n[k]), f64::from(self.n[k + 1]));
@@ -150,6 +190,7 @@ impl Bins {
                 d.push(m(self.d[k], self.d[k + 1]));
                 r.push(m(self.r[k], self.r[k + 1]));
                 n.push(self.n[k] + self.n[k + 1]);
+                fence.push(self.fence[k]);
                 k += 2;
             } else {
                 t.push(self.t[k]);
@@ -157,10 +198,11 @@ impl Bins {
                 d.push(self.d[k]);
                 r.push(self.r[k]);
                 n.push(self.n[k]);
+                fence.push(self.fence[k]);
                 k += 1;
             }
         }
-        (self.t, self.p, self.d, self.r, self.n) = (t, p, d, r, n);
+        (self.t, self.p, self.d, self.r, self.n, self.fence) = (t, p, d, r, n, fence);
         self.width *= 2;
     }
 }
@@ -181,6 +223,8 @@ fn samples_binned(
         d: Vec::new(),
         r: Vec::new(),
         n: Vec::new(),
+        fence: Vec::new(),
+        last: None,
         width: 1,
     };
     let mut prev_t: Option<f64> = None;
@@ -528,6 +572,23 @@ mod tests {
             let want = r.round() + 0.002 * (3.0 * a).cos();
             assert!((d - want).abs() < 2e-4, "D {d} vs {want}");
         }
+        // Positions with noise reverse at every sample: memory stays bounded all the same.
+        let noisy: String = text
+            .lines()
+            .enumerate()
+            .map(|(i, l)| {
+                if i == 0 {
+                    return format!("{l}\n");
+                }
+                let mut f: Vec<String> = l.split(',').map(str::to_string).collect();
+                let x: f64 = f[1].parse().unwrap();
+                f[1] = format!("{}", x + if i % 2 == 0 { 1e-4 } else { -1e-4 });
+                format!("{}\n", f.join(","))
+            })
+            .collect();
+        let table = Table::from_text(FsPath::new("s.csv"), &noisy).unwrap();
+        let (_, d) = samples_binned(table, [None; 3], 1000).unwrap();
+        assert!(d.len() <= 1000, "{} samples held", d.len());
         // Below the bound nothing is binned.
         let table = Table::from_text(FsPath::new("s.csv"), &text).unwrap();
         let (_, all) = samples_binned(table, [None; 3], 20_000).unwrap();
