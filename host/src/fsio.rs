@@ -303,7 +303,8 @@ pub struct FileSet {
 }
 
 impl FileSet {
-    /// A set of files in `dir` (created if missing; a link or a non-directory is refused).
+    /// A set of files in `dir` (created with the first file staged; a link or a non-directory
+    /// is refused).
     pub fn new(dir: &Path, force: bool) -> Result<FileSet> {
         match fs::symlink_metadata(dir) {
             Ok(m) if m.is_dir() => {}
@@ -313,13 +314,8 @@ impl FileSet {
                     what: not_a_file(&m).unwrap_or("a file, not a directory"),
                 })
             }
-            Err(e) if e.kind() == io::ErrorKind::NotFound => {
-                fs::create_dir_all(dir).map_err(|source| Error::File {
-                    action: "cannot create",
-                    path: dir.to_path_buf(),
-                    source,
-                })?
-            }
+            // Created when the first file is staged, so a refused set leaves nothing behind.
+            Err(e) if e.kind() == io::ErrorKind::NotFound => {}
             Err(source) => {
                 return Err(Error::File {
                     action: "cannot check",
@@ -345,6 +341,13 @@ impl FileSet {
 
     /// Stage the file `name` with `bytes`.
     pub fn add(&mut self, name: &str, bytes: &[u8]) -> Result<()> {
+        if self.staged.is_empty() {
+            fs::create_dir_all(&self.dir).map_err(|source| Error::File {
+                action: "cannot create",
+                path: self.dir.clone(),
+                source,
+            })?;
+        }
         let dest = self.dir.join(name);
         let mut s = Staged::create(&dest, self.force)?;
         s.write_all(bytes).map_err(write_err(&dest))?;
