@@ -432,6 +432,12 @@ pub const DIR_MARK: &str = ".jdbb-output";
 /// [`DIR_MARK`]), so nothing of the user's in it is lost.
 pub fn write_dir<T>(dest: &Path, force: bool, write: impl FnOnce(&Path) -> Result<T>) -> Result<T> {
     let exists = check_dir_destination(dest, force)?;
+    // The directories above it, as `--report a/b/c` always made them.
+    fs::create_dir_all(parent_of(dest)).map_err(|source| Error::File {
+        action: "cannot create the directory of",
+        path: dest.to_path_buf(),
+        source,
+    })?;
     let mut stage = None;
     for n in 0..1000 {
         let p = temp_name(dest, n);
@@ -805,6 +811,13 @@ mod tests {
         });
         assert!(e.is_err());
         assert_eq!(fs::read_to_string(d.join("one")).unwrap(), "2");
+        // Missing directories above it are made.
+        let deep = root.path().join("a/b/report");
+        write_dir(&deep, false, |s| {
+            fs::write(s.join("one"), "1").map_err(write_err(s))
+        })
+        .unwrap();
+        assert_eq!(ls(&deep), [DIR_MARK, "one"]);
         let mine = root.path().join("mine");
         fs::create_dir(&mine).unwrap();
         fs::write(mine.join("notes"), "x").unwrap();
