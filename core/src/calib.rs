@@ -22,6 +22,13 @@ use serde::{Deserialize, Serialize};
 /// no longer meet the accuracy budget.
 pub const MAX_ERROR_RAD: f64 = 0.01;
 
+/// Shortest bar (mm) a calibration may give: a ball bar's bars are centimetres long, so below
+/// 1 mm is a typing or unit error (`1e-300`), not an instrument.
+pub const MIN_BAR_MM: f64 = 1.0;
+
+/// A bar length (mm) must be below this: 10 m, longer than any machine tool.
+pub const MAX_BAR_MM: f64 = 10_000.0;
+
 /// Direction in which an encoder's count grows relative to the positive frame angle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -56,6 +63,8 @@ impl Direction {
 /// ψ: the disc's own angle (count 0 at ψ = 0).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+// A misspelled key in a calibration file is an error, not a term silently left at zero.
+#[serde(deny_unknown_fields)]
 pub struct EncoderCal {
     /// Counts per revolution after decoding (×4 quadrature of an interpolated signal, or the
     /// absolute encoder's resolution), N.
@@ -185,6 +194,8 @@ impl EncoderCal {
 /// Geometry of one decoupling frame's pivot, see (G4)–(G6) of [`crate::geometry`].
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+// A misspelled key in a calibration file is an error, not a term silently left at zero.
+#[serde(deny_unknown_fields)]
 pub struct FrameCal {
     /// Tilt τ (rad) of the frame's pivot axis out of the plane normal to bar 1, positive towards
     /// +z (the side of bar 2). Equal tilts of both axes are bar 1 standing crooked in the joint
@@ -215,6 +226,8 @@ impl FrameCal {
 /// Everything the instrument model needs to turn two counts into D.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+// A misspelled key in a calibration file is an error, not a term silently left at zero.
+#[serde(deny_unknown_fields)]
 pub struct Calibration {
     /// Bar 1: centre of the table ball to the centre of the spherical joint (mm).
     pub l1_mm: f64,
@@ -265,7 +278,7 @@ impl Calibration {
     /// below 10 m, at least 4 counts per revolution, every error angle finite and within
     /// ±[`MAX_ERROR_RAD`] (eccentricity amplitude ≥ 0, its phase within ±2π).
     pub fn validate(&self) -> Result<(), CalibrationError> {
-        let ok_len = |l: f64| l.is_finite() && l > 0.0 && l < 10_000.0;
+        let ok_len = |l: f64| (MIN_BAR_MM..MAX_BAR_MM).contains(&l);
         if !ok_len(self.l1_mm) || !ok_len(self.l2_mm) {
             return Err(CalibrationError::BarLength);
         }
@@ -462,7 +475,7 @@ impl Param {
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[non_exhaustive]
 pub enum CalibrationError {
-    /// A bar length is not a finite positive number below 10 m.
+    /// A bar length is not between [`MIN_BAR_MM`] (1 mm) and [`MAX_BAR_MM`] (10 m).
     BarLength,
     /// An encoder has fewer than 4 counts per revolution.
     Resolution,
@@ -517,6 +530,11 @@ mod tests {
         let mut c = ok;
         c.l2_mm = -1.0;
         assert_eq!(c.validate(), Err(CalibrationError::BarLength));
+        for l in [1e-300, 0.5, 1e4, f64::NAN] {
+            let mut c = ok;
+            c.l1_mm = l;
+            assert_eq!(c.validate(), Err(CalibrationError::BarLength), "{l}");
+        }
         let mut c = ok;
         c.enc1.counts_per_rev = 3;
         assert_eq!(c.validate(), Err(CalibrationError::Resolution));

@@ -63,11 +63,11 @@ pub enum Error {
         #[source]
         source: std::io::Error,
     },
-    /// `record --out` names a file that exists.
-    #[error("{path} exists; choose another --out, or add --force to replace it")]
+    /// An output names a file that exists, and `--force` was not given.
+    #[error("{path} exists; choose another output, or add --force to replace it")]
     OutputExists { path: PathBuf },
-    /// `record --out` names something that is not a regular file.
-    #[error("{path} is {what}, not a regular file; jdbb record writes regular files only (and never through a link): choose another --out")]
+    /// An output names something that is not a regular file (a link, a device, a directory).
+    #[error("{path} is {what}, not a regular file; jdbb writes regular files only (never through a link, never over a device, even with --force): choose another output")]
     OutputNotAFile { path: PathBuf, what: &'static str },
     /// The recording's work file exists already.
     #[error("{path} exists, left by a record that did not finish: it is a valid CSV of what that record got; rename or remove it, then record again")]

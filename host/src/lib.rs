@@ -15,6 +15,7 @@
 //! | [`units`] | ASCII units in files and JSON, symbols for people |
 //! | [`dates`] | dates in reports and the history (RFC 3339, UTC) |
 //! | [`error`] | the error type and its exit codes |
+//! | [`fsio`] | the one writer (no link, no device, whole files, sets, `--force`) and input limits |
 //!
 //! Dependencies point one way: `cli` → `compensate`, `history` → `circular`, `rotary`, `rrsps`,
 //! `instrument`, `link` → `numerics`,
@@ -25,6 +26,7 @@ pub mod cli;
 pub mod compensate;
 pub mod dates;
 pub mod error;
+pub mod fsio;
 pub mod history;
 pub mod instrument;
 pub mod link;

@@ -16,10 +16,17 @@
 //! the field starts, as a compiler does — and the column's name; a long field is shortened in the
 //! message. The file is read a line at a time ([`Table::next_row`]), so a table of any length is
 //! read in constant memory by a caller that keeps only what it needs.
+//!
+//! # Limits
+//! A line is at most [`MAX_LINE_BYTES`] (1 MiB); a table read a row at a time at most
+//! [`Limit::Stream`] (4 GiB), one read whole at most [`Limit::Table`] (256 MiB); a whole-file
+//! document ([`read_text`]: TOML, JSON) at most [`Limit::Document`] (16 MiB). Above a limit the
+//! read stops with an error naming it (exit 2).
 use std::io::{BufRead, BufReader, Read};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
+use crate::fsio::{Limit, MAX_LINE_BYTES};
 use crate::{Error, Result};
 
 /// Longest field (in characters) quoted whole in an error message.
@@ -53,21 +60,16 @@ pub struct Table {
 
 impl Table {
     /// Open `path` and read its header. A file that cannot be read is bad input (exit 2) with the
-    /// system's reason.
+    /// system's reason. At most [`Limit::Stream`] bytes are read (for tables read a row at a
+    /// time); see [`Table::open_with`].
     pub fn open(path: &Path) -> Result<Table> {
-        let file = std::fs::File::open(path).map_err(|source| Error::InputFile {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        if file.metadata().is_ok_and(|m| m.is_dir()) {
-            return Err(Error::InputFile {
-                path: path.to_path_buf(),
-                source: std::io::Error::new(
-                    std::io::ErrorKind::InvalidInput,
-                    "it is a directory, not a file",
-                ),
-            });
-        }
+        Table::open_with(path, Limit::Stream)
+    }
+
+    /// [`Table::open`] reading at most `limit` bytes: a table read whole into memory is opened
+    /// with [`Limit::Table`].
+    pub fn open_with(path: &Path, limit: Limit) -> Result<Table> {
+        let file = crate::fsio::open_input(path, limit)?;
         Table::from_reader(path, Box::new(BufReader::with_capacity(1 << 16, file)))
     }
 
@@ -206,8 +208,8 @@ impl Table {
     fn advance(&mut self) -> Result<bool> {
         loop {
             self.raw.clear();
-            let n = self
-                .reader
+            let n = (&mut self.reader)
+                .take(MAX_LINE_BYTES as u64 + 1)
                 .read_until(b'\n', &mut self.raw)
                 .map_err(|source| Error::InputFile {
                     path: self.path.clone(),
@@ -217,6 +219,17 @@ impl Table {
                 return Ok(false);
             }
             self.line_no += 1;
+            if self.raw.len() > MAX_LINE_BYTES {
+                return Err(Error::input(
+                    &self.path,
+                    self.line_no,
+                    0,
+                    format!(
+                        "a line longer than {} MiB, the longest line jdbb reads; is this a CSV table?",
+                        MAX_LINE_BYTES >> 20
+                    ),
+                ));
+            }
             let mut bytes: &[u8] = &self.raw;
             if self.line_no == 1 {
                 bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
@@ -361,7 +374,7 @@ impl Row<'_> {
 /// each row's line number. For the small tables (parameter sets, angle-indexed runs); long
 /// records are read row by row with [`Table::next_row`].
 pub fn read_columns(path: &Path, names: &[&str]) -> Result<(Vec<usize>, Vec<Vec<f64>>)> {
-    let mut t = Table::open(path)?;
+    let mut t = Table::open_with(path, Limit::Table)?;
     let cols = t.require(names)?;
     let mut lines = vec![];
     let mut out = vec![vec![]; names.len()];
@@ -383,16 +396,10 @@ pub fn line_col(text: &str, byte: usize) -> (usize, usize) {
     (line, col)
 }
 
-/// Read all of `reader` as text for a parser that needs the whole file (TOML); bad input (exit 2)
-/// if it cannot be read or is not UTF-8.
+/// Read all of `path` as text for a parser that needs the whole file (TOML, JSON), at most
+/// [`Limit::Document`] bytes; bad input (exit 2) if it cannot be read, is larger, or is not UTF-8.
 pub fn read_text(path: &Path) -> Result<String> {
-    let mut bytes = vec![];
-    std::fs::File::open(path)
-        .and_then(|mut f| f.read_to_end(&mut bytes))
-        .map_err(|source| Error::InputFile {
-            path: path.to_path_buf(),
-            source,
-        })?;
+    let bytes = crate::fsio::read_input(path, Limit::Document)?;
     match String::from_utf8(bytes) {
         Ok(mut s) => {
             if s.starts_with('\u{feff}') {
@@ -495,13 +502,25 @@ mod tests {
 
     #[test]
     fn a_long_bad_field_is_shortened() {
-        let long = "z".repeat(5_000_000);
+        let long = "z".repeat(500_000);
         let mut t = table(&format!("a\n{long}\n")).unwrap();
         let c = t.require(&["a"]).unwrap();
         let e = t.next_row().unwrap().unwrap().number(&c[0]).unwrap_err();
         let msg = e.to_string();
         assert!(msg.len() < 200, "{} bytes", msg.len());
-        assert!(msg.contains("(5000000 characters)"), "{msg}");
+        assert!(msg.contains("(500000 characters)"), "{msg}");
+    }
+
+    #[test]
+    fn a_line_without_end_stops_at_the_limit() {
+        // `/dev/zero` as a table: one endless line, refused at the line limit, not read whole.
+        let e = Table::open(Path::new("/dev/zero")).err().unwrap();
+        assert_eq!(e.exit_code(), 2);
+        assert!(
+            e.to_string()
+                .starts_with("/dev/zero:1: a line longer than 1 MiB"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -172,11 +172,8 @@ fn absurd_inputs_are_bad_input() {
         d,
         "line.csv",
         rows(&|i| {
-            format!(
-                "{i},{},{},0,50\n",
-                i as f64 * 0.1 - 20.0,
-                30.0 + 0.05 * i as f64
-            )
+            let (x, y) = (i as f64 * 0.1 - 20.0, 30.0 + 0.05 * i as f64);
+            format!("{i},{x},{y},0,{}\n", x.hypot(y))
         })
         .as_bytes(),
     );
@@ -288,14 +285,27 @@ fn files_are_read_by_the_same_rules_everywhere() {
         2,
         "column `d_mm` appears twice",
     );
-    // A 5 MB bad field is not echoed whole.
+    // A 500 kB bad field is not echoed whole.
     let long = format!(
         "{}{}\n",
         "t_s,x_mm,y_mm,z_mm,d_mm\n0,1,2,3,",
-        "9".repeat(5 << 20) + "x"
+        "9".repeat(500_000) + "x"
     );
     let long = write(d, "long.csv", long.as_bytes());
     let err = fails(&["diagnose", "--samples", &long], 2, "characters)");
+    assert!(err.len() < 1000, "{} bytes of error", err.len());
+    // A 5 MB line is not a table row: refused at the line limit, named, not read whole.
+    let longer = format!(
+        "{}{}\n",
+        "t_s,x_mm,y_mm,z_mm,d_mm\n0,1,2,3,",
+        "9".repeat(5 << 20)
+    );
+    let longer = write(d, "longer.csv", longer.as_bytes());
+    let err = fails(
+        &["diagnose", "--samples", &longer],
+        2,
+        "longer.csv:2: a line longer than 1 MiB",
+    );
     assert!(err.len() < 1000, "{} bytes of error", err.len());
     // A missing file: exit 2, its cause once.
     let err = fails(

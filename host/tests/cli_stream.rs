@@ -657,3 +657,108 @@ fn an_unacknowledged_start_records_nothing_and_leaves_the_output_alone() {
     assert_eq!(std::fs::read_to_string(&out).unwrap(), "precious data\n");
     assert!(!partial(&out).exists());
 }
+
+/// Issue 16: a failing standard error (`2>/dev/full`) once panicked `record` right after it
+/// created its work file, leaving a header-only `.partial` that blocked the next record. Now the
+/// progress lines are dropped and the record runs as ever.
+#[test]
+fn record_with_a_failing_standard_error_records_as_ever() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rec.csv");
+    let mut pty = Pty::new();
+    let full = std::fs::OpenOptions::new()
+        .write(true)
+        .open("/dev/full")
+        .unwrap();
+    let child = Proc::new(JDBB)
+        .args([
+            "record",
+            "--port",
+            &pty.slave_path,
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::from(full))
+        .spawn()
+        .unwrap();
+    pty.expect_command(Command::Start, Duration::from_secs(10));
+    let mut bytes = batch_frame(0);
+    bytes.extend(batch_frame(16));
+    pty.send(&bytes);
+    wait_for_lines(&partial(&out), 32);
+    // SAFETY: signalling our own child.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
+    pty.expect_command(Command::Stop, Duration::from_secs(10));
+    let o = child.wait_with_output().unwrap();
+    assert!(o.status.success(), "{:?}", o.status);
+    check_csv(&out, &(0..32).collect::<Vec<_>>());
+    assert!(
+        !partial(&out).exists(),
+        "no work file left to block the next record"
+    );
+}
+
+/// Issue 16: samples a device sends that no instrument can give (D NaN, infinite, negative or
+/// beyond the bars, time going back or standing still) are counted, summarised and kept as
+/// `# suspect` comment lines; the file reads back.
+#[test]
+fn record_sets_suspect_samples_aside_and_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rec.csv");
+    let mut pty = Pty::new();
+    let child = spawn(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    pty.expect_command(Command::Start, Duration::from_secs(10));
+    let mut samples = heapless::Vec::new();
+    for i in 0..BATCH_LEN as u64 {
+        let mut s = sample(i);
+        match i {
+            1 => s.d_mm = f64::NAN,
+            2 => s.d_mm = f64::INFINITY,
+            3 => s.d_mm = -1.0,
+            4 => s.d_mm = 1e6,
+            5 => s.t_us = sample(4).t_us,
+            6 => s.t_us = sample(4).t_us - 50,
+            7 => s.enc1 = 1 << 40,
+            _ => {}
+        }
+        samples.push(s).unwrap();
+    }
+    let msg = DeviceMsg::Batch(SampleBatch {
+        seq: 0,
+        dropped: 0,
+        samples,
+    });
+    pty.send(&encode(&msg));
+    wait_for_lines(&partial(&out), BATCH_LEN);
+    // SAFETY: signalling our own child.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
+    pty.expect_command(Command::Stop, Duration::from_secs(10));
+    let o = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{stdout}{}", stderr(&o));
+    assert!(
+        stdout.contains("suspect samples 7 (D not finite 2, D impossible 2, counts out of range 1, time back 1, time standing still 1)"),
+        "{stdout}"
+    );
+    let text = std::fs::read_to_string(&out).unwrap();
+    assert_eq!(
+        text.lines().filter(|l| l.starts_with("# suspect:")).count(),
+        7,
+        "{text}"
+    );
+    let data: Vec<u64> = text
+        .lines()
+        .skip(1)
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(data, [0, 8, 9, 10, 11, 12, 13, 14, 15]);
+}

@@ -189,10 +189,7 @@ impl DiagnosisDoc {
     /// Read a diagnosis file; a missing file or malformed JSON is an input error (exit 2), with
     /// `file:line:column` for the latter.
     pub fn read(path: &FsPath) -> Result<(DiagnosisDoc, String)> {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::InputFile {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text = crate::table::read_text(path)?;
         let doc = Self::parse(path, &text)?;
         Ok((doc, text))
     }

@@ -17,6 +17,7 @@ use std::path::Path as FsPath;
 
 use super::model::{Axis, Path};
 use super::runs::{main_plane, split_runs, MAX_RUN_STEP_RAD};
+use super::sync::{Record, Sync, MAX_DATA_SAMPLES};
 use crate::table::Table;
 use crate::{Error, Result};
 
@@ -29,6 +30,11 @@ pub const MIN_ARC_DEG: f64 = 180.0;
 
 /// Positions closer than this to the table ball (mm) cannot be a ball bar's: the bar has a length.
 const MIN_RADIUS_MM: f64 = 1.0;
+
+/// Largest |D − nominal distance| (mm) of a sample: a ball bar measures machine errors of µm to
+/// a few hundred µm; a D 5 mm off the nominal path is a wrong column, a glitch or another test,
+/// and would swamp the diagnosis (one D of 1e6 mm gave G = 1e9 µm).
+pub const MAX_DEVIATION_MM: f64 = 5.0;
 
 /// Read `t_s,x_mm,y_mm,z_mm,d_mm`. Returns the path (with `pitch_mm` applied) and D.
 pub fn read_samples(file: &FsPath, pitch_mm: [Option<f64>; 3]) -> Result<(Path, Vec<f64>)> {
@@ -44,12 +50,185 @@ pub fn parse_samples(
     samples_from(Table::from_text(file, text)?, pitch_mm)
 }
 
-fn samples_from(mut table: Table, pitch_mm: [Option<f64>; 3]) -> Result<(Path, Vec<f64>)> {
+fn samples_from(table: Table, pitch_mm: [Option<f64>; 3]) -> Result<(Path, Vec<f64>)> {
+    samples_binned(table, pitch_mm, MAX_DATA_SAMPLES)
+}
+
+/// Samples held, the running means of consecutive raw samples ([`Bins::halve`]).
+struct Bins {
+    t: Vec<f64>,
+    p: Vec<[f64; 3]>,
+    d: Vec<f64>,
+    /// Mean distance |p| of each bin's raw samples: the bin's position is put at this distance
+    /// (a mean of points on an arc lies inside it), so D − |p| is the mean of the raw ones.
+    r: Vec<f64>,
+    /// Raw samples in each.
+    n: Vec<u32>,
+    /// Whether a bin begins at a reversal of an axis (or a jump): never merged with the one
+    /// before, so no bin averages across a backlash step.
+    fence: Vec<bool>,
+    /// The last raw position and the step that led to it.
+    last: Option<([f64; 3], [f64; 3])>,
+    /// Raw samples per bin for new rows (a power of two).
+    width: u32,
+}
+
+impl Bins {
+    /// Add one raw sample: into the last bin if it is not full, else a new one.
+    fn push(&mut self, t: f64, p: [f64; 3], d: f64) {
+        let r = super::plan::dist(&p, &[0.0; 3]);
+        // A reversal: an axis that moved one way now moves the other.
+        let reversal = self.last.is_some_and(|(q, step)| {
+            (0..3).any(|j| {
+                let now = p[j] - q[j];
+                now * step[j] < 0.0
+            })
+        });
+        self.last = Some(match self.last {
+            Some((q, step)) => {
+                let now: [f64; 3] = std::array::from_fn(|j| p[j] - q[j]);
+                // A standing axis keeps the direction it had.
+                (
+                    p,
+                    std::array::from_fn(|j| if now[j] != 0.0 { now[j] } else { step[j] }),
+                )
+            }
+            None => (p, [0.0; 3]),
+        });
+        if let Some(k) = self.n.len().checked_sub(1) {
+            if !reversal && self.n[k] < self.width && self.joins(k, &p) {
+                let (a, b) = (f64::from(self.n[k]), 1.0);
+                let m = |x: f64, y: f64| (a * x + b * y) / (a + b);
+                self.t[k] = m(self.t[k], t);
+                self.p[k] = std::array::from_fn(|j| m(self.p[k][j], p[j]));
+                self.d[k] = m(self.d[k], d);
+                self.r[k] = m(self.r[k], r);
+                self.n[k] += 1;
+                return;
+            }
+        }
+        let fence = reversal
+            || self
+                .n
+                .last()
+                .is_some_and(|_| !self.joins(self.n.len() - 1, &p));
+        self.t.push(t);
+        self.p.push(p);
+        self.d.push(d);
+        self.r.push(r);
+        self.n.push(1);
+        self.fence.push(fence);
+    }
+
+    /// The bins' times, positions (at their mean distance) and D.
+    fn finish(self) -> (Vec<f64>, Vec<[f64; 3]>, Vec<f64>) {
+        let p = self
+            .p
+            .iter()
+            .zip(&self.r)
+            .map(|(p, &r)| {
+                let len = super::plan::dist(p, &[0.0; 3]);
+                if len > 0.0 {
+                    std::array::from_fn(|j| p[j] * r / len)
+                } else {
+                    *p
+                }
+            })
+            .collect();
+        (self.t, p, self.d)
+    }
+
+    /// Whether `p` continues bin `k` (no jump: a step at most twice the one before it).
+    fn joins(&self, k: usize, p: &[f64; 3]) -> bool {
+        if k == 0 {
+            return true;
+        }
+        let step = |a: &[f64; 3], b: &[f64; 3]| super::plan::dist(a, b);
+        let before = step(&self.p[k - 1], &self.p[k]) / f64::from(self.n[k - 1].max(1));
+        step(&self.p[k], p) <= 2.0 * before * f64::from(self.width) + 1e-9
+    }
+
+    /// Merge neighbouring bins pairwise, doubling the width: not across a reversal or a jump,
+    /// unless that would leave more than three quarters of them (noisy positions reverse at
+    /// every sample): then all pairs, so memory stays bounded whatever the file.
+    fn halve(&mut self) {
+        let before = self.n.len();
+        self.halve_pairs(false);
+        if self.n.len() > before / 4 * 3 {
+            self.halve_pairs(true);
+        }
+    }
+
+    fn halve_pairs(&mut self, all: bool) {
+        let len = self.n.len();
+        let (mut t, mut p, mut d, mut r, mut n, mut fence) = (
+            Vec::with_capacity(len / 2 + 1),
+            Vec::with_capacity(len / 2 + 1),
+            Vec::with_capacity(len / 2 + 1),
+            Vec::with_capacity(len / 2 + 1),
+            Vec::with_capacity(len / 2 + 1),
+            Vec::with_capacity(len / 2 + 1),
+        );
+        let mut k = 0;
+        while k < len {
+            let pair = k + 1 < len && (all || !self.fence[k + 1]) && {
+                let step = super::plan::dist(&self.p[k], &self.p[k + 1]);
+                let near = |i: usize, j: usize| super::plan::dist(&self.p[i], &self.p[j]);
+                let before = if k > 0 { near(k - 1, k) } else { step };
+                let after = if k + 2 < len {
+                    near(k + 1, k + 2)
+                } else {
+                    step
+                };
+                all || step <= 2.0 * before.max(after) + 1e-9
+            };
+            if pair {
+                let (a, b) = (f64::from(self.n[k]), f64::from(self.n[k + 1]));
+                let m = |x: f64, y: f64| (a * x + b * y) / (a + b);
+                t.push(m(self.t[k], self.t[k + 1]));
+                p.push(std::array::from_fn(|j| m(self.p[k][j], self.p[k + 1][j])));
+                d.push(m(self.d[k], self.d[k + 1]));
+                r.push(m(self.r[k], self.r[k + 1]));
+                n.push(self.n[k] + self.n[k + 1]);
+                fence.push(self.fence[k]);
+                k += 2;
+            } else {
+                t.push(self.t[k]);
+                p.push(self.p[k]);
+                d.push(self.d[k]);
+                r.push(self.r[k]);
+                n.push(self.n[k]);
+                fence.push(self.fence[k]);
+                k += 1;
+            }
+        }
+        (self.t, self.p, self.d, self.r, self.n, self.fence) = (t, p, d, r, n, fence);
+        self.width *= 2;
+    }
+}
+
+/// [`samples_from`] holding at most about `max` samples: beyond, consecutive samples are
+/// averaged in bins (never across a jump in position), as `diagnose --record --plan` bins the
+/// data arcs ([`MAX_DATA_SAMPLES`]), so a file of any length is diagnosed in bounded memory.
+fn samples_binned(
+    mut table: Table,
+    pitch_mm: [Option<f64>; 3],
+    max: usize,
+) -> Result<(Path, Vec<f64>)> {
     const NAMES: [&str; 5] = ["t_s", "x_mm", "y_mm", "z_mm", "d_mm"];
     let cols = table.require(&NAMES)?;
-    let mut t: Vec<f64> = Vec::new();
-    let mut p = Vec::new();
-    let mut d = Vec::new();
+    let mut bins = Bins {
+        t: Vec::new(),
+        p: Vec::new(),
+        d: Vec::new(),
+        r: Vec::new(),
+        n: Vec::new(),
+        fence: Vec::new(),
+        last: None,
+        width: 1,
+    };
+    let mut prev_t: Option<f64> = None;
+    let mut raw = 0usize;
     let mut last_line = table.header_line();
     while let Some(row) = table.next_row()? {
         last_line = row.line();
@@ -57,7 +236,7 @@ fn samples_from(mut table: Table, pitch_mm: [Option<f64>; 3]) -> Result<(Path, V
         for (k, c) in cols.iter().enumerate() {
             v[k] = row.number(c)?;
         }
-        if let Some(&prev) = t.last() {
+        if let Some(prev) = prev_t {
             if v[0] <= prev {
                 return Err(row.error(
                     &cols[0],
@@ -74,7 +253,8 @@ fn samples_from(mut table: Table, pitch_mm: [Option<f64>; 3]) -> Result<(Path, V
                 format!("d_mm is {}; a ball distance is positive", v[4]),
             ));
         }
-        if (v[1] * v[1] + v[2] * v[2] + v[3] * v[3]).sqrt() < MIN_RADIUS_MM {
+        let nominal_mm = (v[1] * v[1] + v[2] * v[2] + v[3] * v[3]).sqrt();
+        if nominal_mm < MIN_RADIUS_MM {
             return Err(row.error(
                 &cols[1],
                 format!(
@@ -83,19 +263,34 @@ fn samples_from(mut table: Table, pitch_mm: [Option<f64>; 3]) -> Result<(Path, V
                 ),
             ));
         }
-        t.push(v[0]);
-        p.push([v[1], v[2], v[3]]);
-        d.push(v[4]);
+        if (v[4] - nominal_mm).abs() > MAX_DEVIATION_MM {
+            return Err(row.error(
+                &cols[4],
+                format!(
+                    "d_mm is {} but the nominal distance is {nominal_mm:.3} mm; more than {MAX_DEVIATION_MM} mm apart is not a machine's error (a wrong column, a glitch, another test)",
+                    v[4]
+                ),
+            ));
+        }
+        prev_t = Some(v[0]);
+        raw += 1;
+        bins.push(v[0], [v[1], v[2], v[3]], v[4]);
+        if bins.n.len() >= 2 * max.max(MIN_SAMPLES) {
+            bins.halve();
+        }
     }
+    if bins.n.len() > max.max(MIN_SAMPLES) {
+        bins.halve();
+    }
+    let (t, p, d) = bins.finish();
     let file = table.path().to_path_buf();
-    if t.len() < MIN_SAMPLES {
+    if raw < MIN_SAMPLES {
         return Err(Error::input(
             &file,
             last_line,
             0,
             format!(
-                "only {} samples; a diagnosis needs at least {MIN_SAMPLES} (a full circle each way)",
-                t.len()
+                "only {raw} samples; a diagnosis needs at least {MIN_SAMPLES} (a full circle each way)"
             ),
         ));
     }
@@ -112,11 +307,67 @@ fn samples_from(mut table: Table, pitch_mm: [Option<f64>; 3]) -> Result<(Path, V
             ));
         }
     }
-    check_circular(&path).map_err(|m| Error::Input {
-        location: file.display().to_string(),
-        message: m,
-    })?;
+    // What the whole file shows is reported at its end, as the count of samples is.
+    check_circular(&path).map_err(|m| Error::input(&file, last_line, 0, m))?;
     Ok((path, d))
+}
+
+/// Longest interval between two record samples on a data arc, in median sample intervals: a
+/// longer one is a hole (samples lost: a cable pulled, a full queue), and the arc would be
+/// diagnosed as if whole.
+pub const MAX_HOLE_INTERVALS: f64 = 20.0;
+
+/// Shortest interval (s) called a hole whatever the sample rate: 50 ms.
+pub const MIN_HOLE_S: f64 = 0.05;
+
+/// Refuse a record with a hole inside one of the plan's data arcs as synchronised (`sync`): a
+/// gap between samples (or between an arc's start or end and its nearest sample) longer than
+/// [`MAX_HOLE_INTERVALS`] median intervals and [`MIN_HOLE_S`]. The error names the line after
+/// the hole and its length.
+pub fn check_holes(rec: &Record, sync: &Sync) -> Result<()> {
+    let t = &rec.t_s;
+    // The median of up to 10 000 intervals: the sample interval.
+    let mut dts: Vec<f64> = t.windows(2).take(10_000).map(|w| w[1] - w[0]).collect();
+    if dts.is_empty() {
+        return Ok(());
+    }
+    dts.sort_by(f64::total_cmp);
+    let limit = (MAX_HOLE_INTERVALS * dts[dts.len() / 2]).max(MIN_HOLE_S);
+    for (k, c) in sync.circles.iter().enumerate() {
+        for a in &c.data {
+            let i0 = t.partition_point(|&x| x < a.t_start_s);
+            let i1 = t.partition_point(|&x| x <= a.t_end_s);
+            let mut prev = (a.t_start_s, i0);
+            let ends = (i0..i1)
+                .map(|i| (t[i], i))
+                .chain(std::iter::once((a.t_end_s, i1)));
+            for (x, i) in ends {
+                let gap = x - prev.0;
+                if gap > limit {
+                    let line = rec.line_of(i.min(t.len().saturating_sub(1)));
+                    return Err(Error::input(
+                        &rec.path,
+                        line,
+                        0,
+                        format!(
+                            "the record has a hole of {gap:.3} s ({:.3}..{:.3} s after its first sample) inside circle {}'s {} data arc ({:.3}..{:.3} s): samples were lost there, and the arc cannot be diagnosed as if whole; record the test again (a hole is more than {MAX_HOLE_INTERVALS} sample intervals and {MIN_HOLE_S} s)",
+                            prev.0,
+                            x,
+                            k + 1,
+                            match a.sense {
+                                super::plan::Sense::Ccw => "ccw",
+                                super::plan::Sense::Cw => "cw",
+                            },
+                            a.t_start_s,
+                            a.t_end_s
+                        ),
+                    ));
+                }
+                prev = (x, i);
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Whether `path` is a circular test the diagnosis can work on: it moves, and draws at least one
@@ -158,7 +409,7 @@ pub fn read_record_with_path(
     pitch_mm: [Option<f64>; 3],
 ) -> Result<(Path, Vec<f64>)> {
     // The path: t_s strictly increasing.
-    let mut nt = Table::open(nominal)?;
+    let mut nt = Table::open_with(nominal, crate::fsio::Limit::Table)?;
     let ncols = nt.require(&["t_s", "x_mm", "y_mm", "z_mm"])?;
     let mut nom: Vec<[f64; 4]> = vec![];
     let mut nom_last = nt.header_line();
@@ -284,6 +535,67 @@ mod tests {
     }
 
     #[test]
+    fn long_sample_files_are_binned_in_bounded_memory_never_across_a_jump() {
+        // Two circles (R 50 then R 60, a jump between them), ccw then cw, 4 000 samples each
+        // way, D = R + 2 µm·cos 3θ.
+        let mut text = String::from("t_s,x_mm,y_mm,z_mm,d_mm\n");
+        let mut i = 0;
+        for r in [50.0, 60.0] {
+            for k in (0..4000).chain((0..4000).rev()) {
+                let a = (k as f64 * 0.09).to_radians();
+                let d = r + 0.002 * (3.0 * a).cos();
+                text += &format!(
+                    "{},{},{},0,{d}\n",
+                    i as f64 * 1e-3,
+                    r * a.cos(),
+                    r * a.sin()
+                );
+                i += 1;
+            }
+        }
+        // Bins of 16 samples (1.44°), far below a run's largest step.
+        let table = Table::from_text(FsPath::new("s.csv"), &text).unwrap();
+        let (path, d) = samples_binned(table, [None; 3], 1000).unwrap();
+        assert!(
+            d.len() <= 1000 && d.len() >= 500,
+            "{} samples held",
+            d.len()
+        );
+        for (p, d) in path.p_mm.iter().zip(&d) {
+            let r = (p[0] * p[0] + p[1] * p[1]).sqrt();
+            // A bin's mean lies on its circle (to the chord of a few samples) and D follows it.
+            assert!(
+                (r - 50.0).abs() < 1e-3 || (r - 60.0).abs() < 1e-3,
+                "a bin across the jump: r = {r}"
+            );
+            let a = p[1].atan2(p[0]);
+            let want = r.round() + 0.002 * (3.0 * a).cos();
+            assert!((d - want).abs() < 2e-4, "D {d} vs {want}");
+        }
+        // Positions with noise reverse at every sample: memory stays bounded all the same.
+        let noisy: String = text
+            .lines()
+            .enumerate()
+            .map(|(i, l)| {
+                if i == 0 {
+                    return format!("{l}\n");
+                }
+                let mut f: Vec<String> = l.split(',').map(str::to_string).collect();
+                let x: f64 = f[1].parse().unwrap();
+                f[1] = format!("{}", x + if i % 2 == 0 { 1e-4 } else { -1e-4 });
+                format!("{}\n", f.join(","))
+            })
+            .collect();
+        let table = Table::from_text(FsPath::new("s.csv"), &noisy).unwrap();
+        let (_, d) = samples_binned(table, [None; 3], 1000).unwrap();
+        assert!(d.len() <= 1000, "{} samples held", d.len());
+        // Below the bound nothing is binned.
+        let table = Table::from_text(FsPath::new("s.csv"), &text).unwrap();
+        let (_, all) = samples_binned(table, [None; 3], 20_000).unwrap();
+        assert_eq!(all.len(), 16_000);
+    }
+
+    #[test]
     fn csv_errors_name_line_and_column() {
         let f = FsPath::new("s.csv");
         let e = parse_samples(f, "t_s,x_mm,y_mm,z_mm\n0,1,2,3\n", [None; 3]).unwrap_err();
@@ -345,10 +657,10 @@ mod tests {
         assert!(e.to_string().contains("moves no axis"), "{e}");
         // A straight line past the table ball.
         let line: String = std::iter::once("t_s,x_mm,y_mm,z_mm,d_mm\n".to_string())
-            .chain(
-                (0..40)
-                    .map(|i| format!("{i},{},{},0,50\n", i as f64 - 20.0, 30.0 + 0.5 * i as f64)),
-            )
+            .chain((0..40).map(|i| {
+                let (x, y) = (i as f64 - 20.0, 30.0 + 0.5 * i as f64);
+                format!("{i},{x},{y},0,{}\n", x.hypot(y))
+            }))
             .collect();
         let e = parse_samples(f, &line, [None; 3]).unwrap_err();
         assert!(e.to_string().contains("needs arcs of at least 180°"), "{e}");

@@ -90,6 +90,11 @@ pub struct Record {
 }
 
 impl Record {
+    /// The file line of sample `i` (for messages).
+    pub fn line_of(&self, i: usize) -> usize {
+        self.lines.get(i).map_or(0, |&l| l as usize)
+    }
+
     /// Read a `jdbb record` file (`seq,t_us,enc1,enc2,d_mm`; only `t_us` and `d_mm` are used,
     /// extra columns ignored). Time must increase strictly (a record holds one run) and D be
     /// positive.

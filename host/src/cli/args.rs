@@ -34,6 +34,34 @@ pub fn positive(s: &str) -> Result<f64, String> {
     }
 }
 
+/// Largest length of a machine or instrument, mm: 10 m. A machine tool, a ball bar and a
+/// turntable's offsets are all smaller; a larger number is a typing error (`1e300`), and the
+/// geometry would lose all its digits on it.
+pub const MAX_LENGTH_MM: f64 = 10_000.0;
+
+/// A length in mm for a geometric offset (may be negative): finite, at most [`MAX_LENGTH_MM`] in
+/// size.
+pub fn length_mm(s: &str) -> Result<f64, String> {
+    let x = finite(s)?;
+    if x.abs() <= MAX_LENGTH_MM {
+        Ok(x)
+    } else {
+        Err(format!(
+            "{s} mm is longer than any machine ({MAX_LENGTH_MM} mm = 10 m); give the length in mm"
+        ))
+    }
+}
+
+/// A bar length in mm: positive and at most [`MAX_LENGTH_MM`].
+pub fn bar_mm(s: &str) -> Result<f64, String> {
+    let x = length_mm(s)?;
+    if x > 0.0 {
+        Ok(x)
+    } else {
+        Err(format!("{s} mm: a bar length is positive"))
+    }
+}
+
 /// Largest `--seconds` of a streaming session: one year.
 pub const MAX_SECONDS: f64 = 365.0 * 24.0 * 3600.0;
 
@@ -62,5 +90,9 @@ mod tests {
         assert!(seconds("1e300").unwrap_err().contains("more than a year"));
         assert!(seconds("1e19").is_err() && seconds("-1").is_err());
         assert_eq!(seconds("60"), Ok(60.0));
+        assert!(length_mm("1e300").unwrap_err().contains("10 m"));
+        assert!(length_mm("1e100").is_err() && length_mm("-20000").is_err());
+        assert_eq!(length_mm("-250"), Ok(-250.0));
+        assert!(bar_mm("0").is_err() && bar_mm("1e-300").is_ok() && bar_mm("100").is_ok());
     }
 }

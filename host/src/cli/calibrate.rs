@@ -5,7 +5,7 @@ use jdbb_core::calib::Calibration;
 
 use super::output::{emit, json_text, print};
 use crate::circular::plan::Plan;
-use crate::instrument::file::{calibration_toml, read_calibration, same_file, write_atomic};
+use crate::instrument::file::{calibration_toml, read_calibration, same_file};
 use crate::instrument::fit::{calibrate, Options};
 use crate::instrument::report::{summary, to_json};
 use crate::instrument::run::calibrate_run;
@@ -46,6 +46,9 @@ pub struct CalibrateArgs {
     /// Write the fitted calibration (the nominal fields plus what was fitted) as TOML.
     #[arg(short = 'o', long = "out", value_name = "OUT.toml")]
     pub out: Option<PathBuf>,
+    /// Replace --out if it exists (a regular file only; never a link or a device).
+    #[arg(long, requires = "out")]
+    pub force: bool,
 }
 
 /// Run `jdbb calibrate`.
@@ -72,6 +75,7 @@ pub fn run(args: &CalibrateArgs) -> Result<()> {
                 )));
             }
         }
+        crate::fsio::check_destination(out, args.force)?;
     }
     let opts = Options {
         extended: args.extended,
@@ -107,7 +111,11 @@ pub fn run(args: &CalibrateArgs) -> Result<()> {
                 }
             ),
         ];
-        write_atomic(out, calibration_toml(&cal.calibration, &header).as_bytes())?;
+        crate::fsio::write_file(
+            out,
+            calibration_toml(&cal.calibration, &header).as_bytes(),
+            args.force,
+        )?;
     }
     if args.json {
         emit(&json_text(&to_json(&cal)))?;

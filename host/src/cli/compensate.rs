@@ -2,9 +2,10 @@
 //! [`crate::compensate`].
 use std::path::PathBuf;
 
-use super::output::{print, write_file};
+use super::output::print;
 use crate::circular::document::DiagnosisDoc;
 use crate::compensate::{plan, render, Controller, Current, Options, Placement};
+use crate::fsio::FileSet;
 use crate::{Error, Result};
 
 /// Arguments of `jdbb compensate`.
@@ -31,9 +32,13 @@ pub struct CompensateArgs {
     /// LinuxCNC COMP_FILE_TYPE to write: 1 (corrections) or 0 (actual positions).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(0..=1))]
     pub comp_file_type: u8,
-    /// Write the files (LinuxCNC comp tables) into this directory instead of printing them.
+    /// Write the files (LinuxCNC comp tables) into this directory instead of printing them; they
+    /// are written as a set (all new, or all as they were).
     #[arg(long, short)]
     pub out: Option<PathBuf>,
+    /// Replace files already in --out (a hand-edited table is not replaced without it).
+    #[arg(long, requires = "out")]
+    pub force: bool,
 }
 
 /// `x=1,y=2` into per-axis values with `parse` for each value.
@@ -107,14 +112,13 @@ pub fn run(args: &CompensateArgs) -> Result<()> {
     };
     let p = plan(&doc, &current, &opts)?;
     if let Some(dir) = &args.out {
-        std::fs::create_dir_all(dir).map_err(|source| Error::File {
-            action: "cannot create",
-            path: dir.clone(),
-            source,
-        })?;
+        let mut set = FileSet::new(dir, args.force)?;
+        let names: Vec<&str> = p.files.iter().map(|(n, _)| n.as_str()).collect();
+        set.check(&names)?;
         for (name, content) in &p.files {
-            write_file(&dir.join(name), content.as_bytes())?;
+            set.add(name, content.as_bytes())?;
         }
+        set.commit()?;
     }
     let mut text = format!("from {}\n", args.diagnosis.display());
     text.push_str(&render(&p, args.out.as_deref()));

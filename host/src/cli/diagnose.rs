@@ -1,16 +1,17 @@
 //! `jdbb diagnose`: arguments and glue to [`crate::circular`].
 use std::path::PathBuf;
 
-use super::output::{emit, json_text, print, write_file};
+use super::output::{emit, json_text, print};
 use crate::circular::diagnose::{diagnose, Options};
 use crate::circular::document::DiagnosisDoc;
 use crate::circular::html::report_html;
-use crate::circular::input::{read_record_with_path, read_samples};
+use crate::circular::input::{check_holes, read_record_with_path, read_samples};
 use crate::circular::model::parse_pitch;
 use crate::circular::plan::Plan;
 use crate::circular::plot::write_report;
 use crate::circular::report::{plan_json, summary, sync_json, sync_summary, to_json};
 use crate::circular::sync::{data_path, synchronise, Record};
+use crate::fsio::{check_dir_destination, write_dir};
 use crate::{Error, Result};
 
 /// Arguments of `jdbb diagnose`.
@@ -43,9 +44,13 @@ pub struct DiagnoseArgs {
     /// Print the documented JSON instead of the human summary.
     #[arg(long)]
     pub json: bool,
-    /// Write polar plots (SVG and PNG), the JSON and report.html to this directory.
+    /// Write polar plots (SVG and PNG), the JSON and report.html to this directory, as a whole:
+    /// built beside it and swapped in, never a mix of new and stale files.
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Replace the --report directory if it exists (only one jdbb wrote; never a link).
+    #[arg(long, requires = "report")]
+    pub force: bool,
     /// The machine's name, for the report and the history (`jdbb history add`).
     #[arg(long)]
     pub machine: Option<String>,
@@ -64,10 +69,7 @@ pub struct DiagnoseArgs {
 
 /// The calibration file of `--calibration` as JSON, checked against jdbb-core's Calibration.
 fn read_calibration(file: &std::path::Path) -> Result<serde_json::Value> {
-    let text = std::fs::read_to_string(file).map_err(|source| Error::InputFile {
-        path: file.to_path_buf(),
-        source,
-    })?;
+    let text = crate::table::read_text(file)?;
     let cal: jdbb_core::calib::Calibration = serde_json::from_str(&text).map_err(|e| {
         Error::input(
             file,
@@ -119,6 +121,10 @@ fn add_run_facts(
 
 /// Run `jdbb diagnose`.
 pub fn run(args: &DiagnoseArgs) -> Result<()> {
+    if let Some(dir) = &args.report {
+        // Before the work: a report directory that will be refused is refused at once.
+        check_dir_destination(dir, args.force)?;
+    }
     let pitch = match &args.pitch {
         Some(s) => parse_pitch(s)?,
         None => [None; 3],
@@ -130,6 +136,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             let plan = Plan::read(plan_file)?;
             let rec = Record::read(record)?;
             let sync = synchronise(&plan, &rec)?;
+            check_holes(&rec, &sync)?;
             let data = data_path(&plan, &rec, &sync, pitch)?;
             synced = Some((plan_file, plan, sync));
             data
@@ -162,13 +169,16 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         }
     }
     if let Some(dir) = &args.report {
-        write_report(dir, &diag, &json)?;
-        let doc: DiagnosisDoc = serde_json::from_value(json.clone())
-            .expect("the diagnosis JSON reads back as a DiagnosisDoc");
-        write_file(
-            &dir.join("report.html"),
-            report_html(&diag, &doc)?.as_bytes(),
-        )?;
+        let doc: DiagnosisDoc = serde_json::from_value(json.clone()).map_err(|e| {
+            Error::Numerics(format!(
+                "the diagnosis does not read back as a document ({e}); this is a bug, please report it"
+            ))
+        })?;
+        let html = report_html(&diag, &doc)?;
+        write_dir(dir, args.force, |stage| {
+            write_report(stage, &diag, &json)?;
+            crate::fsio::write_file(&stage.join("report.html"), html.as_bytes(), false)
+        })?;
         if !args.json {
             emit(&format!("report written to {}", dir.display()))?;
         }

@@ -48,6 +48,9 @@ pub enum HistoryCommand {
         /// Also plot the trend to this SVG file.
         #[arg(long, visible_alias = "out", short = 'o', value_name = "OUT.svg")]
         plot: Option<PathBuf>,
+        /// Replace --plot if it exists (a regular file only; never a link or a device).
+        #[arg(long, requires = "plot")]
+        force: bool,
     },
 }
 
@@ -101,7 +104,7 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             print(&text)
         }
         HistoryCommand::List { machine: None } => {
-            let h = History::open(&path)?;
+            let h = History::open_existing(&path)?;
             let mut s = String::new();
             let machines = h.machines()?;
             if machines.is_empty() {
@@ -115,7 +118,7 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
         HistoryCommand::List {
             machine: Some(machine),
         } => {
-            let h = History::open(&path)?;
+            let h = History::open_existing(&path)?;
             let runs = h.runs(machine)?;
             let mut s = String::new();
             let _ = writeln!(s, "machine {machine}: {} runs", runs.len());
@@ -170,13 +173,17 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             machine,
             effect,
             plot,
+            force,
         } => {
-            let h = History::open(&path)?;
+            if let Some(file) = plot {
+                crate::fsio::check_destination(file, *force)?;
+            }
+            let h = History::open_existing(&path)?;
             let runs = h.runs(machine)?;
             let trends = trend::trend(&runs, effect.as_deref())?;
             let mut s = trend::render(machine, &runs, &trends);
             if let Some(file) = plot {
-                trend::plot_svg(file, machine, &trends)?;
+                crate::fsio::write_via(file, *force, |tmp| trend::plot_svg(tmp, machine, &trends))?;
                 let _ = writeln!(s, "plot written to {}", file.display());
             }
             print(&s)

@@ -76,8 +76,17 @@ pub enum Command {
     Calibration(calibration::CalibrationArgs),
 }
 
-/// Run one parsed command line.
+/// Run one parsed command line (see the Ctrl-C note in its body).
 pub fn run(cli: Cli) -> Result<()> {
+    // Ctrl-C (SIGTERM, SIGHUP) ends every command that computes or writes files at once, with
+    // nothing half-written left; the commands that talk to a device end their session cleanly
+    // with their own handler instead (a summary, Stop sent).
+    if !matches!(
+        cli.command,
+        Command::Live(_) | Command::Record(_) | Command::Calibration(_)
+    ) {
+        crate::fsio::exit_on_interrupt();
+    }
     match cli.command {
         Command::Devices => devices::run(),
         Command::Live(args) => live::run(&args),

@@ -1,11 +1,11 @@
-//! Writing what a command produces: standard output and output files.
+//! Writing what a command produces on standard output and standard error (files are written by
+//! [`crate::fsio`]).
 //!
 //! A reader that goes away (`jdbb diagnose ... | head -1`, `| true`) ends the printing quietly —
 //! the command still finishes its other work (files) and exits 0 — while a real write failure
 //! (`> /dev/full`) is an error that names standard output (exit 1). Nothing here panics, unlike
 //! `println!`.
 use std::io::Write;
-use std::path::Path;
 
 use crate::{Error, Result};
 
@@ -35,13 +35,13 @@ pub fn stdout_result(r: std::io::Result<()>) -> Result<()> {
     }
 }
 
-/// Write `bytes` to the file `path` (created or replaced), or fail naming it.
-pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
-    std::fs::write(path, bytes).map_err(|source| Error::File {
-        action: "cannot write",
-        path: path.to_path_buf(),
-        source,
-    })
+/// Write `text` and a newline to standard error, ignoring a failure: a note or a progress line
+/// must not end a command (`2>/dev/full`, a closed pipe), unlike `eprintln!`, which panics.
+pub fn note(text: &str) {
+    let mut err = std::io::stderr().lock();
+    let _ = err.write_all(text.as_bytes());
+    let _ = err.write_all(b"\n");
+    let _ = err.flush();
 }
 
 /// Pretty JSON of a value made of numbers and strings (cannot fail).

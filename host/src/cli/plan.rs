@@ -3,7 +3,7 @@ use std::path::{Path, PathBuf};
 
 use jdbb_core::calib::Calibration;
 
-use super::output::{emit, write_file};
+use super::output::emit;
 use crate::circular::plan::build::{
     DEFAULT_ARC_DEG, DEFAULT_CORNER_DWELL_S, DEFAULT_DWELL_S, DEFAULT_FEED_IN_MM,
 };
@@ -13,6 +13,7 @@ use crate::circular::plan::{
     Plane, Purpose, Segment,
 };
 use crate::circular::sync::MIN_CRUISE_FRACTION;
+use crate::fsio::FileSet;
 use crate::{Error, Result};
 
 /// Arguments of `jdbb plan`.
@@ -76,7 +77,8 @@ pub struct PlanArgs {
     /// and Marlin pass the corner at their junction speed instead of stopping).
     #[arg(long, default_value_t = DEFAULT_CORNER_DWELL_S, value_parser = super::args::non_negative)]
     pub corner_dwell_s: f64,
-    /// Directory for plan.json and the program (created if missing).
+    /// Directory for plan.json and the program (created if missing); both are written as a set
+    /// (both new, or both as they were).
     #[arg(long, short, value_name = "DIR")]
     pub out: PathBuf,
     /// Replace a plan.json or program already in --out (a recorded test may refer to it).
@@ -152,23 +154,18 @@ pub fn run(args: &PlanArgs) -> Result<()> {
     let program = write_program(&plan, args.dialect);
     let json_path = args.out.join("plan.json");
     let program_path = args.out.join(&plan.program);
-    if !args.force {
-        for p in [&json_path, &program_path] {
-            if p.exists() {
-                return Err(Error::Usage(format!(
-                    "{} exists, and a recorded test may refer to it: choose another --out, or add --force to replace it",
-                    p.display()
-                )));
-            }
-        }
-    }
-    std::fs::create_dir_all(&args.out).map_err(|source| Error::File {
-        action: "cannot create",
-        path: args.out.clone(),
-        source,
+    // plan.json and its program are one set: both new, or both as they were.
+    let mut set = FileSet::new(&args.out, args.force)?;
+    set.check(&["plan.json", &plan.program]).map_err(|e| match e {
+        Error::OutputExists { path } => Error::Usage(format!(
+            "{} exists, and a recorded test may refer to it: choose another --out, or add --force to replace it",
+            path.display()
+        )),
+        e => e,
     })?;
-    write_file(&json_path, plan.to_json().as_bytes())?;
-    write_file(&program_path, program.as_bytes())?;
+    set.add("plan.json", plan.to_json().as_bytes())?;
+    set.add(&plan.program, program.as_bytes())?;
+    set.commit()?;
     emit(&setup_text(
         &plan,
         &json_path,

@@ -18,12 +18,15 @@ pub struct RecomputeArgs {
     /// The new record: the same file with `d_mm` recomputed (must not be the record itself).
     #[arg(short = 'o', long = "out", value_name = "OUT.csv")]
     pub out: PathBuf,
+    /// Replace --out if it exists (a regular file only; never a link or a device).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Run `jdbb recompute`.
 pub fn run(args: &RecomputeArgs) -> Result<()> {
     let cal = read_calibration(&args.calibration)?;
-    let rows = recompute(&args.record, &cal, &args.out)?;
+    let rows = recompute(&args.record, &cal, &args.out, args.force)?;
     emit(&format!(
         "{rows} samples: d_mm recomputed with {}, written to {}",
         args.calibration.display(),

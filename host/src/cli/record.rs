@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use super::output::emit;
+use super::output::{emit, note};
 use super::stream_args::StreamArgs;
 use crate::link::record::{
     check_output, create_partial, finish_output, partial_path, record_to, summary, CsvOut, End,
@@ -44,7 +44,7 @@ pub fn run(args: &RecordArgs) -> Result<()> {
         let _ = std::fs::remove_file(&partial);
         return Err(e);
     }
-    eprintln!(
+    note(&format!(
         "recording {} to {} ({})",
         args.stream.port,
         args.out.display(),
@@ -52,7 +52,7 @@ pub fn run(args: &RecordArgs) -> Result<()> {
             Some(s) => format!("{s} s, Ctrl-C to stop early"),
             None => "Ctrl-C to stop".into(),
         }
-    );
+    ));
     let t0 = Instant::now();
     let mut out = CsvOut::new(file, CSV_HEADER.len() as u64);
     let end = record_to(
@@ -61,7 +61,7 @@ pub fn run(args: &RecordArgs) -> Result<()> {
         &args.out,
         args.stream.deadline(t0),
         &interrupted,
-        &mut |info| eprintln!("device: {}", describe_info(info)),
+        &mut |info| note(&format!("device: {}", describe_info(info))),
     );
     let seconds = t0.elapsed().as_secs_f64();
     args.stream.stop(&mut stream);
@@ -83,11 +83,17 @@ pub fn run(args: &RecordArgs) -> Result<()> {
     } else {
         finish_output(&partial, &args.out, args.force)
     };
+    let suspects = out.check.suspects;
     emit(&format!(
-        "recorded {} ({}): {}",
+        "recorded {} ({}): {}{}",
         args.out.display(),
         end.describe(),
-        summary(stream.stats(), seconds)
+        summary(stream.stats(), seconds),
+        if suspects.total() > 0 {
+            format!("; {suspects}")
+        } else {
+            String::new()
+        }
     ))?;
     let failed = match end {
         End::Lost(e) | End::NotStarted(e) | End::Write(e) => Some(e),
@@ -99,7 +105,7 @@ pub fn run(args: &RecordArgs) -> Result<()> {
     };
     match (failed, placed) {
         (Some(e), Err(p)) => {
-            eprintln!("error: {p}");
+            note(&format!("error: {p}"));
             Err(e)
         }
         (Some(e), Ok(())) => Err(e),

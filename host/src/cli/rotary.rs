@@ -20,16 +20,16 @@ pub struct RotaryArgs {
     #[arg(long, value_name = "FILE")]
     pub table: PathBuf,
     /// Distance L1 (mm) of the ball from the axis in combination 1 (and 3).
-    #[arg(long = "l1", value_name = "MM", value_parser = super::args::finite)]
+    #[arg(long = "l1", value_name = "MM", value_parser = super::args::length_mm)]
     pub l1_mm: Option<f64>,
     /// Distance L2 (mm) in combination 2.
-    #[arg(long = "l2", value_name = "MM", value_parser = super::args::finite)]
+    #[arg(long = "l2", value_name = "MM", value_parser = super::args::length_mm)]
     pub l2_mm: Option<f64>,
     /// Height H1 (mm) of the ball along the axis in combinations 1 and 2 (B default: 0).
-    #[arg(long = "h1", value_name = "MM", value_parser = super::args::finite)]
+    #[arg(long = "h1", value_name = "MM", value_parser = super::args::length_mm)]
     pub h1_mm: Option<f64>,
     /// Height H3 (mm) in combination 3 (C only).
-    #[arg(long = "h3", value_name = "MM", value_parser = super::args::finite)]
+    #[arg(long = "h3", value_name = "MM", value_parser = super::args::length_mm)]
     pub h3_mm: Option<f64>,
     /// Sense of rotation of the data relative to eq. (6): `auto` picks, for C, the sense in which
     /// one centre offset explains the once-per-revolution terms of all runs.

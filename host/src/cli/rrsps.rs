@@ -13,7 +13,7 @@ use crate::rrsps::simulate::simulate;
 use crate::rrsps::Params;
 use crate::{Error, Result};
 
-use super::output::{emit, write_file};
+use super::output::{emit, note};
 
 /// `jdbb rrsps ...`
 #[derive(Debug, clap::Args)]
@@ -204,8 +204,8 @@ pub struct SimulateArgs {
     /// Bar length d (mm) of the design.
     #[arg(long = "d", value_name = "MM", value_parser = super::args::finite)]
     pub d_mm: f64,
-    /// Number of C positions per branch, evenly spaced over 0..360°.
-    #[arg(long, default_value_t = 1800)]
+    /// Number of C positions per branch, evenly spaced over 0..360° (2 to 1 000 000).
+    #[arg(long, default_value_t = 1800, value_parser = parse_points)]
     pub points: usize,
     /// Branches to run (plus, minus, or both one after the other).
     #[arg(long, value_enum, default_value_t = BranchChoice::Both)]
@@ -216,9 +216,30 @@ pub struct SimulateArgs {
     /// Random seed of the noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Output CSV (default: standard output).
+    /// Output CSV (default: standard output); written whole or not at all.
     #[arg(long, short)]
     pub out: Option<PathBuf>,
+    /// Replace --out if it exists (a regular file only; never a link or a device).
+    #[arg(long, requires = "out")]
+    pub force: bool,
+}
+
+/// Most C positions per branch of `rrsps simulate`: one per 0.00036°, 1 000 000 rows (about
+/// 50 MB of CSV) per branch; a finer sampling tells nothing more about the linkage.
+pub const MAX_POINTS: usize = 1_000_000;
+
+fn parse_points(s: &str) -> std::result::Result<usize, String> {
+    let n: usize = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a whole number"))?;
+    if (2..=MAX_POINTS).contains(&n) {
+        Ok(n)
+    } else {
+        Err(format!(
+            "{n} C positions: give 2 to {MAX_POINTS} (more is not a finer test, only a larger file)"
+        ))
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -330,8 +351,8 @@ fn run_dead_point(start: &Params, d_mm: f64, range: [f64; 2], json_out: bool) ->
 
 fn run_simulate(args: &SimulateArgs) -> Result<()> {
     check_d(args.d_mm)?;
-    if args.points < 2 {
-        return Err(Error::Usage("--points must be at least 2".into()));
+    if let Some(path) = &args.out {
+        crate::fsio::check_destination(path, args.force)?;
     }
     if !(args.noise_um >= 0.0 && args.noise_um.is_finite()) {
         return Err(Error::Usage(
@@ -358,14 +379,14 @@ fn run_simulate(args: &SimulateArgs) -> Result<()> {
         args.seed,
     )?;
     if skipped > 0 {
-        eprintln!(
+        note(&format!(
             "note: {skipped} C positions have no A position at d = {} mm (C blocked there) and were left out",
             args.d_mm
-        );
+        ));
     }
     let text = samples_csv(&ta, &tc, &d);
     match &args.out {
-        Some(path) => write_file(path, text.as_bytes()),
+        Some(path) => crate::fsio::write_file(path, text.as_bytes(), args.force),
         None => emit(text.trim_end()),
     }
 }

@@ -9,6 +9,7 @@ use crate::circular::simulate::{
     distances_mm, measure, nominal_path, parse_effect, parse_plane, write_csv, EffectValue,
     PathSpec,
 };
+use crate::fsio::{check_destination, Staged};
 use crate::{Error, Result};
 
 /// Arguments of `jdbb simulate`.
@@ -45,13 +46,20 @@ pub struct SimulateArgs {
     /// Seed of the noise.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Output CSV (stdout if absent).
+    /// Output CSV (stdout if absent); written whole or not at all.
     #[arg(long, short)]
     pub out: Option<PathBuf>,
+    /// Replace --out if it exists (a regular file only; never a link or a device).
+    #[arg(long, requires = "out")]
+    pub force: bool,
 }
 
 /// Run `jdbb simulate`.
 pub fn run(args: &SimulateArgs) -> Result<()> {
+    if let Some(file) = &args.out {
+        // Before the work: a destination that will be refused is refused at once.
+        check_destination(file, args.force)?;
+    }
     let spec = PathSpec {
         radii_mm: args.radii_mm.clone(),
         heights_mm: args.heights_mm.clone(),
@@ -75,19 +83,13 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     measure(&mut d, args.sigma_um, args.resolution_um, args.seed);
     match &args.out {
         Some(file) => {
-            let f = std::fs::File::create(file).map_err(|source| Error::File {
-                action: "cannot create",
+            let mut w = Staged::create(file, args.force)?;
+            write_csv(&mut w, &path, &d).map_err(|source| Error::File {
+                action: "cannot write",
                 path: file.clone(),
                 source,
             })?;
-            let mut w = std::io::BufWriter::new(f);
-            write_csv(&mut w, &path, &d)
-                .and_then(|_| w.flush())
-                .map_err(|source| Error::File {
-                    action: "cannot write",
-                    path: file.clone(),
-                    source,
-                })
+            w.commit()
         }
         None => {
             let mut w = std::io::BufWriter::new(std::io::stdout().lock());

@@ -59,11 +59,11 @@ impl StreamArgs {
             return stream.send(&Command::GetInfo);
         }
         if !stream.handshake(HANDSHAKE_TIMEOUT)? {
-            eprintln!(
+            super::output::note(&format!(
                 "warning: {} did not answer a ping within {} s; starting anyway",
                 stream.name(),
                 HANDSHAKE_TIMEOUT.as_secs()
-            );
+            ));
         }
         stream.send(&Command::GetInfo)?;
         if let Some(hz) = self.rate {

@@ -27,16 +27,31 @@ impl Current {
 
     /// Read `path` in the format of `controller`.
     pub fn read(path: &Path, controller: Controller) -> Result<Current> {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::InputFile {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        let mut c = match controller {
-            Controller::LinuxCnc => super::linuxcnc::parse_current(path, &text)?,
-            Controller::GrblHal => super::grblhal::parse_current(path, &text)?,
-            Controller::Marlin => super::marlin::parse_current(path, &text)?,
-            Controller::Klipper => super::klipper::parse_current(path, &text)?,
-        };
+        let text = crate::table::read_text(path)?;
+        let mut c = parse(path, &text, controller)?;
+        if c.values.is_empty() && c.texts.is_empty() && has_content(&text) {
+            // Nothing of this controller's in a file with something in it: another format.
+            let other = Controller::ALL.iter().copied().find(|&o| {
+                o != controller
+                    && parse(path, &text, o)
+                        .is_ok_and(|c| !c.values.is_empty() || !c.texts.is_empty())
+            });
+            return Err(Error::input(
+                path,
+                1,
+                0,
+                format!(
+                    "no {} setting in this file{}; give --current the values in force in the format of --controller {}",
+                    controller.name(),
+                    other.map_or(String::new(), |o| format!(
+                        " (it reads as a {} file: is --controller {} meant?)",
+                        o.name(),
+                        o.name()
+                    )),
+                    controller.name()
+                ),
+            ));
+        }
         c.source = Some(path.to_path_buf());
         Ok(c)
     }
@@ -61,6 +76,24 @@ impl Current {
     pub fn is_empty(&self) -> bool {
         self.values.is_empty() && self.texts.is_empty() && self.source.is_none()
     }
+}
+
+/// `text` read in the format of `controller`.
+fn parse(path: &Path, text: &str, controller: Controller) -> Result<Current> {
+    match controller {
+        Controller::LinuxCnc => super::linuxcnc::parse_current(path, text),
+        Controller::GrblHal => super::grblhal::parse_current(path, text),
+        Controller::Marlin => super::marlin::parse_current(path, text),
+        Controller::Klipper => super::klipper::parse_current(path, text),
+    }
+}
+
+/// Whether `text` has a line that is neither blank nor a comment (`#`, `;`).
+fn has_content(text: &str) -> bool {
+    text.lines().any(|l| {
+        let t = l.trim();
+        !t.is_empty() && !t.starts_with('#') && !t.starts_with(';')
+    })
 }
 
 /// A number at `path:line:col` (1-based), or an input error naming `what`.

@@ -52,6 +52,7 @@ pub mod grblhal;
 pub mod klipper;
 pub mod linuxcnc;
 pub mod marlin;
+pub mod plausible;
 
 pub use current::Current;
 
@@ -362,6 +363,7 @@ pub fn plan(doc: &DiagnosisDoc, current: &Current, opts: &Options) -> Result<Pla
     let mut notes = m.notes.clone();
     notes.append(&mut p.notes);
     p.notes = notes;
+    plausible::check(&p)?;
     Ok(p)
 }
 

@@ -176,6 +176,23 @@ pub struct History {
     path: PathBuf,
 }
 
+/// The SQLite URI of the file `path` (`file:` with `?`, `#`, `%` escaped), read-only, and
+/// `immutable` if asked.
+fn file_uri(path: &Path, immutable: bool) -> String {
+    let mut uri = String::from("file:");
+    for c in path.to_string_lossy().chars() {
+        match c {
+            '?' | '#' | '%' => uri.push_str(&format!("%{:02X}", c as u32)),
+            c => uri.push(c),
+        }
+    }
+    uri.push_str("?mode=ro");
+    if immutable {
+        uri.push_str("&immutable=1");
+    }
+    uri
+}
+
 /// 64-bit FNV-1a of `bytes`, as 16 hex digits: the identity of a diagnosis file's text.
 pub fn digest(bytes: &[u8]) -> String {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
@@ -191,6 +208,51 @@ impl History {
     /// to date (see the module docs).
     pub fn open(path: &Path) -> Result<History> {
         Self::open_at(path, schema::latest())
+    }
+
+    /// Open the history at `path` for reading (`history list`, `trend`): it must exist (a
+    /// mistyped `--db` is an error, not a new empty history), and a file the user may only read
+    /// is opened read-only. A file of an older schema is brought up to date if it may be
+    /// written.
+    pub fn open_existing(path: &Path) -> Result<History> {
+        match std::fs::metadata(path) {
+            Ok(m) if m.is_file() => {}
+            Ok(_) => {
+                return Err(Error::Usage(format!(
+                    "history database {} is not a file: check --db",
+                    path.display()
+                )))
+            }
+            Err(_) => {
+                return Err(Error::Usage(format!(
+                    "no history database at {}: check --db (`jdbb history add` creates one)",
+                    path.display()
+                )))
+            }
+        }
+        let db = |source| Error::Database {
+            path: path.to_path_buf(),
+            source,
+        };
+        let read_only = |immutable: bool| -> rusqlite::Result<(Connection, i64)> {
+            use rusqlite::OpenFlags as F;
+            let flags = F::SQLITE_OPEN_READ_ONLY | F::SQLITE_OPEN_NO_MUTEX | F::SQLITE_OPEN_URI;
+            let conn = Connection::open_with_flags(file_uri(path, immutable), flags)?;
+            conn.busy_timeout(BUSY_TIMEOUT)?;
+            let version: i64 = conn.query_row("PRAGMA user_version", [], |r| r.get(0))?;
+            Ok((conn, version))
+        };
+        // A WAL file in a directory the user may not write has no shared-memory file to read
+        // through: then it is read as immutable (nobody who may write it is this user).
+        let (conn, version) = read_only(false).or_else(|_| read_only(true)).map_err(db)?;
+        if version == schema::latest() {
+            return Ok(History {
+                conn,
+                path: path.to_path_buf(),
+            });
+        }
+        drop(conn);
+        Self::open(path)
     }
 
     /// [`History::open`] migrating only to version `target` (for the migration tests).

@@ -1,9 +1,8 @@
 //! Calibration files: TOML with the fields of `jdbb_core::calib::Calibration` (`l1_mm`, `l2_mm`,
 //! `axes_skew_rad`, tables `[enc1]`, `[enc2]`, `[frame1]`, `[frame2]`; the error terms default to
-//! zero, so a nominal file may give only lengths and encoders). Read checked; written whole to a
-//! temporary file beside the target and renamed over it, so a reader never sees half a file.
-use std::io::Write;
-use std::path::{Path, PathBuf};
+//! zero, so a nominal file may give only lengths and encoders). Read checked; written by
+//! [`crate::fsio`] (whole, or not at all).
+use std::path::Path;
 
 use jdbb_core::calib::{Calibration, CalibrationError};
 
@@ -40,7 +39,7 @@ pub fn parse_calibration(path: &Path, text: &str) -> Result<Calibration> {
 /// Words for a [`CalibrationError`].
 pub fn why(e: CalibrationError) -> &'static str {
     match e {
-        CalibrationError::BarLength => "a bar length is not a finite positive number below 10 m (mm)",
+        CalibrationError::BarLength => "a bar length is not between 1 mm and 10 m (a bar is centimetres long: a smaller or larger number is a typing or unit error)",
         CalibrationError::Resolution => "an encoder has fewer than 4 counts per revolution",
         CalibrationError::ZeroOffset => "a fine zero (zero_offset_rad), with the eccentricity, is beyond 0.01 rad: set zero_count instead",
         CalibrationError::Eccentricity => "an eccentricity is negative or beyond 0.01 rad, or its phase beyond ±2π",
@@ -63,23 +62,6 @@ pub fn calibration_toml(cal: &Calibration, header: &[String]) -> String {
     s
 }
 
-/// Write `bytes` to `path` through a temporary file in the same directory, renamed over `path`
-/// once complete (the temporary file is removed on failure).
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let tmp = temp_beside(path);
-    let written = std::fs::File::create(&tmp)
-        .and_then(|mut f| f.write_all(bytes).and_then(|_| f.sync_all()))
-        .and_then(|_| std::fs::rename(&tmp, path));
-    written.map_err(|source| {
-        let _ = std::fs::remove_file(&tmp);
-        Error::File {
-            action: "cannot write",
-            path: path.to_path_buf(),
-            source,
-        }
-    })
-}
-
 /// Whether `a` and `b` name the same file (the same path, or one existing file).
 pub fn same_file(a: &Path, b: &Path) -> bool {
     if a == b {
@@ -89,14 +71,6 @@ pub fn same_file(a: &Path, b: &Path) -> bool {
         (Ok(x), Ok(y)) => x == y,
         _ => false,
     }
-}
-
-/// A temporary file name beside `path`: `.NAME.tmp-PID`.
-pub fn temp_beside(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
-    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
 }
 
 #[cfg(test)]
@@ -124,17 +98,5 @@ mod tests {
         let bad = short.replace("l1_mm = 50.0", "l1_mm = -5.0");
         let e = parse_calibration(Path::new("c.toml"), &bad).unwrap_err();
         assert!(e.to_string().contains("bar length"), "{e}");
-    }
-
-    #[test]
-    fn atomic_write_replaces_whole() {
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("out.toml");
-        write_atomic(&p, b"one").unwrap();
-        write_atomic(&p, b"two").unwrap();
-        assert_eq!(std::fs::read_to_string(&p).unwrap(), "two");
-        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
-        let e = write_atomic(&dir.path().join("no/such/x.toml"), b"x").unwrap_err();
-        assert!(e.to_string().contains("cannot write"), "{e}");
     }
 }

@@ -5,43 +5,34 @@
 //! Every other byte of the file is kept as it was: comment and blank lines, the header, the other
 //! fields, the line endings. The new `d_mm` is written in full precision (the shortest decimal
 //! that reads back as the same f64), so the file agrees with the model to the last bit. The
-//! output is written to a temporary file beside it and renamed when complete; the input is never
-//! overwritten. Both files are streamed: a record of any length takes constant memory.
-use std::io::{BufRead, BufReader, BufWriter, Write};
+//! output is written by [`crate::fsio`] (a temporary file beside it, renamed when complete; an
+//! existing output replaced only with `--force`); the input is never overwritten. Both files are streamed: a record of any length takes constant memory.
+use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
 
 use jdbb_core::calib::Calibration;
 use jdbb_core::geometry::Model;
 
-use super::file::{same_file, temp_beside};
+use super::file::same_file;
+use crate::fsio::Staged;
 use crate::table::Table;
 use crate::{Error, Result};
 
 /// Rewrite `record` to `out` with `d_mm` from `cal` (module docs). Returns the number of rows.
-pub fn recompute(record: &Path, cal: &Calibration, out: &Path) -> Result<usize> {
+pub fn recompute(record: &Path, cal: &Calibration, out: &Path, force: bool) -> Result<usize> {
     if same_file(record, out) {
         return Err(Error::Usage(format!(
             "-o {} is the record itself; recompute writes a new file and keeps the record as it was: give another -o",
             out.display()
         )));
     }
-    let tmp = temp_beside(out);
-    let result = write_recomputed(record, cal, out, &tmp).and_then(|rows| {
-        std::fs::rename(&tmp, out)
-            .map(|_| rows)
-            .map_err(|source| Error::File {
-                action: "cannot write",
-                path: out.to_path_buf(),
-                source,
-            })
-    });
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
+    let mut w = Staged::create(out, force)?;
+    let rows = write_recomputed(record, cal, out, &mut w)?;
+    w.commit()?;
+    Ok(rows)
 }
 
-fn write_recomputed(record: &Path, cal: &Calibration, out: &Path, tmp: &Path) -> Result<usize> {
+fn write_recomputed(record: &Path, cal: &Calibration, out: &Path, w: &mut Staged) -> Result<usize> {
     let mut table = Table::open(record)?;
     let cols = table.require(&["enc1", "enc2", "d_mm"])?;
     let d_index = cols[2].index;
@@ -49,21 +40,15 @@ fn write_recomputed(record: &Path, cal: &Calibration, out: &Path, tmp: &Path) ->
         path: record.to_path_buf(),
         source,
     };
-    let mut raw =
-        BufReader::with_capacity(1 << 16, std::fs::File::open(record).map_err(input_err)?);
+    let mut raw = BufReader::with_capacity(
+        1 << 16,
+        crate::fsio::open_input(record, crate::fsio::Limit::Stream)?,
+    );
     let out_err = |source| Error::File {
         action: "cannot write",
         path: out.to_path_buf(),
         source,
     };
-    let mut w = BufWriter::with_capacity(
-        1 << 16,
-        std::fs::File::create(tmp).map_err(|source| Error::File {
-            action: "cannot create",
-            path: out.to_path_buf(),
-            source,
-        })?,
-    );
     let model = Model::new(cal);
     let mut line = Vec::with_capacity(256);
     let mut raw_no = 0usize;
@@ -110,10 +95,6 @@ fn write_recomputed(record: &Path, cal: &Calibration, out: &Path, tmp: &Path) ->
         }
         w.write_all(&line).map_err(out_err)?;
     }
-    w.into_inner()
-        .map_err(|e| out_err(e.into_error()))?
-        .sync_all()
-        .map_err(out_err)?;
     Ok(rows)
 }
 
@@ -166,7 +147,7 @@ mod tests {
         cal.l1_mm += 0.01;
         cal.enc2.zero_offset_rad = 1e-4;
         let out = dir.path().join("out.csv");
-        assert_eq!(recompute(&rec, &cal, &out).unwrap(), 2);
+        assert_eq!(recompute(&rec, &cal, &out, false).unwrap(), 2);
         let got = std::fs::read_to_string(&out).unwrap();
         let d0 = distance_mm(&cal, 1000, -2000);
         let d1 = distance_mm(&cal, -300000, 250000);
@@ -197,14 +178,14 @@ mod tests {
         let text = "seq,t_us,enc1,enc2,d_mm\n0,0,1,2,100\n";
         std::fs::write(&rec, text).unwrap();
         let cal = Calibration::DEFAULT;
-        let e = recompute(&rec, &cal, &rec).unwrap_err();
+        let e = recompute(&rec, &cal, &rec, false).unwrap_err();
         assert_eq!(e.exit_code(), 2);
         let alias = dir.path().join(".").join("rec.csv");
-        assert!(recompute(&rec, &cal, &alias).is_err());
+        assert!(recompute(&rec, &cal, &alias, false).is_err());
         assert_eq!(std::fs::read_to_string(&rec).unwrap(), text);
         std::fs::write(&rec, "seq,t_us,enc1,enc2,d_mm\n0,0,1,2,100\n1,10,x,2,100\n").unwrap();
         let out = dir.path().join("out.csv");
-        let e = recompute(&rec, &cal, &out).unwrap_err();
+        let e = recompute(&rec, &cal, &out, false).unwrap_err();
         assert!(
             e.to_string()
                 .ends_with("rec.csv:3:6: enc1: `x` is not an integer"),
@@ -212,7 +193,7 @@ mod tests {
         );
         assert!(!out.exists());
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
-        let e = recompute(&dir.path().join("none.csv"), &cal, &out).unwrap_err();
+        let e = recompute(&dir.path().join("none.csv"), &cal, &out, false).unwrap_err();
         assert_eq!(e.exit_code(), 2);
     }
 

@@ -138,7 +138,7 @@ impl CalSamples {
 
 /// Read CAL.csv (module docs).
 pub fn read_samples(file: &Path) -> Result<CalSamples> {
-    samples_from(Table::open(file)?)
+    samples_from(Table::open_with(file, crate::fsio::Limit::Table)?)
 }
 
 /// [`read_samples`] on text already in memory; `file` names it in errors.

@@ -51,6 +51,135 @@ pub fn write_csv_lines(out: &mut Vec<u8>, samples: &[SeqSample]) {
     }
 }
 
+/// Samples the recorder set aside, by reason ([`SampleCheck`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Suspects {
+    /// D is NaN or infinite.
+    pub d_not_finite: u64,
+    /// D is not in (0, l1 + l2] of the device's calibration (a ball distance no instrument of
+    /// these bars can show).
+    pub d_impossible: u64,
+    /// An encoder's count is more than a turn from zero (the frames reach ±86°).
+    pub counts_out_of_range: u64,
+    /// `t_us` is before the previous sample's.
+    pub time_back: u64,
+    /// `t_us` equals the previous sample's.
+    pub time_still: u64,
+}
+
+impl Suspects {
+    /// All samples set aside.
+    pub fn total(&self) -> u64 {
+        self.d_not_finite
+            + self.d_impossible
+            + self.counts_out_of_range
+            + self.time_back
+            + self.time_still
+    }
+}
+
+impl std::fmt::Display for Suspects {
+    /// `suspect samples N (D not finite a, D impossible b, counts out of range c, time back d,
+    /// time standing still e), kept as `# suspect` comment lines`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "suspect samples {} (D not finite {}, D impossible {}, counts out of range {}, time back {}, time standing still {}), kept in the file as `{SUSPECT_PREFIX}` comment lines that readers skip",
+            self.total(),
+            self.d_not_finite,
+            self.d_impossible,
+            self.counts_out_of_range,
+            self.time_back,
+            self.time_still
+        )
+    }
+}
+
+/// Start of the comment line a suspect sample is written as: `# suspect: seq,t_us,enc1,enc2,d_mm:
+/// reason`. The readers skip comment lines, so the file stays valid, the sample stays visible,
+/// and the gap in `seq` shows where it was.
+pub const SUSPECT_PREFIX: &str = "# suspect:";
+
+/// What the recorder checks of each sample before it becomes a data line: D finite and possible
+/// for the device's bars, counts within a turn, time strictly increasing. A sample that fails is
+/// counted ([`Suspects`]) and written as a [`SUSPECT_PREFIX`] comment line, never silently.
+#[derive(Debug, Clone)]
+pub struct SampleCheck {
+    d_max_mm: f64,
+    counts_max: i64,
+    last_t_us: Option<u64>,
+    /// The samples set aside so far.
+    pub suspects: Suspects,
+}
+
+impl Default for SampleCheck {
+    fn default() -> Self {
+        let mut c = SampleCheck {
+            d_max_mm: 0.0,
+            counts_max: 0,
+            last_t_us: None,
+            suspects: Suspects::default(),
+        };
+        c.set_calibration(&jdbb_core::calib::Calibration::DEFAULT);
+        c
+    }
+}
+
+impl SampleCheck {
+    /// Check against the bars and encoders of `cal` (the device's, once it describes itself).
+    pub fn set_calibration(&mut self, cal: &jdbb_core::calib::Calibration) {
+        self.d_max_mm = cal.l1_mm + cal.l2_mm;
+        self.counts_max = i64::from(cal.enc1.counts_per_rev.max(cal.enc2.counts_per_rev));
+    }
+
+    /// Why `s` is suspect, if it is (and count it).
+    fn verdict(&mut self, s: &SeqSample) -> Option<&'static str> {
+        let x = &s.sample;
+        let last = self.last_t_us.replace(x.t_us);
+        let why = if !x.d_mm.is_finite() {
+            self.suspects.d_not_finite += 1;
+            "D is not finite"
+        } else if !(x.d_mm > 0.0 && x.d_mm <= self.d_max_mm) {
+            self.suspects.d_impossible += 1;
+            "D is outside (0, l1 + l2] of the device's bars"
+        } else if x.enc1.abs() > self.counts_max || x.enc2.abs() > self.counts_max {
+            self.suspects.counts_out_of_range += 1;
+            "an encoder count is more than a turn from zero"
+        } else if last.is_some_and(|l| x.t_us < l) {
+            self.suspects.time_back += 1;
+            "t_us goes back"
+        } else if last == Some(x.t_us) {
+            self.suspects.time_still += 1;
+            "t_us stands still"
+        } else {
+            return None;
+        };
+        Some(why)
+    }
+
+    /// Append the lines of `samples` to `lines` (data lines, or suspect comment lines) and the
+    /// samples that became data lines to `good`.
+    pub fn lines(&mut self, lines: &mut Vec<u8>, good: &mut Vec<SeqSample>, samples: &[SeqSample]) {
+        for s in samples {
+            match self.verdict(s) {
+                None => {
+                    write_csv_lines(lines, std::slice::from_ref(s));
+                    good.push(*s);
+                }
+                Some(why) => {
+                    let x = &s.sample;
+                    // Writing to a Vec cannot fail.
+                    let _ = writeln!(
+                        lines,
+                        "{SUSPECT_PREFIX} {},{},{},{},{}: {why}",
+                        s.seq, x.t_us, x.enc1, x.enc2, x.d_mm
+                    );
+                }
+            }
+        }
+    }
+}
+
 /// How a streaming session ended.
 #[derive(Debug)]
 pub enum End {
@@ -115,35 +244,7 @@ pub fn partial_path(out: &Path) -> PathBuf {
 /// to be replaced. A symbolic link, a directory, a device (`/dev/null`), a pipe or a socket is
 /// refused whatever `force` says. Touches nothing.
 pub fn check_output(out: &Path, force: bool) -> Result<()> {
-    let meta = match fs::symlink_metadata(out) {
-        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(()),
-        Err(source) => {
-            return Err(Error::File {
-                action: "cannot check",
-                path: out.to_path_buf(),
-                source,
-            })
-        }
-        Ok(m) => m,
-    };
-    let t = meta.file_type();
-    let what = if t.is_symlink() {
-        "a symbolic link"
-    } else if t.is_dir() {
-        "a directory"
-    } else if !t.is_file() {
-        "a device, pipe or socket"
-    } else if force {
-        return Ok(());
-    } else {
-        return Err(Error::OutputExists {
-            path: out.to_path_buf(),
-        });
-    };
-    Err(Error::OutputNotAFile {
-        path: out.to_path_buf(),
-        what,
-    })
+    crate::fsio::check_destination(out, force)
 }
 
 /// Create the work file `partial` (it must not exist: never an existing file, never through a
@@ -233,6 +334,8 @@ pub struct CsvOut<W> {
     pub last: Option<SeqSample>,
     /// Data lines in the file.
     pub lines: u64,
+    /// What is checked of each sample, and the suspects so far.
+    pub check: SampleCheck,
 }
 
 impl<W: Write + Truncate> CsvOut<W> {
@@ -243,6 +346,7 @@ impl<W: Write + Truncate> CsvOut<W> {
             committed,
             last: None,
             lines: 0,
+            check: SampleCheck::default(),
         }
     }
 
@@ -305,10 +409,8 @@ pub fn record_to<P: Read + Write, W: Write + Truncate>(
         if deadline.is_some_and(|d| Instant::now() >= d) {
             return End::Time;
         }
-        let polled = stream.poll(|b| {
-            write_csv_lines(&mut lines, b);
-            batch.extend_from_slice(b);
-        });
+        let check = &mut out.check;
+        let polled = stream.poll(|b| check.lines(&mut lines, &mut batch, b));
         let written = out.append(&lines, &batch);
         lines.clear();
         batch.clear();
@@ -321,6 +423,7 @@ pub fn record_to<P: Read + Write, W: Write + Truncate>(
         }
         if !info_shown {
             if let Some(info) = stream.info() {
+                out.check.set_calibration(&info.calibration);
                 on_info(info);
                 info_shown = true;
             }
@@ -362,6 +465,72 @@ mod tests {
             String::from_utf8(out).unwrap(),
             "0,0,-7,123456,100.0000000\n1,1000,-7,123456,99.9999877\n"
         );
+    }
+
+    #[test]
+    fn suspect_samples_are_counted_and_kept_as_comments() {
+        let s = |seq: u64, t_us, enc1, d_mm| SeqSample {
+            seq,
+            sample: Sample {
+                t_us,
+                enc1,
+                enc2: 5,
+                d_mm,
+                status: Status(0),
+            },
+        };
+        let mut check = SampleCheck::default();
+        let (mut lines, mut good) = (Vec::new(), Vec::new());
+        let samples = [
+            s(0, 100, 0, 100.0),
+            s(1, 200, 0, f64::NAN),
+            s(2, 300, 0, f64::INFINITY),
+            s(3, 400, 0, -1.0),
+            s(4, 500, 0, 1e6),
+            s(5, 600, 1 << 30, 100.0),
+            s(6, 550, 0, 100.0),
+            s(7, 550, 0, 100.0),
+            s(8, 700, 0, 100.0),
+        ];
+        check.lines(&mut lines, &mut good, &samples);
+        let text = String::from_utf8(lines).unwrap();
+        assert_eq!(
+            good.iter().map(|g| g.seq).collect::<Vec<_>>(),
+            [0, 8],
+            "{text}"
+        );
+        let n = check.suspects;
+        assert_eq!(
+            (
+                n.d_not_finite,
+                n.d_impossible,
+                n.counts_out_of_range,
+                n.time_back,
+                n.time_still
+            ),
+            (2, 2, 1, 1, 1)
+        );
+        assert_eq!(
+            text.lines()
+                .filter(|l| l.starts_with(SUSPECT_PREFIX))
+                .count(),
+            7
+        );
+        assert!(
+            text.contains("# suspect: 1,200,0,5,NaN: D is not finite"),
+            "{text}"
+        );
+        assert!(n.to_string().starts_with("suspect samples 7 "), "{n}");
+        // The file stays readable by the one CSV reader: the suspects are skipped.
+        let csv = format!("{CSV_HEADER}{text}");
+        let mut t = crate::table::Table::from_text(Path::new("r.csv"), &csv).unwrap();
+        let c = t.require(&["seq", "d_mm"]).unwrap();
+        let mut seqs = vec![];
+        while let Some(r) = t.next_row().unwrap() {
+            seqs.push(r.integer(&c[0]).unwrap());
+            assert!(r.number(&c[1]).unwrap() > 0.0);
+        }
+        assert_eq!(seqs, [0, 8]);
     }
 
     #[test]

@@ -39,6 +39,9 @@ pub struct MinimaxOptions {
     /// Size of the initial active set per outer iteration (the worst residuals); at least
     /// 4 × (parameters + 1) are used.
     pub active_set: usize,
+    /// Most linear programs solved in all (bounds the time on any input: each outer iteration
+    /// may exchange up to 50 times); reaching it stops the fit ([`MinimaxFit::exhausted`]).
+    pub max_lp_solves: usize,
 }
 
 impl Default for MinimaxOptions {
@@ -47,6 +50,7 @@ impl Default for MinimaxOptions {
             max_iterations: 100,
             tolerance: 1e-10,
             active_set: 64,
+            max_lp_solves: 600,
         }
     }
 }
@@ -67,6 +71,8 @@ pub struct MinimaxFit {
     pub extremal: Vec<usize>,
     /// LP-predicted relative improvement at the stop (≤ tolerance when converged).
     pub predicted_improvement: f64,
+    /// Whether the fit stopped at [`MinimaxOptions::max_lp_solves`].
+    pub exhausted: bool,
 }
 
 struct Linearised {
@@ -197,7 +203,7 @@ pub fn minimax(problem: &dyn Problem, p0: &[f64], opts: &MinimaxOptions) -> Resu
     let mut lp_solves = 0;
     let mut iterations = 0;
     let mut predicted = f64::INFINITY;
-    while iterations < opts.max_iterations && lin.max > 0.0 {
+    while iterations < opts.max_iterations && lin.max > 0.0 && lp_solves < opts.max_lp_solves {
         iterations += 1;
         // Column scales: RMS gradient, so |y_k| = |δ_k| s_k is in residual units.
         let mut scale = vec![0.0; n];
@@ -262,7 +268,7 @@ pub fn minimax(problem: &dyn Problem, p0: &[f64], opts: &MinimaxOptions) -> Resu
                 .filter(|&(i, &r)| !in_set[i] && r > t + 1e-9)
                 .map(|(i, &r)| (r, i))
                 .collect();
-            if viol.is_empty() || rounds >= 50 {
+            if viol.is_empty() || rounds >= 50 || lp_solves >= opts.max_lp_solves {
                 // lin_max is the true linearised maximum at y, a valid prediction either way.
                 break (y, lin_max);
             }
@@ -317,6 +323,7 @@ pub fn minimax(problem: &dyn Problem, p0: &[f64], opts: &MinimaxOptions) -> Resu
         lp_solves,
         extremal,
         predicted_improvement: predicted,
+        exhausted: lp_solves >= opts.max_lp_solves,
     })
 }
 
@@ -366,6 +373,20 @@ mod tests {
         assert!((fit.max_abs_residual - 0.125).abs() < 1e-9, "{fit:?}");
         assert!((fit.params[0] + 0.125).abs() < 1e-8 && (fit.params[1] - 1.0).abs() < 1e-8);
         assert_eq!(fit.extremal, vec![0, 500, 1000]);
+        assert!(!fit.exhausted && fit.lp_solves < MinimaxOptions::default().max_lp_solves);
+    }
+
+    #[test]
+    fn the_work_is_bounded_by_the_lp_budget() {
+        let x: Vec<f64> = (0..=1000).map(|i| i as f64 / 1000.0).collect();
+        let y = x.iter().map(|x| x * x).collect();
+        let opts = MinimaxOptions {
+            max_lp_solves: 2,
+            ..MinimaxOptions::default()
+        };
+        let fit = minimax(&Poly { x, y, degree: 1 }, &[0.0, 0.0], &opts).unwrap();
+        assert_eq!(fit.lp_solves, 2);
+        assert!(fit.exhausted, "{fit:?}");
     }
 
     #[test]

@@ -134,7 +134,7 @@ pub type Runs = (Vec<f64>, Vec<(String, Vec<f64>)>);
 /// Read `angle_deg,<run>_mm,...` (one run per column, ΔL in mm; angles in increasing order, at
 /// least [`MIN_ANGLES`] distinct).
 pub fn read_runs(file: &FsPath) -> Result<Runs> {
-    runs_from(Table::open(file)?)
+    runs_from(Table::open_with(file, crate::fsio::Limit::Table)?)
 }
 
 /// [`read_runs`] on text in memory.

@@ -143,7 +143,10 @@ pub struct Table {
 /// Read a runs table (see [`Table`]). A last row repeating the first angle plus 360° (the C
 /// table's 360° line) is kept as data.
 pub fn read_table(path: &Path) -> Result<Table> {
-    runs_table(crate::table::Table::open(path)?)
+    runs_table(crate::table::Table::open_with(
+        path,
+        crate::fsio::Limit::Table,
+    )?)
 }
 
 /// [`read_table`] on text already read.

@@ -386,7 +386,15 @@ pub fn identify(
                 x0: lsq.params.clone(),
             };
             let y0 = vec![0.0; restricted.basis.len()];
-            let mm = minimax(&restricted, &y0, &MinimaxOptions::default())?;
+            let opts = MinimaxOptions::default();
+            let mm = minimax(&restricted, &y0, &opts)?;
+            if mm.exhausted && mm.predicted_improvement > opts.tolerance {
+                return Err(Error::Numerics(format!(
+                    "the minimax fit did not settle within {} linear programs (max |residual| {:.3} µm, still falling): these samples do not pin a minimax solution down; use --method lsq",
+                    opts.max_lp_solves,
+                    mm.max_abs_residual * 1e3
+                )));
+            }
             (restricted.full(&mm.params), mm.iterations)
         }
     };

@@ -18,7 +18,7 @@ pub fn read_params(path: &Path, case: Option<&str>) -> Result<Params> {
     {
         parse_params_toml(path, &read_text(path)?)
     } else {
-        params_from(Table::open(path)?, case)
+        params_from(Table::open_with(path, crate::fsio::Limit::Table)?, case)
     }
 }
 
@@ -169,7 +169,7 @@ pub const SAMPLE_COLUMNS: [&str; 3] = ["theta_a_deg", "theta_c_deg", "d_mm"];
 /// and check that it can identify `n_params` parameters: enough distinct positions, and both
 /// axes moving. Bar lengths must be positive and below [`MAX_BAR_MM`].
 pub fn read_samples(path: &Path, n_params: usize) -> Result<Samples> {
-    samples_from(Table::open(path)?, n_params)
+    samples_from(Table::open_with(path, crate::fsio::Limit::Table)?, n_params)
 }
 
 /// [`read_samples`] on text already read.

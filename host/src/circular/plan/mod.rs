@@ -311,6 +311,7 @@ pub enum ArcRole {
 
 /// The instrument's range as a plan uses it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Instrument {
     /// Bar 1 (table ball to joint), mm.
     pub l1_mm: f64,
@@ -331,7 +332,7 @@ pub struct Instrument {
 pub fn instrument(cal: &Calibration) -> Result<Instrument> {
     cal.validate().map_err(|e| {
         Error::Usage(format!(
-            "the calibration is not usable ({e:?}): bar lengths must be finite, positive and below 10 m, encoders at least 4 counts per revolution"
+            "the calibration is not usable ({e:?}): bar lengths must be between 1 mm and 10 m, encoders at least 4 counts per revolution"
         ))
     })?;
     let (l1, l2) = (cal.l1_mm, cal.l2_mm);
@@ -444,6 +445,7 @@ impl CircleArc {
 
 /// One circle of a plan.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Circle {
     /// Position in `circles` (0-based), as segments refer to it.
     pub index: usize,
@@ -460,7 +462,7 @@ pub struct Circle {
 
 /// One block of the program (see the module docs for the fields).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Segment {
     /// G0 to the start point, before the instrument is mounted.
     Rapid { from_mm: [f64; 3], to_mm: [f64; 3] },
@@ -562,8 +564,10 @@ pub fn line_d_range(c: &[f64; 3], a: &[f64; 3], b: &[f64; 3]) -> (f64, f64) {
     (dist(c, &closest), da.max(db))
 }
 
-/// A test's program as data: plan.json (see the module docs).
+/// A test's program as data: plan.json (see the module docs). An unknown key is an error naming
+/// it (a misspelled key is not a value silently left out).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Plan {
     /// Always [`FORMAT`].
     pub format: String,
@@ -641,14 +645,16 @@ impl Plan {
                 "`arc` is not an arc of above 0° and at most 360° with a data arc inside; make the plan again with `jdbb plan`".to_string(),
             ));
         }
-        plan.check_chain().map_err(|m| {
-            Error::input(
-                path,
-                1,
-                0,
-                format!("{m}; make the plan again with `jdbb plan`"),
-            )
-        })?;
+        plan.check_chain()
+            .and_then(|()| plan.check_circles())
+            .map_err(|m| {
+                Error::input(
+                    path,
+                    1,
+                    0,
+                    format!("{m}; make the plan again with `jdbb plan`"),
+                )
+            })?;
         Ok(plan)
     }
 
@@ -657,6 +663,57 @@ impl Plan {
         let mut s = serde_json::to_string_pretty(self).expect("a plan is plain data");
         s.push('\n');
         s
+    }
+
+    /// The circles and units agree with the segments: `units` is mm; each circle is where its
+    /// index says, with D = √(R² + H²) and the plan's plane; each arc of a circle has that
+    /// circle's centre, radius and plane and runs on it (to 1 µm).
+    fn check_circles(&self) -> std::result::Result<(), String> {
+        const TOL_MM: f64 = 1e-3;
+        if self.units != "mm" {
+            return Err(format!(
+                "`units` is \"{}\"; a plan's numbers are in mm",
+                self.units
+            ));
+        }
+        for (k, c) in self.circles.iter().enumerate() {
+            let d = c.radius_mm.hypot(c.height_mm);
+            if c.index != k
+                || !(c.radius_mm > 0.0 && c.radius_mm.is_finite())
+                || (c.d_mm - d).abs().partial_cmp(&TOL_MM) != Some(std::cmp::Ordering::Less)
+                || c.plane != self.plane
+            {
+                return Err(format!(
+                    "circle {k} does not agree with itself (index, radius, D = √(R² + H²), plane)"
+                ));
+            }
+        }
+        for (k, s) in self.segments.iter().enumerate() {
+            if let Segment::Arc {
+                circle,
+                centre_mm,
+                radius_mm,
+                plane,
+                from_mm,
+                to_mm,
+                ..
+            } = s
+            {
+                let c = &self.circles[*circle];
+                let on = |p: &[f64; 3]| (dist(p, centre_mm) - radius_mm).abs() <= TOL_MM;
+                if (radius_mm - c.radius_mm).abs() > TOL_MM
+                    || dist(centre_mm, &c.centre_mm) > TOL_MM
+                    || *plane != c.plane
+                    || !on(from_mm)
+                    || !on(to_mm)
+                {
+                    return Err(format!(
+                        "segment {k} is an arc of circle {circle} but not on it (centre, radius or plane differ from `circles`)"
+                    ));
+                }
+            }
+        }
+        Ok(())
     }
 
     /// The structure [`Plan::position_at`] relies on: a program file name beside plan.json, a

@@ -1,0 +1,840 @@
+//! The one writer and the one way to open an input: every file `jdbb` writes goes through here,
+//! and every input file is opened with [`open_input`] (size limits, special files).
+//!
+//! # Writing
+//! - **Destinations.** A destination is nothing yet, or a regular file that is replaced only when
+//!   the user says `--force` ([`Error::OutputExists`] names `--force` otherwise). A symbolic link,
+//!   a directory (where a file is meant), a device (`/dev/null`, `/dev/full`), a pipe or a socket
+//!   is refused whatever `--force` says ([`Error::OutputNotAFile`]): the program never writes
+//!   through a link nor replaces a device node ([`check_destination`]).
+//! - **Whole files.** A file is written to a temporary file in the destination's directory
+//!   (created new, never an existing file), flushed, `fsync`ed, then renamed over the
+//!   destination, so a reader finds the old file or the new one, never half of one. Without
+//!   `--force` the temporary file is hard-linked into place, so a file that appeared meanwhile is
+//!   not replaced either ([`Staged`], [`write_file`], [`write_via`]).
+//! - **Sets.** Files that belong together (plan.json and its program, a controller's
+//!   compensation files) are all staged before any is put in place; a failure while putting them
+//!   in place puts the old ones back ([`FileSet`]). A report directory is built whole beside the
+//!   destination and swapped in ([`write_dir`]), so it never mixes new and stale files.
+//! - **Interruption.** Temporary files and directories are registered while they exist;
+//!   [`exit_on_interrupt`] makes Ctrl-C (SIGTERM, SIGHUP) remove them and exit 130 at once, so an
+//!   interrupted command leaves no partial output.
+//!
+//! # Reading
+//! [`open_input`] opens an input file for reading: a directory is refused, and the bytes read are
+//! limited ([`LimitedReader`]): past the limit, reading fails with a message that names the limit
+//! (exit 2). The limits per kind of input are [`Limit`]; `/dev/zero` or a runaway file is stopped
+//! there instead of filling the memory.
+use std::fs::{self, File, OpenOptions};
+use std::io::{self, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use crate::{Error, Result};
+
+/// Temporary files and directories that exist now (removed on an interrupt).
+static STAGED: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+fn register(p: &Path) {
+    if let Ok(mut v) = STAGED.lock() {
+        v.push(p.to_path_buf());
+    }
+}
+
+fn unregister(p: &Path) {
+    if let Ok(mut v) = STAGED.lock() {
+        v.retain(|q| q != p);
+    }
+}
+
+/// Remove every temporary file and directory this process has staged and not yet put in place.
+pub fn remove_staged() {
+    if let Ok(mut v) = STAGED.lock() {
+        for p in v.drain(..) {
+            if fs::symlink_metadata(&p).is_ok_and(|m| m.is_dir()) {
+                let _ = fs::remove_dir_all(&p);
+            } else {
+                let _ = fs::remove_file(&p);
+            }
+        }
+    }
+}
+
+/// Make Ctrl-C (and SIGTERM, SIGHUP) end the process within milliseconds with exit code 130,
+/// after removing what it staged ([`remove_staged`]): for every command but those that
+/// talk to a device (`record`, `live`, `calibration`), which end their session themselves. A rename
+/// in progress finishes first (it holds the same lock), so an output is whole or absent.
+pub fn exit_on_interrupt() {
+    // A second handler cannot be installed (a command that has its own, such as `record`,
+    // keeps it); that is not an error here.
+    let _ = ctrlc::set_handler(|| {
+        remove_staged();
+        let _ = writeln!(
+            io::stderr(),
+            "interrupted; no output was written (what was in place before is as it was)"
+        );
+        std::process::exit(130);
+    });
+}
+
+/// What `path` is, in words, if it is not a regular file (None: a regular file).
+fn not_a_file(meta: &fs::Metadata) -> Option<&'static str> {
+    let t = meta.file_type();
+    if t.is_symlink() {
+        Some("a symbolic link")
+    } else if t.is_dir() {
+        Some("a directory")
+    } else if !t.is_file() {
+        Some("a device, pipe or socket")
+    } else {
+        None
+    }
+}
+
+/// Check that a file may be written at `path`: nothing there, or (with `force`) a regular file
+/// to be replaced. A symbolic link, a directory, a device (`/dev/null`), a pipe or a socket is
+/// refused whatever `force` says. Touches nothing.
+pub fn check_destination(path: &Path, force: bool) -> Result<()> {
+    let meta = match fs::symlink_metadata(path) {
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(()),
+        Err(source) => {
+            return Err(Error::File {
+                action: "cannot check",
+                path: path.to_path_buf(),
+                source,
+            })
+        }
+        Ok(m) => m,
+    };
+    match not_a_file(&meta) {
+        Some(what) => Err(Error::OutputNotAFile {
+            path: path.to_path_buf(),
+            what,
+        }),
+        None if force => Ok(()),
+        None => Err(Error::OutputExists {
+            path: path.to_path_buf(),
+        }),
+    }
+}
+
+/// The directory `path` is in (`.` for a bare name).
+fn parent_of(path: &Path) -> &Path {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}
+
+fn file_name(path: &Path) -> String {
+    path.file_name()
+        .map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned())
+}
+
+/// A new temporary path beside `dest`: `.NAME.jdbb-PID-N.tmp` (N counts up).
+fn temp_name(dest: &Path, n: u32) -> PathBuf {
+    parent_of(dest).join(format!(
+        ".{}.jdbb-{}-{n}.tmp",
+        file_name(dest),
+        std::process::id()
+    ))
+}
+
+/// Create a new temporary file beside `dest` (never an existing file, never through a link).
+fn create_temp(dest: &Path) -> Result<(PathBuf, File)> {
+    for n in 0..1000 {
+        let tmp = temp_name(dest, n);
+        match OpenOptions::new().write(true).create_new(true).open(&tmp) {
+            Ok(f) => {
+                register(&tmp);
+                return Ok((tmp, f));
+            }
+            Err(e) if e.kind() == io::ErrorKind::AlreadyExists => continue,
+            Err(source) => {
+                return Err(Error::File {
+                    action: "cannot create a file beside",
+                    path: dest.to_path_buf(),
+                    source,
+                })
+            }
+        }
+    }
+    Err(Error::File {
+        action: "cannot create a file beside",
+        path: dest.to_path_buf(),
+        source: io::Error::new(io::ErrorKind::AlreadyExists, "1000 temporary names taken"),
+    })
+}
+
+fn write_err(path: &Path) -> impl Fn(io::Error) -> Error + '_ {
+    move |source| Error::File {
+        action: "cannot write",
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// `fsync` a directory so a rename in it is on the disk (best effort: not every system can).
+fn sync_dir(dir: &Path) {
+    if let Ok(d) = File::open(dir) {
+        let _ = d.sync_all();
+    }
+}
+
+/// Put the complete temporary file `tmp` in place as `dest` (see the module docs): the
+/// destination is checked again; without `force` a file that appeared meanwhile is kept.
+fn place(tmp: &Path, dest: &Path, force: bool) -> Result<()> {
+    check_destination(dest, force)?;
+    let guard = STAGED.lock();
+    let placed = if force {
+        fs::rename(tmp, dest)
+    } else {
+        match fs::hard_link(tmp, dest) {
+            Ok(()) => fs::remove_file(tmp),
+            Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {
+                drop(guard);
+                return Err(Error::OutputExists {
+                    path: dest.to_path_buf(),
+                });
+            }
+            // A file system without hard links: the check above is the guard.
+            Err(_) => fs::rename(tmp, dest),
+        }
+    };
+    drop(guard);
+    placed.map_err(write_err(dest))?;
+    unregister(tmp);
+    sync_dir(parent_of(dest));
+    Ok(())
+}
+
+/// A file being written to a temporary file beside its destination, put in place by
+/// [`Staged::commit`]; dropped without a commit, the temporary file is removed.
+pub struct Staged {
+    tmp: PathBuf,
+    dest: PathBuf,
+    force: bool,
+    out: Option<BufWriter<File>>,
+}
+
+impl Staged {
+    /// Start writing `dest` (checked first: see [`check_destination`]).
+    pub fn create(dest: &Path, force: bool) -> Result<Staged> {
+        check_destination(dest, force)?;
+        let (tmp, f) = create_temp(dest)?;
+        Ok(Staged {
+            tmp,
+            dest: dest.to_path_buf(),
+            force,
+            out: Some(BufWriter::with_capacity(1 << 16, f)),
+        })
+    }
+
+    /// The destination.
+    pub fn dest(&self) -> &Path {
+        &self.dest
+    }
+
+    /// Flush, `fsync` and put the file in place.
+    pub fn commit(mut self) -> Result<()> {
+        let out = self.out.take().expect("a Staged is committed once");
+        let f = out
+            .into_inner()
+            .map_err(|e| write_err(&self.dest)(e.into_error()))?;
+        f.sync_all().map_err(write_err(&self.dest))?;
+        drop(f);
+        place(&self.tmp, &self.dest, self.force)
+    }
+}
+
+impl Write for Staged {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        match &mut self.out {
+            Some(w) => w.write(buf),
+            None => Err(io::Error::other("written after commit")),
+        }
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        match &mut self.out {
+            Some(w) => w.flush(),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for Staged {
+    fn drop(&mut self) {
+        if fs::symlink_metadata(&self.tmp).is_ok() {
+            let _ = fs::remove_file(&self.tmp);
+        }
+        unregister(&self.tmp);
+    }
+}
+
+/// Write `bytes` as the file `dest` (see the module docs).
+pub fn write_file(dest: &Path, bytes: &[u8], force: bool) -> Result<()> {
+    let mut s = Staged::create(dest, force)?;
+    s.write_all(bytes).map_err(write_err(dest))?;
+    s.commit()
+}
+
+/// Write the file `dest` by `write`, which is given the path of a new empty temporary file
+/// beside it to fill (for writers that take a path, such as the plotting backends); then
+/// `fsync` and put it in place (see the module docs).
+pub fn write_via<T>(dest: &Path, force: bool, write: impl FnOnce(&Path) -> Result<T>) -> Result<T> {
+    let s = Staged::create(dest, force)?;
+    let value = write(&s.tmp)?;
+    // What `write` wrote went through its own handle; `commit` syncs the file by path.
+    File::open(&s.tmp)
+        .and_then(|f| f.sync_all())
+        .map_err(write_err(dest))?;
+    s.commit()?;
+    Ok(value)
+}
+
+/// Files written into one directory as a set: every file is staged first, then all are put in
+/// place; if putting one in place fails, those already replaced get their old content back and
+/// new ones are removed (see the module docs).
+pub struct FileSet {
+    dir: PathBuf,
+    force: bool,
+    staged: Vec<Staged>,
+}
+
+impl FileSet {
+    /// A set of files in `dir` (created with the first file staged; a link or a non-directory
+    /// is refused).
+    pub fn new(dir: &Path, force: bool) -> Result<FileSet> {
+        match fs::symlink_metadata(dir) {
+            Ok(m) if m.is_dir() => {}
+            Ok(m) => {
+                return Err(Error::OutputNotAFile {
+                    path: dir.to_path_buf(),
+                    what: not_a_file(&m).unwrap_or("a file, not a directory"),
+                })
+            }
+            // Created when the first file is staged, so a refused set leaves nothing behind.
+            Err(e) if e.kind() == io::ErrorKind::NotFound => {}
+            Err(source) => {
+                return Err(Error::File {
+                    action: "cannot check",
+                    path: dir.to_path_buf(),
+                    source,
+                })
+            }
+        }
+        Ok(FileSet {
+            dir: dir.to_path_buf(),
+            force,
+            staged: vec![],
+        })
+    }
+
+    /// Check every destination of `names` in the set's directory before anything is written.
+    pub fn check(&self, names: &[&str]) -> Result<()> {
+        for n in names {
+            check_destination(&self.dir.join(n), self.force)?;
+        }
+        Ok(())
+    }
+
+    /// Stage the file `name` with `bytes`.
+    pub fn add(&mut self, name: &str, bytes: &[u8]) -> Result<()> {
+        if self.staged.is_empty() {
+            fs::create_dir_all(&self.dir).map_err(|source| Error::File {
+                action: "cannot create",
+                path: self.dir.clone(),
+                source,
+            })?;
+        }
+        let dest = self.dir.join(name);
+        let mut s = Staged::create(&dest, self.force)?;
+        s.write_all(bytes).map_err(write_err(&dest))?;
+        self.staged.push(s);
+        Ok(())
+    }
+
+    /// Put every staged file in place (see the type's docs).
+    pub fn commit(mut self) -> Result<()> {
+        // Everything on the disk first.
+        for s in &mut self.staged {
+            let dest = s.dest.clone();
+            let out = s.out.take().expect("staged once");
+            let f = out
+                .into_inner()
+                .map_err(|e| write_err(&dest)(e.into_error()))?;
+            f.sync_all().map_err(write_err(&dest))?;
+        }
+        for s in &self.staged {
+            check_destination(&s.dest, self.force)?;
+        }
+        // Keep the old files under other names until all new ones are in place.
+        let mut backups: Vec<(PathBuf, Option<PathBuf>)> = vec![];
+        let mut result = Ok(());
+        for (k, s) in self.staged.iter().enumerate() {
+            let backup = if fs::symlink_metadata(&s.dest).is_ok() {
+                let b = s.dest.with_file_name(format!(
+                    ".{}.jdbb-{}-{k}.old",
+                    file_name(&s.dest),
+                    std::process::id()
+                ));
+                if let Err(source) = fs::hard_link(&s.dest, &b) {
+                    result = Err(Error::File {
+                        action: "cannot keep a copy of",
+                        path: s.dest.clone(),
+                        source,
+                    });
+                    break;
+                }
+                register(&b);
+                Some(b)
+            } else {
+                None
+            };
+            backups.push((s.dest.clone(), backup));
+            if let Err(e) = place(&s.tmp, &s.dest, self.force) {
+                result = Err(e);
+                break;
+            }
+        }
+        if result.is_err() {
+            // Back to the old set: old files restored, new ones removed.
+            for (dest, backup) in backups.iter().rev() {
+                match backup {
+                    Some(b) => {
+                        let _ = fs::rename(b, dest);
+                    }
+                    None => {
+                        let _ = fs::remove_file(dest);
+                    }
+                }
+            }
+        }
+        for (_, b) in &backups {
+            if let Some(b) = b {
+                let _ = fs::remove_file(b);
+                unregister(b);
+            }
+        }
+        sync_dir(&self.dir);
+        result
+    }
+}
+
+/// The file that marks a directory as written whole by [`write_dir`], so `--force` may replace
+/// it (a directory without it, and not empty, is never replaced).
+pub const DIR_MARK: &str = ".jdbb-output";
+
+/// Write the directory `dest` whole: `write` fills a new directory beside it; then the new
+/// directory takes `dest`'s place in one step (see the module docs). An existing `dest` is
+/// replaced only with `force`, and only if it is empty or was written by `write_dir` (it holds
+/// [`DIR_MARK`]), so nothing of the user's in it is lost.
+pub fn write_dir<T>(dest: &Path, force: bool, write: impl FnOnce(&Path) -> Result<T>) -> Result<T> {
+    let exists = check_dir_destination(dest, force)?;
+    // The directories above it, as `--report a/b/c` always made them.
+    fs::create_dir_all(parent_of(dest)).map_err(|source| Error::File {
+        action: "cannot create the directory of",
+        path: dest.to_path_buf(),
+        source,
+    })?;
+    let mut stage = None;
+    for n in 0..1000 {
+        let p = temp_name(dest, n);
+        match fs::create_dir(&p) {
+            Ok(()) => {
+                register(&p);
+                stage = Some(p);
+                break;
+            }
+            Err(e) if e.kind() == io::ErrorKind::AlreadyExists => continue,
+            Err(source) => {
+                return Err(Error::File {
+                    action: "cannot create a directory beside",
+                    path: dest.to_path_buf(),
+                    source,
+                })
+            }
+        }
+    }
+    let Some(stage) = stage else {
+        return Err(Error::Usage(format!(
+            "cannot create a directory beside {}: 1000 temporary names taken; remove the .{}.jdbb-*.tmp directories",
+            dest.display(),
+            file_name(dest)
+        )));
+    };
+    let cleanup = |stage: &Path| {
+        let _ = fs::remove_dir_all(stage);
+        unregister(stage);
+    };
+    let value = match write(&stage).and_then(|v| {
+        fs::write(stage.join(DIR_MARK), b"written by jdbb as a whole\n")
+            .map_err(write_err(dest))?;
+        for entry in fs::read_dir(&stage).map_err(write_err(dest))? {
+            let entry = entry.map_err(write_err(dest))?;
+            File::open(entry.path())
+                .and_then(|f| f.sync_all())
+                .map_err(write_err(&entry.path()))?;
+        }
+        sync_dir(&stage);
+        Ok(v)
+    }) {
+        Ok(v) => v,
+        Err(e) => {
+            cleanup(&stage);
+            return Err(e);
+        }
+    };
+    // The destination may have changed while the files were written.
+    if let Err(e) = check_dir_destination(dest, force) {
+        cleanup(&stage);
+        return Err(e);
+    }
+    let guard = STAGED.lock();
+    let swapped = if exists {
+        exchange(&stage, dest)
+    } else {
+        fs::rename(&stage, dest)
+    };
+    drop(guard);
+    if let Err(source) = swapped {
+        cleanup(&stage);
+        return Err(Error::File {
+            action: "cannot put in place",
+            path: dest.to_path_buf(),
+            source,
+        });
+    }
+    // `stage` now holds the old directory (or nothing).
+    cleanup(&stage);
+    sync_dir(parent_of(dest));
+    Ok(value)
+}
+
+/// Check that [`write_dir`] may write the directory `dest` (nothing there, an empty directory,
+/// or with `force` one it wrote before); returns whether it exists. Touches nothing.
+pub fn check_dir_destination(dest: &Path, force: bool) -> Result<bool> {
+    let meta = match fs::symlink_metadata(dest) {
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(false),
+        Err(source) => {
+            return Err(Error::File {
+                action: "cannot check",
+                path: dest.to_path_buf(),
+                source,
+            })
+        }
+        Ok(m) => m,
+    };
+    if !meta.is_dir() {
+        return Err(Error::OutputNotAFile {
+            path: dest.to_path_buf(),
+            what: not_a_file(&meta).unwrap_or("a file, not a directory"),
+        });
+    }
+    let mut entries = fs::read_dir(dest).map_err(|source| Error::File {
+        action: "cannot read",
+        path: dest.to_path_buf(),
+        source,
+    })?;
+    let empty = entries.next().is_none();
+    if empty {
+        return Ok(true);
+    }
+    if !force {
+        return Err(Error::OutputExists {
+            path: dest.to_path_buf(),
+        });
+    }
+    if !dest.join(DIR_MARK).is_file() {
+        return Err(Error::Usage(format!(
+            "{} holds files that jdbb did not write as one output; it is not replaced even with --force: choose another directory, or empty it yourself",
+            dest.display()
+        )));
+    }
+    Ok(true)
+}
+
+/// Swap the directories `a` and `b` in one step where the system can (Linux
+/// `renameat2(RENAME_EXCHANGE)`); elsewhere `b` is moved aside first.
+fn exchange(a: &Path, b: &Path) -> io::Result<()> {
+    #[cfg(target_os = "linux")]
+    {
+        use std::ffi::CString;
+        use std::os::unix::ffi::OsStrExt;
+        let ca = CString::new(a.as_os_str().as_bytes())?;
+        let cb = CString::new(b.as_os_str().as_bytes())?;
+        // SAFETY: two NUL-terminated paths; the call reads them only.
+        let r = unsafe {
+            libc::renameat2(
+                libc::AT_FDCWD,
+                ca.as_ptr(),
+                libc::AT_FDCWD,
+                cb.as_ptr(),
+                libc::RENAME_EXCHANGE,
+            )
+        };
+        if r == 0 {
+            return Ok(());
+        }
+        let e = io::Error::last_os_error();
+        if e.raw_os_error() != Some(libc::ENOSYS) && e.raw_os_error() != Some(libc::EINVAL) {
+            return Err(e);
+        }
+    }
+    let aside = a.with_extension("old");
+    fs::rename(b, &aside)?;
+    if let Err(e) = fs::rename(a, b) {
+        let _ = fs::rename(&aside, b);
+        return Err(e);
+    }
+    fs::rename(&aside, a)
+}
+
+/// The kinds of input file and the most bytes read of each: above it, reading stops with an
+/// error naming the limit (exit 2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Limit {
+    /// Long CSV tables read a row at a time (records, samples, paths): 4 GiB.
+    Stream,
+    /// CSV tables read whole (parameter sets, rotary runs, calibrator samples): 256 MiB.
+    Table,
+    /// Documents parsed whole (TOML, JSON: calibrations, plans, diagnoses, controller settings):
+    /// 16 MiB.
+    Document,
+}
+
+impl Limit {
+    /// The limit in bytes.
+    pub const fn bytes(self) -> u64 {
+        match self {
+            Limit::Stream => 4 << 30,
+            Limit::Table => 256 << 20,
+            Limit::Document => 16 << 20,
+        }
+    }
+
+    /// The limit in words (`4 GiB`).
+    pub fn describe(self) -> String {
+        let b = self.bytes();
+        if b >= 1 << 30 {
+            format!("{} GiB", b >> 30)
+        } else {
+            format!("{} MiB", b >> 20)
+        }
+    }
+}
+
+/// Longest line of a CSV table, bytes: a line longer than this is not a table row.
+pub const MAX_LINE_BYTES: usize = 1 << 20;
+
+/// A reader that fails (kind `FileTooLarge`) once more than its limit has been read.
+pub struct LimitedReader<R> {
+    inner: R,
+    left: u64,
+    limit: Limit,
+}
+
+impl<R: Read> Read for LimitedReader<R> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        if self.left == 0 {
+            // One byte more tells a file of exactly the limit from a longer one.
+            let mut one = [0u8; 1];
+            return match self.inner.read(&mut one)? {
+                0 => Ok(0),
+                _ => Err(too_large(self.limit)),
+            };
+        }
+        let n = buf.len().min(self.left.min(usize::MAX as u64) as usize);
+        let got = self.inner.read(&mut buf[..n])?;
+        self.left -= got as u64;
+        Ok(got)
+    }
+}
+
+fn too_large(limit: Limit) -> io::Error {
+    io::Error::new(
+        io::ErrorKind::FileTooLarge,
+        format!(
+            "the file is larger than {} ({} bytes), the most jdbb reads of this kind of input; is it the right file?",
+            limit.describe(),
+            limit.bytes()
+        ),
+    )
+}
+
+/// Open the input file `path` for reading at most `limit` bytes (see the module docs): a file
+/// that is missing or unreadable, a directory, or one whose size is already above the limit is
+/// bad input (exit 2) with the reason.
+pub fn open_input(path: &Path, limit: Limit) -> Result<LimitedReader<File>> {
+    let bad = |source| Error::InputFile {
+        path: path.to_path_buf(),
+        source,
+    };
+    let file = File::open(path).map_err(bad)?;
+    let meta = file.metadata().map_err(bad)?;
+    if meta.is_dir() {
+        return Err(bad(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            "it is a directory, not a file",
+        )));
+    }
+    if meta.is_file() && meta.len() > limit.bytes() {
+        return Err(bad(too_large(limit)));
+    }
+    Ok(LimitedReader {
+        inner: file,
+        left: limit.bytes(),
+        limit,
+    })
+}
+
+/// Read the whole input file `path` (at most `limit` bytes, see [`open_input`]).
+pub fn read_input(path: &Path, limit: Limit) -> Result<Vec<u8>> {
+    let mut bytes = vec![];
+    open_input(path, limit)?
+        .read_to_end(&mut bytes)
+        .map_err(|source| Error::InputFile {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    Ok(bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ls(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    #[test]
+    fn a_file_is_replaced_only_with_force_and_never_a_link_or_device() {
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("a.txt");
+        write_file(&f, b"one", false).unwrap();
+        let e = write_file(&f, b"two", false).unwrap_err();
+        assert!(e.to_string().contains("--force"), "{e}");
+        assert_eq!(e.exit_code(), 2);
+        assert_eq!(fs::read(&f).unwrap(), b"one");
+        write_file(&f, b"two", true).unwrap();
+        assert_eq!(fs::read(&f).unwrap(), b"two");
+        let target = dir.path().join("target");
+        fs::write(&target, "theirs").unwrap();
+        let link = dir.path().join("link");
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        for force in [false, true] {
+            let e = write_file(&link, b"x", force).unwrap_err().to_string();
+            assert!(e.contains("symbolic link"), "{e}");
+            let e = write_file(Path::new("/dev/null"), b"x", force)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("device"), "{e}");
+        }
+        assert_eq!(fs::read_to_string(&target).unwrap(), "theirs");
+        assert_eq!(
+            ls(dir.path()),
+            ["a.txt", "link", "target"],
+            "no temporary left"
+        );
+    }
+
+    #[test]
+    fn a_failed_write_leaves_the_old_file_and_no_temporary() {
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("a.txt");
+        fs::write(&f, "old").unwrap();
+        let e = write_via(&f, true, |_| -> Result<()> {
+            Err(Error::Usage("boom".into()))
+        });
+        assert!(e.is_err());
+        assert_eq!(fs::read_to_string(&f).unwrap(), "old");
+        assert_eq!(ls(dir.path()), ["a.txt"]);
+    }
+
+    #[test]
+    fn a_set_is_all_new_or_all_old() {
+        let dir = tempfile::tempdir().unwrap();
+        fs::write(dir.path().join("a"), "old a").unwrap();
+        fs::write(dir.path().join("b"), "old b").unwrap();
+        // Without force nothing is staged over existing files.
+        let set = FileSet::new(dir.path(), false).unwrap();
+        assert!(set.check(&["a", "b"]).is_err());
+        // A set whose second file cannot be put in place (its name is a directory now).
+        let mut set = FileSet::new(dir.path(), true).unwrap();
+        set.add("a", b"new a").unwrap();
+        set.add("b", b"new b").unwrap();
+        set.add("c", b"new c").unwrap();
+        fs::remove_file(dir.path().join("b")).unwrap();
+        fs::create_dir(dir.path().join("b")).unwrap();
+        assert!(set.commit().is_err());
+        assert_eq!(fs::read_to_string(dir.path().join("a")).unwrap(), "old a");
+        assert!(!dir.path().join("c").exists());
+        assert_eq!(ls(dir.path()), ["a", "b"]);
+        fs::remove_dir(dir.path().join("b")).unwrap();
+        let mut set = FileSet::new(dir.path(), true).unwrap();
+        set.add("a", b"new a").unwrap();
+        set.add("b", b"new b").unwrap();
+        set.commit().unwrap();
+        assert_eq!(fs::read_to_string(dir.path().join("b")).unwrap(), "new b");
+        assert_eq!(ls(dir.path()), ["a", "b"]);
+    }
+
+    #[test]
+    fn a_directory_is_swapped_whole_and_a_foreign_one_kept() {
+        let root = tempfile::tempdir().unwrap();
+        let d = root.path().join("report");
+        write_dir(&d, false, |s| {
+            fs::write(s.join("one"), "1").map_err(write_err(s))?;
+            fs::write(s.join("stale"), "1").map_err(write_err(s))
+        })
+        .unwrap();
+        assert!(write_dir(&d, false, |_| Ok(()))
+            .unwrap_err()
+            .to_string()
+            .contains("--force"));
+        write_dir(&d, true, |s| {
+            fs::write(s.join("one"), "2").map_err(write_err(s))
+        })
+        .unwrap();
+        assert_eq!(ls(&d), [DIR_MARK, "one"], "no stale file");
+        assert_eq!(ls(root.path()), ["report"], "no staging left");
+        // A failing writer leaves the old directory.
+        let e = write_dir(&d, true, |_| -> Result<()> {
+            Err(Error::Usage("boom".into()))
+        });
+        assert!(e.is_err());
+        assert_eq!(fs::read_to_string(d.join("one")).unwrap(), "2");
+        // Missing directories above it are made.
+        let deep = root.path().join("a/b/report");
+        write_dir(&deep, false, |s| {
+            fs::write(s.join("one"), "1").map_err(write_err(s))
+        })
+        .unwrap();
+        assert_eq!(ls(&deep), [DIR_MARK, "one"]);
+        let mine = root.path().join("mine");
+        fs::create_dir(&mine).unwrap();
+        fs::write(mine.join("notes"), "x").unwrap();
+        let e = write_dir(&mine, true, |_| Ok(())).unwrap_err().to_string();
+        assert!(e.contains("not replaced"), "{e}");
+        assert_eq!(ls(&mine), ["notes"]);
+    }
+
+    #[test]
+    fn inputs_are_limited() {
+        let e = read_input(Path::new("/dev/zero"), Limit::Document).unwrap_err();
+        assert_eq!(e.exit_code(), 2);
+        assert!(e.to_string().contains("16 MiB"), "{e}");
+        let dir = tempfile::tempdir().unwrap();
+        assert!(read_input(dir.path(), Limit::Document)
+            .unwrap_err()
+            .to_string()
+            .contains("directory"));
+    }
+}
