@@ -323,13 +323,15 @@ fn misplaced_table_ball_is_out_of_reach() {
 }
 
 #[test]
-fn backlash_on_a_circle_is_seed_000_eq_16() {
-    // δx = ±f/2 with the sign of x's motion; ΔD = δx·cos θ = ±(f/2)·cos θ. On a ccw circle x moves
-    // −x for θ in (0, π), +x in (π, 2π); cw the opposite.
-    let f = 12.0;
+fn backlash_on_a_circle_is_seed_000_eq_16_with_its_dead_band() {
+    // Play b: the carriage trails the motor by b/2 in the direction of x's motion, δx = −s·b/2,
+    // so ΔD = δx·cos θ = ∓(b/2)·cos θ (seed 000 eq. 16 with f = −b). On a ccw circle x moves −x
+    // for θ in (0, π), +x in (π, 2π); cw the opposite. Right after x turns at x_r = ±R it stands
+    // still until the motor has come back b: δx = x_r + s·b/2 − x there (the dead band).
+    let b = 12.0;
     check_effect(
         MachineErrors {
-            backlash_um: [f, 0.0, 0.0],
+            backlash_um: [b, 0.0, 0.0],
             ..Default::default()
         },
         |s, sense| {
@@ -338,7 +340,12 @@ fn backlash_on_a_circle_is_seed_000_eq_16() {
             if vx.abs() < 1e-6 {
                 return 0.0;
             }
-            0.5 * f * vx.signum() * th.cos()
+            let dir = vx.signum();
+            let x = s.command_mm[0] - BALL[0];
+            // Travel since the last turn (at −R before moving +, at +R before moving −), µm.
+            let travel_um = 1e3 * (x + dir * R) * dir;
+            let dx = -0.5 * b * dir + dir * (b - travel_um).max(0.0);
+            dx * th.cos()
         },
         1e-3,
     );
