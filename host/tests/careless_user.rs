@@ -972,14 +972,15 @@ fn compensate_refuses_absurd_settings_and_another_controllers_file() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     diagnosis(d);
-    // A backlash of 1e6 µm in the diagnosis is not `$160=1000` (the sign that grblHAL takes).
+    // 1e6 µm of play in the diagnosis is not `$160=1000` (positive backlash is play, the sign
+    // grblHAL takes).
     let mut doc: serde_json::Value =
         serde_json::from_str(&fs::read_to_string(d.join("diag.json")).unwrap()).unwrap();
     for e in doc["effects"].as_array_mut().unwrap() {
         if e["name"] == "backlash_x" {
-            e["value"] = serde_json::json!(-1e6);
+            e["value"] = serde_json::json!(1e6);
             for v in e["params"].as_object_mut().unwrap().values_mut() {
-                *v = serde_json::json!(-1e6);
+                *v = serde_json::json!(1e6);
             }
         }
     }
