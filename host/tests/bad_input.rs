@@ -89,7 +89,7 @@ fn simulations_that_cannot_be_meant_are_refused_with_the_limit() {
             "simulate", "--radius", "9000", "--feed", "1", "--rate", "100000",
         ],
         2,
-        "at most 20000000",
+        "at most 5000000",
     );
 }
 

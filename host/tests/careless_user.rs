@@ -826,7 +826,7 @@ fn ctrl_c_stops_simulate_and_diagnose_within_a_second_leaving_no_output() {
     let (code, took) = interrupt(
         d,
         &[
-            "simulate", "--radius", "90", "--rate", "100000", "-o", "sim.csv",
+            "simulate", "--radius", "90", "--rate", "60000", "-o", "sim.csv",
         ],
         Duration::from_millis(800),
     );

@@ -217,6 +217,22 @@ impl DiagnosisDoc {
                 ),
             });
         }
+        if format == u64::from(FORMAT) {
+            // A file of this format has only the keys this version writes: a misspelled or
+            // foreign key is an error naming it, never silently ignored. (An older file is
+            // upgraded instead, whatever else it carried.)
+            if let Err((place, key)) = known_keys(&value) {
+                let (line, column) = position_of_key(text, &key);
+                return Err(Error::input(
+                    path,
+                    line,
+                    column,
+                    format!(
+                        "{place}: unknown key `{key}` in a format {FORMAT} diagnosis; give the file as `jdbb diagnose` wrote it"
+                    ),
+                ));
+            }
+        }
         upgrade(&mut value);
         // Positions are lost once parsed into a value: parse the text again for them.
         let doc: DiagnosisDoc = serde_json::from_value(value)
@@ -281,6 +297,134 @@ impl DiagnosisDoc {
             .as_ref()
             .and_then(|z| z.h_um)
             .or(self.hysteresis_h_um)
+    }
+}
+
+/// The keys a diagnosis of [`FORMAT`] has, object by object (`jdbb diagnose --json`); maps whose
+/// keys are names (parameters, pitches, centres) and the kept `calibration`, `plan` and `sync`
+/// are not checked inside. Err((where, key)) for the first key that does not belong.
+fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)> {
+    use serde_json::Value;
+    const TOP: &[&str] = &[
+        "format",
+        "samples",
+        "baseline",
+        "effects",
+        "confounded",
+        "floor_um",
+        "below_floor",
+        "not_significant",
+        "final",
+        "residual_share",
+        "gain",
+        "harmonics_um",
+        "lsq_setup",
+        "circular_deviation_g_um",
+        "hysteresis_h_um",
+        "minimum_zone",
+        "plane",
+        "pitch_mm",
+        "circles",
+        "arcs",
+        "weak_on_arc",
+        "candidates",
+        "machine",
+        "date_utc",
+        "tolerance",
+        "calibration",
+        "plan",
+        "sync",
+        "lsq_circular_deviation_g_um",
+    ];
+    const EFFECT: &[&str] = &[
+        "name",
+        "value",
+        "unit",
+        "sigma",
+        "params",
+        "params_sigma",
+        "setup",
+        "cause",
+        "rms_after_um",
+        "rms_ratio",
+        "delta_bic",
+        "contribution_rms_um",
+        "share",
+    ];
+    const NOT_SIGNIFICANT: &[&str] = &["name", "value", "sigma", "unit", "params", "reason"];
+    const FIGURES: &[&str] = &["rms_um", "pv_um", "g_um", "h_um"];
+    const LSQ_SETUP: &[&str] = &["x_um", "y_um", "z_um", "e_um"];
+    const CIRCLE: &[&str] = &[
+        "radius_mm",
+        "height_mm",
+        "feed_mm_min",
+        "samples",
+        "g_um",
+        "h_um",
+        "ccw",
+        "cw",
+        "bidirectional",
+    ];
+    const ZONE: &[&str] = &["g_um", "centre", "radius_offset_um"];
+    const ARC: &[&str] = &["start_deg", "sweep_deg", "partial"];
+    const WEAK: &[&str] = &["names", "free_fraction"];
+    const TOLERANCE: &[&str] = &["g_um", "pass"];
+    fn keys(v: &Value, allowed: &[&str], place: &str) -> std::result::Result<(), (String, String)> {
+        if let Value::Object(m) = v {
+            if let Some(k) = m.keys().find(|k| !allowed.contains(&k.as_str())) {
+                return Err((place.to_string(), k.clone()));
+            }
+        }
+        Ok(())
+    }
+    let each = |name: &str, allowed: &[&str]| -> std::result::Result<(), (String, String)> {
+        if let Some(Value::Array(items)) = v.get(name) {
+            for (k, item) in items.iter().enumerate() {
+                keys(item, allowed, &format!("{name}[{k}]"))?;
+            }
+        }
+        Ok(())
+    };
+    keys(v, TOP, "the file")?;
+    each("effects", EFFECT)?;
+    each("not_significant", NOT_SIGNIFICANT)?;
+    each("circles", CIRCLE)?;
+    each("arcs", ARC)?;
+    each("weak_on_arc", WEAK)?;
+    for name in ["baseline", "final", "minimum_zone"] {
+        if let Some(x) = v.get(name) {
+            keys(x, FIGURES, name)?;
+        }
+    }
+    if let Some(x) = v.get("lsq_setup") {
+        keys(x, LSQ_SETUP, "lsq_setup")?;
+    }
+    if let Some(x) = v.get("tolerance") {
+        keys(x, TOLERANCE, "tolerance")?;
+    }
+    if let Some(Value::Array(circles)) = v.get("circles") {
+        for (k, c) in circles.iter().enumerate() {
+            for sense in ["ccw", "cw", "bidirectional"] {
+                if let Some(z) = c.get(sense) {
+                    keys(z, ZONE, &format!("circles[{k}].{sense}"))?;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Line and column (1-based) of the first `"key"` in `text`; (1, 1) if not found.
+fn position_of_key(text: &str, key: &str) -> (usize, usize) {
+    let needle = format!("\"{key}\"");
+    match text.find(&needle) {
+        Some(at) => {
+            let before = &text[..at];
+            let line = before.matches('\n').count() + 1;
+            let column = at - before.rfind('\n').map_or(0, |n| n + 1) + 1;
+            (line, column)
+        }
+        None => (1, 1),
     }
 }
 
@@ -441,6 +585,18 @@ mod tests {
         assert_eq!(d.format, Some(FORMAT));
         assert_eq!(d.effects[0].params.get("x_um"), Some(&Some(-1.0)));
         assert!(d.circles.is_empty() && d.machine.is_none() && d.g_um().is_none());
+
+        // A misspelled key in a file of this format is named, with its place.
+        let typo = format!(
+            "{{\"format\": {FORMAT}, \"samples\": 100,\n  \"effects\": [{{\"name\": \"drift\", \"vaule\": 1}}]}}"
+        );
+        let e = DiagnosisDoc::parse(FsPath::new("d.json"), &typo).unwrap_err();
+        assert!(
+            e.to_string().starts_with("d.json:2:")
+                && e.to_string().contains("effects[0]: unknown key `vaule`"),
+            "{e}"
+        );
+        assert_eq!(e.exit_code(), 2);
 
         let bad = "{\"samples\": 100,\n  \"effects\": [1, }";
         let e = DiagnosisDoc::parse(FsPath::new("d.json"), bad).unwrap_err();

@@ -91,8 +91,10 @@ pub struct PathSpec {
     pub rate_hz: f64,
 }
 
-/// Largest number of samples [`nominal_path`] makes (about 2 GB of path in memory).
-pub const MAX_SAMPLES: usize = 20_000_000;
+/// Largest number of samples [`nominal_path`] makes: `simulate` holds the whole path (time,
+/// position, velocity, acceleration, direction and pitch phase, with D: about 140 bytes per
+/// sample), so this bounds it to about 700 MB. Ten minutes at 5 kHz is 3 M samples.
+pub const MAX_SAMPLES: usize = 5_000_000;
 
 impl PathSpec {
     /// Check that the test can be meant and made: radii in (0, 10 000] mm, heights within
