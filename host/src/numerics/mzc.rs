@@ -100,7 +100,10 @@ pub fn minimum_zone(angle_rad: &[f64], dev_um: &[f64]) -> Result<MinimumZone> {
     };
     let trig: Vec<(f64, f64)> = angle_rad.iter().map(|a| a.sin_cos()).collect();
     loop {
-        let (p, t) = chebyshev(&trig, dev_um, &subset)?;
+        let (p, t) = match exchange(angle_rad, &trig, dev_um, &subset) {
+            Some(fit) => fit,
+            None => chebyshev(&trig, dev_um, &subset)?,
+        };
         let held = |i: usize| {
             let (s, c) = trig[i];
             (dev_um[i] - p[0] - p[1] * c - p[2] * s).abs() <= t * (1.0 + 1e-9) + 1e-12
@@ -117,6 +120,85 @@ pub fn minimum_zone(angle_rad: &[f64], dev_um: &[f64]) -> Result<MinimumZone> {
         subset.sort_unstable();
         subset.dedup();
     }
+}
+
+/// The limaçon's Chebyshev fit on the points `subset` by Stiefel's exchange (the discrete Remez
+/// algorithm): {1, cos θ, sin θ} is a Haar system on the circle, so the best fit is the one
+/// whose residuals reach ±t, alternating in sign, at four points in angular order. Start from
+/// four points spread over the angles, solve r_j = ±h exactly on them, bring in the point with
+/// the largest residual in place of the neighbour (cyclically, in angle) whose residual has the
+/// same sign, until no point exceeds |h|. |h| grows at every exchange. None if a reference is
+/// singular or it does not settle (the LP engine then answers).
+fn exchange(
+    angle_rad: &[f64],
+    trig: &[(f64, f64)],
+    dev_um: &[f64],
+    subset: &[usize],
+) -> Option<([f64; 3], f64)> {
+    use nalgebra::{Matrix4, Vector4};
+    let mut order: Vec<usize> = subset.to_vec();
+    let angle = |i: usize| angle_rad[i].rem_euclid(std::f64::consts::TAU);
+    order.sort_by(|&a, &b| angle(a).total_cmp(&angle(b)));
+    let n = order.len();
+    if n < 4 {
+        return None;
+    }
+    // Reference as positions in `order` (sorted), signs alternating from +.
+    let mut refs = [0, n / 4, n / 2, 3 * n / 4];
+    for _ in 0..500 {
+        let m = Matrix4::from_fn(|j, k| {
+            let (s, c) = trig[order[refs[j]]];
+            match k {
+                0 => 1.0,
+                1 => c,
+                2 => s,
+                _ => {
+                    if j % 2 == 0 {
+                        1.0
+                    } else {
+                        -1.0
+                    }
+                }
+            }
+        });
+        let rhs = Vector4::from_fn(|j, _| dev_um[order[refs[j]]]);
+        let x = m.lu().solve(&rhs)?;
+        let (p, h) = ([x[0], x[1], x[2]], x[3]);
+        if !(p.iter().all(|v| v.is_finite()) && h.is_finite()) {
+            return None;
+        }
+        let res = |pos: usize| {
+            let i = order[pos];
+            let (s, c) = trig[i];
+            dev_um[i] - p[0] - p[1] * c - p[2] * s
+        };
+        let (worst, r) = (0..n)
+            .map(|pos| (pos, res(pos)))
+            .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))?;
+        let t = r.abs();
+        if t <= h.abs() * (1.0 + 1e-12) + 1e-13 {
+            return Some((p, h.abs().max(t)));
+        }
+        if refs.contains(&worst) {
+            return None;
+        }
+        // The references stay in cyclic angular order (a rotation of the sorted order), so the
+        // pattern +h, −h, +h, −h by index alternates around the circle. The new point takes the
+        // place of the neighbour whose residual has its sign: the order and the alternation stay.
+        let sign_at = |j: usize| if j % 2 == 0 { h } else { -h }.signum();
+        let after = (0..4)
+            .filter(|&j| refs[j] > worst)
+            .min_by_key(|&j| refs[j])
+            .or_else(|| (0..4).min_by_key(|&j| refs[j]))?;
+        let before = (after + 3) % 4;
+        let replace = if sign_at(before) == r.signum() {
+            before
+        } else {
+            after
+        };
+        refs[replace] = worst;
+    }
+    None
 }
 
 /// The limaçon's Chebyshev fit on the points `subset`: ((r₀, a, b), the largest |residual|).
@@ -302,6 +384,35 @@ mod tests {
         assert!((z.centre_um[0] - p[1]).abs() < 1e-6 && (z.centre_um[1] - p[2]).abs() < 1e-6);
         let w = zone_width_about(&angle, &dev, z.centre_um);
         assert!((w - z.width_um).abs() < 1e-9, "{w} vs {}", z.width_um);
+    }
+
+    #[test]
+    fn the_exchange_lands_on_the_linear_programs_answer() {
+        // Random traces on full circles and on a 220° arc: Stiefel's exchange must find the
+        // zone itself (not fall back to the LP) and agree with the LP engine.
+        let mut rng = rand::rngs::StdRng::seed_from_u64(21);
+        for case in 0..40 {
+            let n = 300 + 37 * case;
+            let (lo, span) = if case % 2 == 0 {
+                (0.0, std::f64::consts::TAU)
+            } else {
+                ((-20.0f64).to_radians(), 220.0f64.to_radians())
+            };
+            let angle: Vec<f64> = (0..n).map(|_| lo + span * rng.gen::<f64>()).collect();
+            let (a2, e) = (rng.gen_range(-3.0..3.0), rng.gen_range(-2.0..2.0));
+            let dev: Vec<f64> = angle
+                .iter()
+                .map(|&a| a2 * (2.0 * a).cos() + e * a.sin() + rng.gen_range(-0.5..0.5))
+                .collect();
+            let trig: Vec<(f64, f64)> = angle.iter().map(|a| a.sin_cos()).collect();
+            let all: Vec<usize> = (0..n).collect();
+            let (p, t) = exchange(&angle, &trig, &dev, &all).expect("the exchange settles");
+            let (q, u) = chebyshev(&trig, &dev, &all).unwrap();
+            assert!((t - u).abs() < 1e-9 * (1.0 + u), "case {case}: {t} vs {u}");
+            for k in 0..3 {
+                assert!((p[k] - q[k]).abs() < 1e-6, "case {case}: {p:?} vs {q:?}");
+            }
+        }
     }
 
     #[test]
