@@ -153,7 +153,7 @@ fn exchange(
                 1 => c,
                 2 => s,
                 _ => {
-                    if j % 2 == 0 {
+                    if j.is_multiple_of(2) {
                         1.0
                     } else {
                         -1.0
@@ -185,7 +185,7 @@ fn exchange(
         // The references stay in cyclic angular order (a rotation of the sorted order), so the
         // pattern +h, −h, +h, −h by index alternates around the circle. The new point takes the
         // place of the neighbour whose residual has its sign: the order and the alternation stay.
-        let sign_at = |j: usize| if j % 2 == 0 { h } else { -h }.signum();
+        let sign_at = |j: usize| if j.is_multiple_of(2) { h } else { -h }.signum();
         let after = (0..4)
             .filter(|&j| refs[j] > worst)
             .min_by_key(|&j| refs[j])
