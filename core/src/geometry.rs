@@ -1554,6 +1554,13 @@ mod tests {
     }
 
     proptest! {
+        // A fixed seed: the same cases on every run, so a failure is reproducible and CI cannot
+        // flake on a rare draw (a failing case found later is kept as its own test).
+        #![proptest_config(ProptestConfig {
+            rng_seed: proptest::test_runner::RngSeed::Fixed(15561),
+            failure_persistence: None,
+            ..ProptestConfig::default()
+        })]
         #[test]
         fn distance_to_counts_round_trip(d in 80.0f64..100.0, psi in -3.2f64..3.2, cpr in 4_000u32..20_000_000, errors in any::<bool>()) {
             let mut c = cal(50.0, 50.0, cpr);

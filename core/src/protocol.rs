@@ -740,6 +740,13 @@ mod tests {
     }
 
     proptest! {
+        // A fixed seed: the same cases on every run, so a failure is reproducible and CI cannot
+        // flake on a rare draw (a failing case found later is kept as its own test).
+        #![proptest_config(ProptestConfig {
+            rng_seed: proptest::test_runner::RngSeed::Fixed(7421),
+            failure_persistence: None,
+            ..ProptestConfig::default()
+        })]
         #[test]
         fn batch_round_trip(seq in any::<u32>(), dropped in any::<u32>(),
                             raw in prop::collection::vec((any::<u64>(), any::<i64>(), any::<i64>(), -1e3f64..1e3, any::<u8>()), 0..=BATCH_LEN)) {

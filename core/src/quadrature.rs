@@ -464,6 +464,13 @@ mod tests {
     }
 
     proptest! {
+        // A fixed seed: the same cases on every run, so a failure is reproducible and CI cannot
+        // flake on a rare draw (a failing case found later is kept as its own test).
+        #![proptest_config(ProptestConfig {
+            rng_seed: proptest::test_runner::RngSeed::Fixed(4661),
+            failure_persistence: None,
+            ..ProptestConfig::default()
+        })]
         #[test]
         fn extension_follows_any_walk_16(start in 0u32..65_536, steps in prop::collection::vec(-32_767i32..=32_767, 0..200)) {
             check_walk::<16>(start, &steps)?;
