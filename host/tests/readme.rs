@@ -1,5 +1,6 @@
 //! The README's examples are tests, as RTIC's examples are: every ```` ```sh ```` block runs as
-//! written, in order, from the repository root, with the `jdbb` under test first on PATH; a
+//! written, in order, with the `jdbb` under test first on PATH, in a temporary directory that
+//! holds a link to the repository's `data/` (what the blocks read; they write `out/`); a
 //! ```` ```text expected-output ```` block right after one is exactly what that block prints.
 //! A block a test cannot run (the two top-level commands themselves, flashing a real board) is
 //! marked ```` ```sh no-run ````; every such block must say why in a comment.
@@ -83,6 +84,10 @@ fn readme_commands_run_as_written() {
         std::env::var("PATH").unwrap_or_default()
     );
     let all = blocks(&readme);
+    // The blocks read `data/` and write `out/`: run them in a directory of their own, with the
+    // repository's `data/` linked in, so a test run never writes into the working tree.
+    let work = tempfile::tempdir().unwrap();
+    std::os::unix::fs::symlink(root.join("data"), work.path().join("data")).unwrap();
     let mut ran = 0;
     for (k, b) in all.iter().enumerate() {
         if b.info != "sh" {
@@ -90,7 +95,7 @@ fn readme_commands_run_as_written() {
         }
         let o = Command::new("bash")
             .args(["-euo", "pipefail", "-c", &b.text])
-            .current_dir(&root)
+            .current_dir(work.path())
             .env("PATH", &path)
             .output()
             .unwrap();
