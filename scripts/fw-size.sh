@@ -4,7 +4,8 @@
 #           initial values);
 #   RAM   = every allocated writable section (.data + .bss + .uninit): static RAM, excluding the
 #           stack, which cortex-m-rt gives the rest of RAM.
-# Reads the ELF32 section headers with od (coreutils): no binutils or llvm-tools needed.
+# Reads the ELF32 section headers with od (coreutils): no binutils or llvm-tools needed. Exits 1
+# when a build is over the budget it prints (scripts/test.sh enforces it in CI).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -33,8 +34,16 @@ elf_size() {
   printf '%-30s flash %7d B (%s KiB)   RAM %6d B (%s KiB)\n' "$label" "$flash" "$(kib "$flash")" \
     "$ram" "$(kib "$ram")"
   printf '    sections:%s\n' "$sections"
+  if (( flash > FLASH_BUDGET || ram > RAM_BUDGET )); then
+    echo "$label: over budget (flash $flash B of $FLASH_BUDGET, RAM $ram B of $RAM_BUDGET)" >&2
+    over=1
+  fi
 }
+FLASH_BUDGET=$((64 * 1024))
+RAM_BUDGET=$((32 * 1024))
+over=0
 
 elf_size "target/$TARGET/release/jdbb-firmware" "board (STM32F411, USB CDC)"
 elf_size "target/qemu/$TARGET/release/jdbb-firmware" "qemu (netduinoplus2, USART2)"
 echo "budget: flash <= 64 KiB, RAM <= 32 KiB (STM32F411CE has 512 KiB flash, 128 KiB RAM)"
+exit "$over"

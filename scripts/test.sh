@@ -17,8 +17,10 @@ cargo fmt --all -- --check
 step "clippy (host crates, all targets; about 3 min on 2 cores the first time)"
 cargo clippy --all-targets -- -D warnings
 
-step "firmware: build (board + qemu) and clippy (about 2 min the first time)"
+step "firmware: build (board + qemu), flash/RAM and instructions-per-sample budgets, clippy (about 2 min the first time)"
 scripts/fw-build.sh
+scripts/fw-size.sh        # fails above the flash/RAM budget
+scripts/fw-cycles.sh      # fails above the instructions-per-sample budget
 cargo clippy -p jdbb-firmware --release --target thumbv7em-none-eabihf -- -D warnings
 cargo clippy -p jdbb-firmware --release --target thumbv7em-none-eabihf --target-dir target/qemu \
   --no-default-features --features qemu --bins -- -D warnings
