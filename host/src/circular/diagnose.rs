@@ -39,6 +39,7 @@ use nalgebra::DMatrix;
 
 use super::input::MIN_SAMPLES;
 use super::model::{Axis, Candidate, Effect, EffectSet, ExactModel, Pair, Path, MIN_TAU_MS};
+use super::path::median_interval;
 use super::runs::{
     angles, arc_cover, harmonics, main_plane, split_runs_at, ArcCover, Circle, Run,
     MAX_RUN_STEP_RAD,
@@ -238,16 +239,6 @@ fn cannot_carry(f: &Found, period_s: f64) -> Option<String> {
         }
     }
     None
-}
-
-/// Median time between samples (s); 0 for fewer than two.
-fn median_interval(t: &[f64]) -> f64 {
-    let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
-    if dts.is_empty() {
-        return 0.0;
-    }
-    let mid = dts.len() / 2;
-    *dts.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// A search column: which candidate, which of its search parameters.

@@ -554,17 +554,11 @@ pub(crate) fn for_each_dead_band(
             0.5
         }
     };
-    let revs = &path.reversals[k];
-    let t = &path.t_s[i0..i0 + n];
-    let mut next = revs.partition_point(|r| r.t_s <= t[0]);
-    for (j, &tj) in t.iter().enumerate() {
-        while next < revs.len() && revs[next].t_s <= tj {
-            next += 1;
-        }
+    for_each_last_reversal(path, k, i0, n, |j, last| {
         let x = path.p_mm[i0 + j][k];
         let wp = weight_pos(x);
         let gap = pos_um * wp + neg_um * (1.0 - wp);
-        let (s, taken) = match next.checked_sub(1).map(|i| revs[i]) {
+        let (s, taken) = match last {
             Some(r) => {
                 let s = f64::from(r.new_dir);
                 let wr = weight_pos(r.p_mm);
@@ -583,16 +577,32 @@ pub(crate) fn for_each_dead_band(
             dneg += s * (1.0 - wr);
         }
         f(j, d, dpos, dneg);
-    }
+    });
 }
 
 /// Call `f(j, s, Δt_ms)` for each sample i0 + j (j < n) after a reversal of axis k: s the new
 /// direction, Δt the time since the reversal (ms). Samples before the first reversal are skipped.
 fn for_each_spike(path: &Path, k: usize, i0: usize, n: usize, mut f: impl FnMut(usize, f64, f64)) {
-    let revs = &path.reversals[k];
-    if revs.is_empty() {
+    if path.reversals[k].is_empty() {
         return;
     }
+    for_each_last_reversal(path, k, i0, n, |j, last| {
+        if let Some(r) = last {
+            f(j, f64::from(r.new_dir), 1e3 * (path.t_s[i0 + j] - r.t_s));
+        }
+    });
+}
+
+/// Call `f(j, last)` for each sample i0 + j (j < n) with the last reversal of axis k at or
+/// before it (None before the first): one walk through the reversals for a block of samples.
+fn for_each_last_reversal(
+    path: &Path,
+    k: usize,
+    i0: usize,
+    n: usize,
+    mut f: impl FnMut(usize, Option<super::path::Reversal>),
+) {
+    let revs = &path.reversals[k];
     let t = &path.t_s[i0..i0 + n];
     // Index of the first reversal after t[0]; the one before it is in force.
     let mut next = revs.partition_point(|r| r.t_s <= t[0]);
@@ -600,11 +610,7 @@ fn for_each_spike(path: &Path, k: usize, i0: usize, n: usize, mut f: impl FnMut(
         while next < revs.len() && revs[next].t_s <= tj {
             next += 1;
         }
-        if next == 0 {
-            continue;
-        }
-        let r = revs[next - 1];
-        f(j, f64::from(r.new_dir), 1e3 * (tj - r.t_s));
+        f(j, next.checked_sub(1).map(|i| revs[i]));
     }
 }
 

@@ -129,6 +129,17 @@ fn derivative(t_s: &[f64], x: &[[f64; 3]]) -> Vec<[f64; 3]> {
     d
 }
 
+/// Median time between samples (s), the sample period of a record or path; 0 for fewer than
+/// two.
+pub(crate) fn median_interval(t: &[f64]) -> f64 {
+    let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    if dts.is_empty() {
+        return 0.0;
+    }
+    let mid = dts.len() / 2;
+    *dts.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
 /// A reversal of one axis: the time (s) its commanded velocity crossed zero, the sign of the
 /// new direction, and where the axis turned (mm, in the path's frame: relative to the table
 /// ball). A dead band (backlash) is taken up over the first `b` of travel from there.

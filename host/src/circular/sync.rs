@@ -51,7 +51,7 @@
 #![allow(clippy::needless_range_loop)]
 use std::path::{Path as FsPath, PathBuf};
 
-use super::path::{Path, Reversal};
+use super::path::{median_interval, Path, Reversal};
 use super::plan::{ArcRole, LineRole, Plan, Segment, Sense};
 use crate::numerics::lsq::{least_squares, LsqOptions, Problem};
 use crate::table::Table;
@@ -1499,16 +1499,6 @@ pub fn data_path(
         .map(|c| c.timing_sigma_s)
         .fold(0.0, f64::max);
     Ok((path, d))
-}
-
-/// Median time between samples (s).
-fn median_interval(t: &[f64]) -> f64 {
-    let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
-    if dts.is_empty() {
-        return 0.0;
-    }
-    let mid = dts.len() / 2;
-    *dts.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// The axis reversals of the nominal motion of every circle: its feed-in, arcs and feed-out, on
