@@ -5,12 +5,14 @@
 //! alone and diagnosed on the data arcs (0° to 180°, both senses), as `jdbb diagnose --record
 //! --plan` does. Each hidden effect must be named within 5 % (or 3σ with σ under half the value)
 //! and nothing else, a perfect machine nothing; what the arc cannot separate is said.
-use std::path::Path;
+mod planned;
+
+use planned::{machine_names, read_back};
 
 use jdbb::circular::diagnose::{diagnose, Diagnosis, Options};
 use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
 use jdbb::circular::report::summary;
-use jdbb::circular::sync::{data_path, synchronise, Record};
+use jdbb::circular::sync::{data_path, synchronise};
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     Axis, BacklashEnds, Bow, Cyclic, Dialect, LateralPlay, MachineErrors, Recording, SimConfig,
@@ -57,12 +59,7 @@ fn record(plan: &Plan, errors: MachineErrors, seed: u64) -> Recording {
 
 /// Synchronise and diagnose a recording through a CSV file, as `jdbb diagnose --record --plan`.
 fn diagnose_record(plan: &Plan, rec: &Recording, pitch: [Option<f64>; 3]) -> Diagnosis {
-    let dir = tempfile::tempdir().unwrap();
-    let file = dir.path().join("rec.csv");
-    let mut f = std::io::BufWriter::new(std::fs::File::create(&file).unwrap());
-    rec.write_csv(&mut f).unwrap();
-    drop(f);
-    let r = Record::read(Path::new(&file)).unwrap();
+    let r = read_back(rec);
     let sync = synchronise(plan, &r).unwrap();
     let t = &rec.truth;
     let feed = 100.0 * t.feed_factor * (1.0 + 1e-6 * t.clock_ppm);
@@ -78,7 +75,7 @@ fn diagnose_record(plan: &Plan, rec: &Recording, pitch: [Option<f64>; 3]) -> Dia
         t.cycle_start_us
     );
     // The diagnosis JSON's plan says which arc was run.
-    let pj = jdbb::circular::report::plan_json(Path::new("plan.json"), plan);
+    let pj = jdbb::circular::report::plan_json(std::path::Path::new("plan.json"), plan);
     assert_eq!(pj["arc"]["sweep_deg"], plan.arc.sweep_deg);
     assert_eq!(pj["arc"]["data_sweep_deg"], plan.arc.data_sweep_deg);
     // Every data arc of the plan found: the data arc ccw and back cw.
@@ -160,14 +157,6 @@ fn assert_partial_arc_reported(d: &Diagnosis, plane: Plane) {
     let html = jdbb::circular::html::report_html(d, &doc).unwrap();
     assert!(html.contains("Partial arc: circle 1 covers"), "{html}");
     assert!(html.contains("Weak on this arc"), "{html}");
-}
-
-fn machine_names(d: &Diagnosis) -> Vec<String> {
-    d.effects
-        .iter()
-        .filter(|f| !f.effect.is_setup())
-        .map(|f| f.effect.name())
-        .collect()
 }
 
 /// Exactly `name` was found, with `value` within 5 % of `truth`, or within 3σ with σ under half
@@ -299,12 +288,7 @@ fn on_a_partial_arc_the_feed_in_must_cruise() {
     errors.backlash_um[0] = 6.0;
     let p = plan(&spec(2.0), &Calibration::DEFAULT).unwrap();
     let rec = record(&p, errors.clone(), 31);
-    let dir = tempfile::tempdir().unwrap();
-    let file = dir.path().join("rec.csv");
-    let mut f = std::io::BufWriter::new(std::fs::File::create(&file).unwrap());
-    rec.write_csv(&mut f).unwrap();
-    drop(f);
-    let e = synchronise(&p, &Record::read(&file).unwrap()).unwrap_err();
+    let e = synchronise(&p, &read_back(&rec)).unwrap_err();
     let m = e.to_string();
     assert_eq!(e.exit_code(), 2, "{m}");
     assert!(

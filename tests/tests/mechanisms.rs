@@ -7,13 +7,15 @@
 //! no reversal spike made of the dead band's window — at 250 Hz and at 1 kHz. A perfect machine
 //! names nothing; `compensate` on a dead band gives the backlash setting and nothing about ways
 //! and gibs; the set-up offset is where the table ball really is (the same sign as the machine's).
-use std::path::Path;
+mod planned;
+
+use planned::{machine_names, read_back};
 
 use jdbb::circular::diagnose::{diagnose, Diagnosis, Found, Options};
 use jdbb::circular::document::DiagnosisDoc;
 use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
 use jdbb::circular::report::{summary, to_json};
-use jdbb::circular::sync::{data_path, synchronise, Record};
+use jdbb::circular::sync::{data_path, synchronise};
 use jdbb::compensate::{self, Controller, Current, Placement};
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
@@ -49,23 +51,10 @@ fn run(plan: &Plan, errors: MachineErrors, seed: u64, rate_hz: f64) -> Diagnosis
         .unwrap()
         .run()
         .unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let file = dir.path().join("rec.csv");
-    let mut f = std::io::BufWriter::new(std::fs::File::create(&file).unwrap());
-    rec.write_csv(&mut f).unwrap();
-    drop(f);
-    let r = Record::read(Path::new(&file)).unwrap();
+    let r = read_back(&rec);
     let sync = synchronise(plan, &r).unwrap();
     let (path, d) = data_path(plan, &r, &sync, [None; 3]).unwrap();
     diagnose(&path, &d, &Options::default()).unwrap()
-}
-
-fn machine_names(d: &Diagnosis) -> Vec<String> {
-    d.effects
-        .iter()
-        .filter(|f| !f.effect.is_setup())
-        .map(|f| f.effect.name())
-        .collect()
 }
 
 /// `got ± sigma` is `truth`: within 5 % and within 1 % + 3σ (a bias with a tiny σ fails), and
@@ -232,7 +221,7 @@ fn compensate_on_a_dead_band_gives_the_backlash_setting_and_nothing_else() {
     errors.backlash_um[0] = 8.0;
     let d = run(&p, errors, 13, 1000.0);
     let text = to_json(&d).to_string();
-    let doc = DiagnosisDoc::parse(Path::new("d.json"), &text).unwrap();
+    let doc = DiagnosisDoc::parse(std::path::Path::new("d.json"), &text).unwrap();
     for controller in [
         Controller::LinuxCnc,
         Controller::GrblHal,

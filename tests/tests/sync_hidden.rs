@@ -5,11 +5,13 @@
 //! `jdbb diagnose --record --plan`'s library path — synchronisation from D alone, then the
 //! diagnosis of the data arcs — must name exactly that effect, within 5 % or 3σ, and nothing on
 //! a perfect machine.
-use std::path::Path;
+mod planned;
+
+use planned::{machine_names, read_back};
 
 use jdbb::circular::diagnose::{diagnose, Diagnosis, Options};
 use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
-use jdbb::circular::sync::{data_path, synchronise, Record};
+use jdbb::circular::sync::{data_path, synchronise};
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     Axis, Cyclic, Dialect, MachineErrors, Recording, ReversalSpike, SimConfig, Simulation,
@@ -85,12 +87,7 @@ fn diagnose_record_feed(
     pitch: [Option<f64>; 3],
     feed_tol_pct: f64,
 ) -> Diagnosis {
-    let dir = tempfile::tempdir().unwrap();
-    let file = dir.path().join("rec.csv");
-    let mut f = std::io::BufWriter::new(std::fs::File::create(&file).unwrap());
-    rec.write_csv(&mut f).unwrap();
-    drop(f);
-    let r = Record::read(Path::new(&file)).unwrap();
+    let r = read_back(rec);
     let sync = synchronise(plan, &r).unwrap();
     // The feed the machine ran, on the record's clock, within `feed_tol_pct` of the truth;
     // the cycle start within 10 ms.
@@ -109,14 +106,6 @@ fn diagnose_record_feed(
     );
     let (path, d) = data_path(plan, &r, &sync, pitch).unwrap();
     diagnose(&path, &d, &Options::default()).unwrap()
-}
-
-fn machine_names(d: &Diagnosis) -> Vec<String> {
-    d.effects
-        .iter()
-        .filter(|f| !f.effect.is_setup())
-        .map(|f| f.effect.name())
-        .collect()
 }
 
 /// Exactly `name` was found, with `value` within 5 % or 3σ of `truth`.

@@ -1,0 +1,27 @@
+//! What the tests of planned runs on the G-code machine share (`sync_hidden`, `arc_hidden`,
+//! `mechanisms`): the recording read back as `jdbb diagnose --record` reads it, and the names a
+//! diagnosis gives. They use the host's reader, which the library of this crate must not: its
+//! simulators are written apart from the host.
+use jdbb::circular::diagnose::Diagnosis;
+use jdbb::circular::sync::Record;
+use jdbb_tests::gmachine::Recording;
+
+/// The recording as `jdbb record` writes it (CSV in a temporary file) and `diagnose --record`
+/// reads it back.
+pub fn read_back(rec: &Recording) -> Record {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("rec.csv");
+    let mut f = std::io::BufWriter::new(std::fs::File::create(&file).unwrap());
+    rec.write_csv(&mut f).unwrap();
+    drop(f);
+    Record::read(&file).unwrap()
+}
+
+/// The machine effects a diagnosis names (not the set-up), in the order selected.
+pub fn machine_names(d: &Diagnosis) -> Vec<String> {
+    d.effects
+        .iter()
+        .filter(|f| !f.effect.is_setup())
+        .map(|f| f.effect.name())
+        .collect()
+}
