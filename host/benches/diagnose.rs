@@ -3,8 +3,10 @@
 //!
 //! `cargo bench -p jdbb --bench diagnose` times simulated tests of 20,000, 100,000 and 1,000,000
 //! samples (one circle ccw + cw at R = 50 mm, set-up offset, scale_x, backlash_y, cyclic_x,
-//! 0.3 µm noise, pitch x = y = 10 mm). `cargo bench -p jdbb --bench diagnose -- FILE` times the
-//! diagnosis of FILE instead (bench/compare_diagnose.sh gives the same file to bench/diagnose.py).
+//! 0.3 µm noise, pitch x = y = 10 mm). `cargo bench -p jdbb --bench diagnose -- FILE [RUNS]`
+//! times the diagnosis of FILE instead, 51 runs unless RUNS says (bench/compare_diagnose.sh gives
+//! the same file to bench/diagnose.py; one run under `valgrind --tool=callgrind` counts
+//! instructions, which a loaded machine does not disturb).
 //! Timed: everything from the samples in memory (nominal path + D) to the finished diagnosis —
 //! velocity/direction derivation, baseline, set-up fit, the one-pass Gram of all candidates, the
 //! forward selection, the exact refit, residual harmonics, G and H. CSV parsing is not timed.
@@ -72,9 +74,10 @@ fn main() {
     if let Some(file) = args.first() {
         let pitch = parse_pitch("x=10,y=10").unwrap();
         let (path, d) = read_samples(std::path::Path::new(file), pitch).expect("read samples");
-        let (med, min, names) = time(&path, &d, 51);
+        let reps = args.get(1).and_then(|r| r.parse().ok()).unwrap_or(51);
+        let (med, min, names) = time(&path, &d, reps);
         println!(
-            "diagnose {} samples: median {med:.3} ms, min {min:.3} ms (51 runs)",
+            "diagnose {} samples: median {med:.3} ms, min {min:.3} ms ({reps} runs)",
             d.len()
         );
         println!("  found: {names}");

@@ -4,6 +4,7 @@
 // Index loops over the axes (k in 0..3) and samples mirror the equations; keep them.
 #![allow(clippy::needless_range_loop)]
 use super::model::Path;
+use super::path::median_interval;
 use crate::numerics::lsq::GramAccumulator;
 
 /// One circle of the path: nominal radius in the main plane and height along its normal (mm).
@@ -62,9 +63,11 @@ pub fn split_runs_at(
         let p = &p_mm[i];
         (angle_rad[i], p[plane.0].hypot(p[plane.1]), p[normal])
     };
-    let mut dts: Vec<f64> = t_s[..n].windows(2).map(|w| w[1] - w[0]).collect();
-    dts.sort_by(f64::total_cmp);
-    let max_dt = dts.get(dts.len() / 2).map_or(f64::INFINITY, |m| 5.0 * m);
+    let max_dt = if n >= 2 {
+        5.0 * median_interval(&t_s[..n])
+    } else {
+        f64::INFINITY
+    };
     let mut circles: Vec<Circle> = vec![];
     let mut runs: Vec<Run> = vec![];
     let mut start = 0;

@@ -85,8 +85,11 @@ pub fn circle_zones(
             })
             .collect();
         let samples = speeds.len();
-        speeds.sort_by(f64::total_cmp);
-        let feed_mm_min = speeds.get(samples / 2).map_or(f64::NAN, |v| 60.0 * v);
+        let feed_mm_min = if samples > 0 {
+            60.0 * *speeds.select_nth_unstable_by(samples / 2, f64::total_cmp).1
+        } else {
+            f64::NAN
+        };
         let (_, h_um) = circle_g_h(angle_rad, dev_um, runs, c);
         out.push(CircleZone {
             radius_mm: circle.radius_mm,
