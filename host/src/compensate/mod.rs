@@ -404,7 +404,7 @@ pub fn plan(doc: &DiagnosisDoc, current: &Current, opts: &Options) -> Result<Pla
         Controller::LinuxCnc => linuxcnc::plan(&m, current, opts)?,
         Controller::GrblHal => grblhal::plan(&m, current),
         Controller::Marlin => marlin::plan(&m, current),
-        Controller::Klipper => klipper::plan(&m, current),
+        Controller::Klipper => klipper::plan(&m, current)?,
     };
     for t in &m.tuning {
         p.cannot.push(tuning_advice(t, opts.controller));
@@ -877,6 +877,80 @@ mod tests {
             .iter()
             .any(|n| n.contains("BACKLASH = 0.01 in force is ignored")));
         assert!(p.notes.iter().any(|n| n.contains("not a replacement")));
+    }
+
+    #[test]
+    fn marlin_values_rounded_by_m503_are_warned_with_their_error_and_where_to_read_them() {
+        let d = doc(&[
+            ("backlash_x", 8.0, 0.01, &[("b_um", 8.0)]),
+            ("scale_x", 100.0, 0.1, &[("a_um_per_m", 100.0)]),
+        ]);
+        let m503 = current(
+            Controller::Marlin,
+            "echo:  M92 X80.00 Y80.00 Z400.00 E93.00\necho:  M425 F1.00 S0.00 X0.01 Y0.01 Z0.00\n",
+        );
+        let p = plan(&d, &m503, &opts(Controller::Marlin)).unwrap();
+        let note = p
+            .notes
+            .iter()
+            .find(|n| n.contains("rounded as M503 prints them"))
+            .unwrap_or_else(|| panic!("{:?}", p.notes));
+        // X0.01: ±0.005 mm = ±5 µm; X80.00 steps/mm: ±0.005/80 = ±62.5 µm/m.
+        assert!(note.contains("M425 X0.01 (±0.005 → ±5.0 µm)"), "{note}");
+        assert!(note.contains("M92 X80.00 (±0.005 → ±62.5 µm/m)"), "{note}");
+        assert!(
+            !note.contains("Y80") && !note.contains("M425 Y"),
+            "only values used: {note}"
+        );
+        assert!(
+            note.contains("Configuration.h") && note.contains("EEPROM"),
+            "{note}"
+        );
+        // Exact values given: no warning.
+        let exact = current(Controller::Marlin, "M92 X80.0125\nM425 F1 X0.0104\n");
+        let p = plan(&d, &exact, &opts(Controller::Marlin)).unwrap();
+        assert!(p.notes.iter().all(|n| !n.contains("M503")), "{:?}", p.notes);
+    }
+
+    #[test]
+    fn klipper_of_several_skew_profiles_takes_the_loaded_one_or_asks() {
+        let d = doc(&[("squareness_xy", 20.0, 0.05, &[("s_um_per_m", 20.0)])]);
+        let profiles = "#*# [skew_correction cold]\n#*# xy_skew = 0.0001\n#*# [skew_correction hot]\n#*# xy_skew = 0.0003\n";
+        // No LOAD line: refuse, listing the profiles.
+        let c = current(Controller::Klipper, profiles);
+        let e = plan(&d, &c, &opts(Controller::Klipper)).unwrap_err();
+        let msg = e.to_string();
+        assert!(
+            msg.contains("2 skew profiles (cold, hot)") && msg.contains("SKEW_PROFILE LOAD="),
+            "{msg}"
+        );
+        assert_eq!(e.exit_code(), 2);
+        // The start macro loads the first one: it is in force, not the last.
+        let c = current(
+            Controller::Klipper,
+            &format!("[gcode_macro START_PRINT]\ngcode:\n  SKEW_PROFILE LOAD=cold\n{profiles}"),
+        );
+        let p = plan(&d, &c, &opts(Controller::Klipper)).unwrap();
+        assert_eq!(p.changes[0].current, 0.0001);
+        assert!(
+            (p.changes[0].new - (0.0001 + 20e-6)).abs() < 1e-15,
+            "{:?}",
+            p.changes[0]
+        );
+        assert!(
+            p.notes
+                .iter()
+                .any(|n| n.contains("cold is taken as in force")),
+            "{:?}",
+            p.notes
+        );
+        // A LOAD of a profile the file does not have: refuse.
+        let c = current(
+            Controller::Klipper,
+            &format!("SKEW_PROFILE LOAD=warm\n{profiles}"),
+        );
+        let e = plan(&d, &c, &opts(Controller::Klipper)).unwrap_err();
+        assert!(e.to_string().contains("LOAD=warm names no profile"), "{e}");
     }
 
     #[test]
