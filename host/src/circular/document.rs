@@ -101,6 +101,44 @@ pub struct CircleDoc {
     pub ccw: Option<ZoneDoc>,
     pub cw: Option<ZoneDoc>,
     pub bidirectional: Option<ZoneDoc>,
+    /// ISO 230-4 radial deviation F per direction (absent in files written before it).
+    #[serde(default)]
+    pub radial_deviation_f: Option<RadialDeviationDoc>,
+}
+
+/// F of one circle per direction (`circles[].radial_deviation_f`).
+#[derive(Debug, Clone, Default, Deserialize)]
+pub struct RadialDeviationDoc {
+    pub ccw: Option<RangeDoc>,
+    pub cw: Option<RangeDoc>,
+}
+
+/// The largest and smallest radial deviation F of one trace, µm.
+#[derive(Debug, Clone, Copy, Deserialize)]
+pub struct RangeDoc {
+    pub max_um: Option<f64>,
+    pub min_um: Option<f64>,
+}
+
+/// The temperatures during the test (`temperature_c`), °C.
+#[derive(Debug, Clone, Default, Deserialize)]
+pub struct TemperatureDoc {
+    pub machine: Option<f64>,
+    pub instrument: Option<f64>,
+}
+
+/// The compensation in force during the test (`compensation`).
+#[derive(Debug, Clone, Default, Deserialize, PartialEq)]
+pub struct CompensationDoc {
+    #[serde(default)]
+    pub text: String,
+    pub file: Option<String>,
+}
+
+/// What the instrument said of itself (`instrument`).
+#[derive(Debug, Clone, Default, Deserialize)]
+pub struct InstrumentDoc {
+    pub serial: Option<String>,
 }
 
 /// The arc one circle's samples cover (`arcs[]`: degrees from the plane's first axis).
@@ -183,6 +221,16 @@ pub struct DiagnosisDoc {
     /// The test plan, kept as given (compared as a whole between runs).
     #[serde(default)]
     pub plan: Option<serde_json::Value>,
+    #[serde(default)]
+    pub operator: Option<String>,
+    #[serde(default)]
+    pub temperature_c: Option<TemperatureDoc>,
+    #[serde(default)]
+    pub table_ball_mm: Option<BTreeMap<String, Option<f64>>>,
+    #[serde(default)]
+    pub compensation: Option<CompensationDoc>,
+    #[serde(default)]
+    pub instrument: Option<InstrumentDoc>,
 }
 
 impl DiagnosisDoc {

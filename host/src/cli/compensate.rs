@@ -2,11 +2,12 @@
 //! [`crate::compensate`].
 use std::path::PathBuf;
 
+use super::args::{finite_value as finite, per_axis};
 use super::output::print;
 use crate::circular::document::DiagnosisDoc;
 use crate::compensate::{plan, render, Controller, Current, Options, Placement};
 use crate::fsio::FileSet;
-use crate::{Error, Result};
+use crate::Result;
 
 /// Arguments of `jdbb compensate`.
 #[derive(Debug, clap::Args)]
@@ -39,46 +40,6 @@ pub struct CompensateArgs {
     /// Replace files already in --out (a hand-edited table is not replaced without it).
     #[arg(long, requires = "out")]
     pub force: bool,
-}
-
-/// `x=1,y=2` into per-axis values with `parse` for each value.
-fn per_axis<T>(
-    option: &str,
-    s: &str,
-    parse: impl Fn(&str) -> Option<T>,
-    form: &str,
-) -> Result<[Option<T>; 3]> {
-    let mut out: [Option<T>; 3] = [None, None, None];
-    for part in s.split(',').filter(|p| !p.trim().is_empty()) {
-        let (k, v) = part
-            .split_once('=')
-            .ok_or_else(|| Error::Usage(format!("{option}: `{part}` should look like {form}")))?;
-        let axis = match k.trim() {
-            "x" => 0,
-            "y" => 1,
-            "z" => 2,
-            other => {
-                return Err(Error::Usage(format!(
-                    "{option}: unknown axis `{other}`; use x, y or z"
-                )))
-            }
-        };
-        if out[axis].is_some() {
-            return Err(Error::Usage(format!(
-                "{option}: axis {} is given twice",
-                k.trim()
-            )));
-        }
-        out[axis] =
-            Some(parse(v.trim()).ok_or_else(|| {
-                Error::Usage(format!("{option}: `{part}` should look like {form}"))
-            })?);
-    }
-    Ok(out)
-}
-
-fn finite(s: &str) -> Option<f64> {
-    s.parse::<f64>().ok().filter(|x| x.is_finite())
 }
 
 /// Run `jdbb compensate`.
