@@ -628,10 +628,8 @@ mod tests {
         let h = plan_html(Some(&plan));
         assert!(h.starts_with("<b>plan.json</b>, purpose machine-test, program test.ngc, G-code dialect linuxcnc, plane xy, feed 1000 mm/min, centre (program coordinates) (100.000, 50.000, -20.000) mm, full circles from 0°, lead-in 10°, overshoot 10°"), "{h}");
         assert!(h.contains("<td class=\"num\">50.000</td><td class=\"num\">0.000</td><td class=\"num\">100.000</td><td>xy</td>"), "{h}");
-        assert!(
-            !h.contains('{') && !h.contains('"') || h.contains("class=\""),
-            "{h}"
-        );
+        // No raw JSON left.
+        assert!(!h.contains("{\"") && !h.contains("\":"), "{h}");
     }
 
     #[test]
