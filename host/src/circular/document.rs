@@ -383,6 +383,12 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
         "plan",
         "sync",
         "lsq_circular_deviation_g_um",
+        // The test's conditions (ISO 230-4) from `jdbb diagnose`'s options.
+        "operator",
+        "temperature_c",
+        "table_ball_mm",
+        "compensation",
+        "instrument",
     ];
     const EFFECT: &[&str] = &[
         "name",
@@ -412,11 +418,14 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
         "ccw",
         "cw",
         "bidirectional",
+        "radial_deviation_f",
     ];
     const ZONE: &[&str] = &["g_um", "centre", "radius_offset_um"];
     const ARC: &[&str] = &["start_deg", "sweep_deg", "partial"];
     const WEAK: &[&str] = &["names", "free_fraction"];
     const TOLERANCE: &[&str] = &["g_um", "pass"];
+    const DIRECTIONS: &[&str] = &["ccw", "cw"];
+    const RANGE: &[&str] = &["max_um", "min_um"];
     fn keys(v: &Value, allowed: &[&str], place: &str) -> std::result::Result<(), (String, String)> {
         if let Value::Object(m) = v {
             if let Some(k) = m.keys().find(|k| !allowed.contains(&k.as_str())) {
@@ -450,11 +459,30 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
     if let Some(x) = v.get("tolerance") {
         keys(x, TOLERANCE, "tolerance")?;
     }
+    for (name, allowed) in [
+        ("temperature_c", &["machine", "instrument"][..]),
+        ("table_ball_mm", &["x", "y", "z"][..]),
+        ("compensation", &["text", "file"][..]),
+        ("instrument", &["serial"][..]),
+    ] {
+        if let Some(x) = v.get(name) {
+            keys(x, allowed, name)?;
+        }
+    }
     if let Some(Value::Array(circles)) = v.get("circles") {
         for (k, c) in circles.iter().enumerate() {
             for sense in ["ccw", "cw", "bidirectional"] {
                 if let Some(z) = c.get(sense) {
                     keys(z, ZONE, &format!("circles[{k}].{sense}"))?;
+                }
+            }
+            if let Some(f) = c.get("radial_deviation_f") {
+                let place = format!("circles[{k}].radial_deviation_f");
+                keys(f, DIRECTIONS, &place)?;
+                for sense in DIRECTIONS {
+                    if let Some(r) = f.get(sense) {
+                        keys(r, RANGE, &format!("{place}.{sense}"))?;
+                    }
                 }
             }
         }

@@ -39,13 +39,14 @@ pub const MAX_DEVIATION_MM: f64 = 5.0;
 /// The value of a `# key: value` comment line before a file's header (e.g. a record's
 /// `# instrument_serial: …`, written from what the device reported), if there is one.
 pub fn record_header_value(file: &FsPath, key: &str) -> Result<Option<String>> {
-    use std::io::BufRead;
+    use std::io::{BufRead, Read};
     let f = std::fs::File::open(file).map_err(|source| Error::File {
         action: "cannot open",
         path: file.to_path_buf(),
         source,
     })?;
-    for line in std::io::BufReader::new(f).lines().take(64) {
+    // The header comments are a few short lines: read no more than 64 KiB looking for them.
+    for line in std::io::BufReader::new(f.take(64 * 1024)).lines().take(64) {
         let Ok(line) = line else { break };
         let t = line.trim();
         if t.is_empty() {
