@@ -179,7 +179,7 @@ fn trend_marks_compensation_changes_fits_the_slope_after_them_and_exports_csv() 
         "--tolerance-um",
         "4",
     ]);
-    assert!(out.contains("G (circular deviation) (µm)"), "{out}");
+    assert!(out.contains("circular_deviation_g (µm)"), "{out}");
     assert!(
         out.contains("tolerance 4 µm: over it in run 1, 2, 3\n"),
         "{out}"

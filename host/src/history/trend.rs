@@ -37,8 +37,22 @@ pub struct Point {
     pub date_utc: String,
     pub value: Option<f64>,
     pub sigma: Option<f64>,
+    /// Where the value has no σ of its own (G, H): the run's noise (its residual RMS, µm), the
+    /// digits it is shown to.
+    pub noise: Option<f64>,
     /// What differs from the latest run (empty: comparable).
     pub differences: Vec<String>,
+}
+
+impl Point {
+    /// `value ± σ`, or the value to its noise's digits, or `not found`.
+    fn text(&self) -> String {
+        match (self.value, self.sigma, self.noise) {
+            (None, _, _) => "not found".into(),
+            (Some(v), None, Some(n)) => format_to(v, n),
+            (Some(v), s, _) => format_estimate(v, s),
+        }
+    }
 }
 
 /// One effect over the runs.
@@ -97,11 +111,11 @@ impl Figure {
         }
     }
 
-    /// The name a trend of it carries.
+    /// The name a trend of it carries (the diagnosis JSON's, without the unit).
     pub fn name(self) -> &'static str {
         match self {
-            Figure::G => "G (circular deviation)",
-            Figure::H => "H (hysteresis)",
+            Figure::G => "circular_deviation_g",
+            Figure::H => "hysteresis_h",
         }
     }
 }
@@ -125,6 +139,7 @@ pub fn figure_trend(runs: &[Run], figure: Figure) -> Vec<EffectTrend> {
                     Figure::H => r.h_um,
                 },
                 sigma: None,
+                noise: r.final_rms_um,
                 differences: r.conditions.differences(&latest.conditions),
             })
             .collect(),
@@ -302,6 +317,7 @@ pub fn trend(runs: &[Run], effect: Option<&str>) -> Result<Vec<EffectTrend>> {
                         date_utc: r.date_utc.clone(),
                         value: e.and_then(|e| e.value),
                         sigma: e.and_then(|e| e.sigma),
+                        noise: None,
                         differences: r.conditions.differences(&latest.conditions),
                     }
                 })
@@ -351,10 +367,7 @@ pub fn render(
                 mark_line(&mut s, m);
                 next_mark += 1;
             }
-            let v = match p.value {
-                Some(v) => format_estimate(v, p.sigma),
-                None => "not found".into(),
-            };
+            let v = p.text();
             let flag = if p.differences.is_empty() {
                 String::new()
             } else {
@@ -365,11 +378,17 @@ pub fn render(
         for m in &marks[next_mark.min(marks.len())..] {
             mark_line(&mut s, m);
         }
+        // Without σ (G, H): the digits of the noisiest run.
+        let noise = t.points.iter().filter_map(|p| p.noise).reduce(f64::max);
+        let estimate = |x: f64, sigma: Option<f64>| match (sigma, noise) {
+            (None, Some(n)) => format_to(x, n),
+            _ => format_estimate(x, sigma),
+        };
         if let Some((d, sigma, dt)) = t.change() {
             let _ = writeln!(
                 s,
                 "  change over the comparable runs: {} {} in {dt:.0} days",
-                format_estimate(d, sigma),
+                estimate(d, sigma),
                 human(&t.unit)
             );
         }
@@ -382,7 +401,7 @@ pub fn render(
                     sl.since.as_ref().map_or(String::new(), |d| format!(
                         " since the compensation change of {d}"
                     )),
-                    format_estimate(sl.per_month, sl.sigma),
+                    estimate(sl.per_month, sl.sigma),
                     human(&t.unit),
                     if sl.sigma.is_none() {
                         " (σ needs a third run)"
@@ -649,7 +668,7 @@ mod tests {
 
     fn trend(points: &[(&str, f64, Option<f64>)]) -> EffectTrend {
         EffectTrend {
-            name: "G (circular deviation)".into(),
+            name: "circular_deviation_g".into(),
             unit: "um".into(),
             points: points
                 .iter()
@@ -659,6 +678,7 @@ mod tests {
                     date_utc: format!("{d}T00:00:00Z"),
                     value: Some(*v),
                     sigma: *s,
+                    noise: None,
                     differences: vec![],
                 })
                 .collect(),
