@@ -15,6 +15,10 @@
 //! - Runs are comparable when their conditions match: plane, circles (radius and height within
 //!   0.5 mm), feed (within 2 %), test plan and instrument calibration (equal as JSON). The trend
 //!   ([`trend`]) compares every run with the latest and says what differs.
+//! - The compensation in force: a run keeps what its diagnosis states (`jdbb diagnose
+//!   --compensation`, column `runs.compensation`), and `jdbb history comp` files a change on its
+//!   own (table `compensations`: date, text, source; migration 4). The trend marks both
+//!   ([`trend::compensation_marks`]) and fits its slope only after the last mark.
 //!
 //! May use: [`crate::circular::document`] (the diagnosis file), rusqlite, plotters.
 use std::path::{Path, PathBuf};
