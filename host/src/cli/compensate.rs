@@ -18,9 +18,10 @@ pub struct CompensateArgs {
     /// The controller: linuxcnc, grblhal, marlin or klipper.
     #[arg(long)]
     pub controller: String,
-    /// The values in force, in the controller's format (LinuxCNC INI lines, grblHAL `$n=v`
-    /// lines, Marlin M425/M852/M92 lines, Klipper printer.cfg sections); the output gives new
-    /// totals.
+    /// The values in force, in the controller's format (LinuxCNC INI lines with `[TRAJ]
+    /// LINEAR_UNITS`, a `COMP_FILE` in force read beside this file; grblHAL `$n=v` lines; Marlin
+    /// M425/M852/M92 lines; Klipper printer.cfg sections with the `SKEW_PROFILE LOAD=` line of
+    /// the start macro); the output gives new totals in the controller's units.
     #[arg(long, value_name = "FILE")]
     pub current: Option<PathBuf>,
     /// Machine coordinates of the table ball during the test, e.g. `x=250,y=150,z=-300` (mm),
