@@ -303,3 +303,48 @@ fn chromium_renders_the_report() {
         colours.len()
     );
 }
+
+#[test]
+fn the_serial_the_device_reported_is_in_the_report() {
+    // A record as `jdbb record` writes it: the serial line right after the header.
+    let dir = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let text = std::fs::read_to_string(root.join("data/examples/ballbar-backlash.csv")).unwrap();
+    let (header, rows) = text.split_once('\n').unwrap();
+    let rec = dir.path().join("rec.csv");
+    std::fs::write(
+        &rec,
+        format!("{header}\n# instrument_serial: 3F0029000851383235363438\n{rows}"),
+    )
+    .unwrap();
+    let plan = dir.path().join("plan");
+    jdbb(&[
+        "plan",
+        "--radius",
+        "90",
+        "--feed",
+        "2000",
+        "--centre",
+        "100,50,-20",
+        "--out",
+        plan.to_str().unwrap(),
+    ]);
+    let rep = dir.path().join("rep");
+    jdbb(&[
+        "diagnose",
+        "--record",
+        rec.to_str().unwrap(),
+        "--plan",
+        plan.join("plan.json").to_str().unwrap(),
+        "--report",
+        rep.to_str().unwrap(),
+    ]);
+    let html = std::fs::read_to_string(rep.join("report.html")).unwrap();
+    assert!(html.contains("<td>J-DBB, serial 3F0029000851383235363438</td>"));
+    // The plan as a table, not JSON.
+    assert!(html.contains("<th>bar length D mm</th>") && !html.contains("\"segments\""));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(rep.join("diagnosis.json")).unwrap())
+            .unwrap();
+    assert_eq!(json["instrument"]["serial"], "3F0029000851383235363438");
+}

@@ -36,8 +36,9 @@ const MIN_RADIUS_MM: f64 = 1.0;
 /// and would swamp the diagnosis (one D of 1e6 mm gave G = 1e9 µm).
 pub const MAX_DEVIATION_MM: f64 = 5.0;
 
-/// The value of a `# key: value` comment line before a file's header (e.g. a record's
-/// `# instrument_serial: …`, written from what the device reported), if there is one.
+/// The value of a `# key: value` comment line before a file's first data line (above or below
+/// its header: `jdbb record` writes `# instrument_serial: …` right after the header, when the
+/// device has described itself), if there is one.
 pub fn record_header_value(file: &FsPath, key: &str) -> Result<Option<String>> {
     use std::io::{BufRead, Read};
     let f = std::fs::File::open(file).map_err(|source| Error::File {
@@ -45,15 +46,20 @@ pub fn record_header_value(file: &FsPath, key: &str) -> Result<Option<String>> {
         path: file.to_path_buf(),
         source,
     })?;
+    let mut header_seen = false;
     // The header comments are a few short lines: read no more than 64 KiB looking for them.
     for line in std::io::BufReader::new(f.take(64 * 1024)).lines().take(64) {
         let Ok(line) = line else { break };
-        let t = line.trim();
+        let t = line.trim().trim_start_matches('\u{feff}');
         if t.is_empty() {
             continue;
         }
         let Some(comment) = t.strip_prefix('#') else {
-            break;
+            if header_seen {
+                break;
+            }
+            header_seen = true;
+            continue;
         };
         if let Some(v) = comment
             .trim()

@@ -133,7 +133,7 @@ fn conditions(args: &DiagnoseArgs) -> Result<serde_json::Value> {
     }
     if let Some(record) = &args.record {
         if let Some(serial) =
-            crate::circular::input::record_header_value(record, "instrument_serial")?
+            crate::circular::input::record_header_value(record, crate::table::INSTRUMENT_SERIAL)?
         {
             json["instrument"] = json!({"serial": serial});
         }
