@@ -173,7 +173,7 @@ fn iso_rows(doc: &DiagnosisDoc) -> Vec<(String, String)> {
             match doc.instrument.as_ref().and_then(|i| i.serial.as_deref()) {
                 Some(s) => format!("J-DBB, serial {s}"),
                 None => {
-                    "J-DBB, serial not reported (the record has no instrument_serial line)".into()
+                    "J-DBB, serial not reported (a `jdbb record` file carries it; this input has none)".into()
                 }
             },
         ),
