@@ -31,5 +31,5 @@ echo "==> jdbb live --port $PTY --seconds $SECS"
 echo "==> jdbb record --port $PTY --out out/demo.csv --seconds $SECS --force"
 "$JDBB" record --port "$PTY" --out out/demo.csv --seconds "$SECS" --force  # the demo replaces its own file
 
-echo "==> out/demo.csv: $(($(wc -l <out/demo.csv) - 1)) samples; first lines:"
+echo "==> out/demo.csv: $(($(grep -vc '^#' out/demo.csv) - 1)) samples; first lines:"
 head -n 4 out/demo.csv

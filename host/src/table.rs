@@ -29,6 +29,9 @@ use std::path::{Path, PathBuf};
 use crate::fsio::{Limit, MAX_LINE_BYTES};
 use crate::{Error, Result};
 
+/// The key of a record's comment line `# instrument_serial: …` (the device's serial number, as
+/// `jdbb record` writes it when the device describes itself).
+pub const INSTRUMENT_SERIAL: &str = "instrument_serial";
 /// Longest field (in characters) quoted whole in an error message.
 const SHOWN_CHARS: usize = 40;
 

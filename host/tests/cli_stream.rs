@@ -184,7 +184,12 @@ fn wait_for_lines(path: &Path, n: usize) -> Vec<String> {
     let t0 = Instant::now();
     loop {
         let text = std::fs::read_to_string(path).unwrap_or_default();
-        let lines: Vec<String> = text.lines().skip(1).map(str::to_string).collect();
+        let lines: Vec<String> = text
+            .lines()
+            .skip(1)
+            .filter(|l| !l.starts_with("# instrument_serial:"))
+            .map(str::to_string)
+            .collect();
         if lines.len() >= n {
             assert!(text.starts_with("seq,t_us,enc1,enc2,d_mm\n"), "{text:.80}");
             return lines;
@@ -208,7 +213,16 @@ fn check_csv(path: &Path, want_seqs: &[u64]) {
     );
     let mut lines = text.lines();
     assert_eq!(lines.next(), Some("seq,t_us,enc1,enc2,d_mm"));
-    let rows: Vec<&str> = lines.collect();
+    // The instrument's serial (the fake device's chip ID is all zero), once the device said it.
+    let (serial, rows): (Vec<&str>, Vec<&str>) =
+        lines.partition(|l| l.starts_with("# instrument_serial:"));
+    assert!(
+        serial.len() <= 1
+            && serial
+                .iter()
+                .all(|l| *l == "# instrument_serial: 000000000000000000000000"),
+        "{serial:?}"
+    );
     assert_eq!(rows.len(), want_seqs.len());
     for (row, &seq) in rows.iter().zip(want_seqs) {
         let f: Vec<&str> = row.split(',').collect();
@@ -455,6 +469,12 @@ fn record_reports_unplug_and_keeps_the_data() {
         "{stdout}"
     );
     check_csv(&out, &(0..48).collect::<Vec<_>>());
+    // The device described itself before its first batch: its serial follows the header.
+    let text = std::fs::read_to_string(&out).unwrap();
+    assert_eq!(
+        text.lines().nth(1),
+        Some("# instrument_serial: 000000000000000000000000")
+    );
 }
 
 #[test]

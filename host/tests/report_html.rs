@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-fn jdbb(args: &[&str]) {
+fn jdbb(args: &[&str]) -> String {
     let o = Command::new(env!("CARGO_BIN_EXE_jdbb"))
         .args(args)
         .output()
@@ -16,6 +16,7 @@ fn jdbb(args: &[&str]) {
         "jdbb {args:?}: {}",
         String::from_utf8_lossy(&o.stderr)
     );
+    String::from_utf8(o.stdout).unwrap()
 }
 
 fn find_chromium() -> Option<PathBuf> {
@@ -39,8 +40,8 @@ fn find_chromium() -> Option<PathBuf> {
     None
 }
 
-/// A page written by `jdbb diagnose --report` for a failing machine.
-fn report(dir: &Path) -> PathBuf {
+/// A page written by `jdbb diagnose --report` for a failing machine, with `extra` options.
+fn report_with(dir: &Path, extra: &[&str]) -> PathBuf {
     let csv = dir.join("t.csv");
     let rep = dir.join("rep");
     jdbb(&[
@@ -60,7 +61,7 @@ fn report(dir: &Path) -> PathBuf {
         "-o",
         csv.to_str().unwrap(),
     ]);
-    jdbb(&[
+    let mut args = vec![
         "diagnose",
         "--samples",
         csv.to_str().unwrap(),
@@ -72,8 +73,121 @@ fn report(dir: &Path) -> PathBuf {
         "5",
         "--date",
         "2026-11-23",
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    jdbb(&args);
     rep.join("report.html")
+}
+
+/// [`report_with`] and no ISO 230-4 conditions given.
+fn report(dir: &Path) -> PathBuf {
+    report_with(dir, &[])
+}
+
+/// The ISO 230-4 conditions of [`report_with`] in the tests below.
+fn conditions(comp: &Path) -> Vec<String> {
+    [
+        "--operator",
+        "A. Turner",
+        "--machine-temperature-c",
+        "20.5",
+        "--instrument-temperature-c",
+        "-1.25",
+        "--table-ball",
+        "x=250,y=150.5,z=-300",
+        "--compensation-file",
+        comp.to_str().unwrap(),
+    ]
+    .map(String::from)
+    .to_vec()
+}
+
+#[test]
+fn the_iso_230_4_items_are_stated_or_said_to_be_missing() {
+    let dir = tempfile::tempdir().unwrap();
+    let comp = dir.path().join("comp.ini");
+    std::fs::write(&comp, "[JOINT_0]\nBACKLASH = 0.010 # <old>\n").unwrap();
+    let c = conditions(&comp);
+    let c: Vec<&str> = c.iter().map(String::as_str).collect();
+    let html = std::fs::read_to_string(report_with(dir.path(), &c)).unwrap();
+    for want in [
+        "<th>Operator</th><td>A. Turner</td>",
+        "<th>Machine temperature</th><td>20.5 °C</td>",
+        "<th>Instrument temperature</th><td>-1.25 °C</td>",
+        "<td>x = 250.000 mm, y = 150.500 mm, z = -300.000 mm</td>",
+        "BACKLASH = 0.010 # &lt;old&gt;",
+        "serial not reported",
+        "F max / min ccw µm",
+        "F (radial deviation, ISO 230-4)",
+    ] {
+        assert!(html.contains(want), "{want} missing");
+    }
+    let json: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("rep/diagnosis.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(json["operator"], "A. Turner");
+    assert_eq!(json["temperature_c"]["instrument"], -1.25);
+    assert_eq!(json["table_ball_mm"]["y"], 150.5);
+    assert!(json["compensation"]["text"]
+        .as_str()
+        .unwrap()
+        .contains("BACKLASH = 0.010"));
+    // Nothing given: each item says so and how to give it.
+    let dir = tempfile::tempdir().unwrap();
+    let html = std::fs::read_to_string(report(dir.path())).unwrap();
+    for want in [
+        "not given (--operator)",
+        "not given (--machine-temperature-c)",
+        "not given (--instrument-temperature-c)",
+        "not given (--table-ball",
+        "not given (jdbb diagnose --compensation TEXT or --compensation-file FILE)",
+        "<th>Plan</th><td>not given",
+    ] {
+        assert!(html.contains(want), "{want} missing");
+    }
+}
+
+#[test]
+fn radial_deviation_f_is_from_the_nominal_radius_g_is_not() {
+    // A bar 5 µm long everywhere: the plot and G remove the length offset, F must not.
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("t.csv");
+    jdbb(&[
+        "simulate",
+        "--radius",
+        "50",
+        "--rate",
+        "100",
+        "--effect",
+        "length_offset=5",
+        "--effect",
+        "backlash_x=4",
+        "--sigma-um",
+        "0.2",
+        "--seed",
+        "7",
+        "-o",
+        csv.to_str().unwrap(),
+    ]);
+    let out = jdbb(&["diagnose", "--samples", csv.to_str().unwrap(), "--json"]);
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let c = &v["circles"][0];
+    for dir in ["ccw", "cw"] {
+        let f = &c["radial_deviation_f"][dir];
+        let (max, min) = (f["max_um"].as_f64().unwrap(), f["min_um"].as_f64().unwrap());
+        let g = c[dir]["g_um"].as_f64().unwrap();
+        // Backlash moves the path by up to ±2 µm about the 5 µm offset: F from about 3 to 7 µm.
+        assert!(
+            max > 5.5 && max < 8.0 && min > 2.0 && min < 4.5,
+            "{dir}: F {max} / {min}"
+        );
+        // F spans at least the minimum zone (its centre is the least-squares one).
+        assert!(
+            max - min >= g - 1e-9 && g < 6.0,
+            "{dir}: F {max} / {min}, G {g}"
+        );
+    }
 }
 
 #[test]
@@ -110,8 +224,18 @@ fn chromium_renders_the_report() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    let html = report(dir.path());
-    let png = dir.path().join("report.png");
+    let comp = dir.path().join("comp.ini");
+    std::fs::write(&comp, "[JOINT_0]\nBACKLASH = 0.010\n").unwrap();
+    let c = conditions(&comp);
+    let html = report_with(
+        dir.path(),
+        &c.iter().map(String::as_str).collect::<Vec<_>>(),
+    );
+    let png = match std::env::var_os("JDBB_REPORT_PNG") {
+        // Where to keep the rendered page, to look at it.
+        Some(p) => PathBuf::from(p),
+        None => dir.path().join("report.png"),
+    };
     let profile = dir.path().join("profile");
     let mut child = Command::new(&chromium)
         .args([
@@ -178,4 +302,49 @@ fn chromium_renders_the_report() {
         bytes.len(),
         colours.len()
     );
+}
+
+#[test]
+fn the_serial_the_device_reported_is_in_the_report() {
+    // A record as `jdbb record` writes it: the serial line right after the header.
+    let dir = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let text = std::fs::read_to_string(root.join("data/examples/ballbar-backlash.csv")).unwrap();
+    let (header, rows) = text.split_once('\n').unwrap();
+    let rec = dir.path().join("rec.csv");
+    std::fs::write(
+        &rec,
+        format!("{header}\n# instrument_serial: 3F0029000851383235363438\n{rows}"),
+    )
+    .unwrap();
+    let plan = dir.path().join("plan");
+    jdbb(&[
+        "plan",
+        "--radius",
+        "90",
+        "--feed",
+        "2000",
+        "--centre",
+        "100,50,-20",
+        "--out",
+        plan.to_str().unwrap(),
+    ]);
+    let rep = dir.path().join("rep");
+    jdbb(&[
+        "diagnose",
+        "--record",
+        rec.to_str().unwrap(),
+        "--plan",
+        plan.join("plan.json").to_str().unwrap(),
+        "--report",
+        rep.to_str().unwrap(),
+    ]);
+    let html = std::fs::read_to_string(rep.join("report.html")).unwrap();
+    assert!(html.contains("<td>J-DBB, serial 3F0029000851383235363438</td>"));
+    // The plan as a table, not JSON.
+    assert!(html.contains("<th>bar length D mm</th>") && !html.contains("\"segments\""));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(rep.join("diagnosis.json")).unwrap())
+            .unwrap();
+    assert_eq!(json["instrument"]["serial"], "3F0029000851383235363438");
 }

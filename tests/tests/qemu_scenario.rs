@@ -144,6 +144,11 @@ fn plan_scenario_qemu_record_diagnose_names_the_hidden_effects() {
     let text = std::fs::read_to_string(&rec).unwrap();
     let mut lines = text.lines();
     assert_eq!(lines.next(), Some("seq,t_us,enc1,enc2,d_mm"));
+    // QEMU's chip ID is all zero: the serial the device reported, right after the header.
+    assert_eq!(
+        lines.next(),
+        Some("# instrument_serial: 000000000000000000000000")
+    );
     let mut rows = 0u64;
     let mut worst_nm = 0.0f64;
     for (i, line) in lines.enumerate() {

@@ -101,6 +101,44 @@ pub struct CircleDoc {
     pub ccw: Option<ZoneDoc>,
     pub cw: Option<ZoneDoc>,
     pub bidirectional: Option<ZoneDoc>,
+    /// ISO 230-4 radial deviation F per direction (absent in files written before it).
+    #[serde(default)]
+    pub radial_deviation_f: Option<RadialDeviationDoc>,
+}
+
+/// F of one circle per direction (`circles[].radial_deviation_f`).
+#[derive(Debug, Clone, Default, Deserialize)]
+pub struct RadialDeviationDoc {
+    pub ccw: Option<RangeDoc>,
+    pub cw: Option<RangeDoc>,
+}
+
+/// The largest and smallest radial deviation F of one trace, µm.
+#[derive(Debug, Clone, Copy, Deserialize)]
+pub struct RangeDoc {
+    pub max_um: Option<f64>,
+    pub min_um: Option<f64>,
+}
+
+/// The temperatures during the test (`temperature_c`), °C.
+#[derive(Debug, Clone, Default, Deserialize)]
+pub struct TemperatureDoc {
+    pub machine: Option<f64>,
+    pub instrument: Option<f64>,
+}
+
+/// The compensation in force during the test (`compensation`).
+#[derive(Debug, Clone, Default, Deserialize, PartialEq)]
+pub struct CompensationDoc {
+    #[serde(default)]
+    pub text: String,
+    pub file: Option<String>,
+}
+
+/// What the instrument said of itself (`instrument`).
+#[derive(Debug, Clone, Default, Deserialize)]
+pub struct InstrumentDoc {
+    pub serial: Option<String>,
 }
 
 /// The arc one circle's samples cover (`arcs[]`: degrees from the plane's first axis).
@@ -183,6 +221,16 @@ pub struct DiagnosisDoc {
     /// The test plan, kept as given (compared as a whole between runs).
     #[serde(default)]
     pub plan: Option<serde_json::Value>,
+    #[serde(default)]
+    pub operator: Option<String>,
+    #[serde(default)]
+    pub temperature_c: Option<TemperatureDoc>,
+    #[serde(default)]
+    pub table_ball_mm: Option<BTreeMap<String, Option<f64>>>,
+    #[serde(default)]
+    pub compensation: Option<CompensationDoc>,
+    #[serde(default)]
+    pub instrument: Option<InstrumentDoc>,
 }
 
 impl DiagnosisDoc {
@@ -335,6 +383,12 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
         "plan",
         "sync",
         "lsq_circular_deviation_g_um",
+        // The test's conditions (ISO 230-4) from `jdbb diagnose`'s options.
+        "operator",
+        "temperature_c",
+        "table_ball_mm",
+        "compensation",
+        "instrument",
     ];
     const EFFECT: &[&str] = &[
         "name",
@@ -364,11 +418,14 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
         "ccw",
         "cw",
         "bidirectional",
+        "radial_deviation_f",
     ];
     const ZONE: &[&str] = &["g_um", "centre", "radius_offset_um"];
     const ARC: &[&str] = &["start_deg", "sweep_deg", "partial"];
     const WEAK: &[&str] = &["names", "free_fraction"];
     const TOLERANCE: &[&str] = &["g_um", "pass"];
+    const DIRECTIONS: &[&str] = &["ccw", "cw"];
+    const RANGE: &[&str] = &["max_um", "min_um"];
     fn keys(v: &Value, allowed: &[&str], place: &str) -> std::result::Result<(), (String, String)> {
         if let Value::Object(m) = v {
             if let Some(k) = m.keys().find(|k| !allowed.contains(&k.as_str())) {
@@ -402,11 +459,30 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
     if let Some(x) = v.get("tolerance") {
         keys(x, TOLERANCE, "tolerance")?;
     }
+    for (name, allowed) in [
+        ("temperature_c", &["machine", "instrument"][..]),
+        ("table_ball_mm", &["x", "y", "z"][..]),
+        ("compensation", &["text", "file"][..]),
+        ("instrument", &["serial"][..]),
+    ] {
+        if let Some(x) = v.get(name) {
+            keys(x, allowed, name)?;
+        }
+    }
     if let Some(Value::Array(circles)) = v.get("circles") {
         for (k, c) in circles.iter().enumerate() {
             for sense in ["ccw", "cw", "bidirectional"] {
                 if let Some(z) = c.get(sense) {
                     keys(z, ZONE, &format!("circles[{k}].{sense}"))?;
+                }
+            }
+            if let Some(f) = c.get("radial_deviation_f") {
+                let place = format!("circles[{k}].radial_deviation_f");
+                keys(f, DIRECTIONS, &place)?;
+                for sense in DIRECTIONS {
+                    if let Some(r) = f.get(sense) {
+                        keys(r, RANGE, &format!("{place}.{sense}"))?;
+                    }
                 }
             }
         }

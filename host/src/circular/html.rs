@@ -2,7 +2,10 @@
 //! CSS, the polar plots as inline SVG, nothing fetched.
 //!
 //! What it says, in order: the verdict against the tolerance; the test conditions (machine,
-//! date, plane, circles with radius, height and feed, plan, instrument calibration); the machine
+//! date, plane, circles with radius, height and feed, instrument calibration, and the ISO 230-4
+//! items: operator, instrument serial, machine and instrument temperatures, the table ball in
+//! machine coordinates, the compensation in force, each "not given" when absent; the plan as a
+//! table); the machine
 //! effects ranked by their share of the error, each with value ± standard error and its cause
 //! in the trade's words ([`super::words`]); G and H of every circle per ISO 230-4 with the
 //! minimum-zone centre ([`super::zone`]); the polar plot of every circle.
@@ -14,6 +17,8 @@
 //!   add up to 100 %, shown as whole percentages rounded by largest remainder;
 //! - *G*: one per circle and direction, the minimum zone's (the same figure as the text and the
 //!   plots); figures without a ± of their own are shown to the digits the test's noise supports;
+//! - *F*: ISO 230-4 radial deviation, max and min per circle and direction
+//!   ([`super::report::radial_deviation_f`]);
 //! - *pass*: every circle's G (each direction, minimum-zone centre) is at most the tolerance.
 //!
 //! The page is built from the diagnosis JSON read back as a [`DiagnosisDoc`] (so it shows what
@@ -70,6 +75,7 @@ td.share { white-space: nowrap; }
 .plots { display: flex; flex-wrap: wrap; gap: 16px; }
 .plot { flex: 1 1 520px; max-width: 800px; }
 .plot svg { width: 100%; height: auto; border: 1px solid #ddd; }
+pre.comp { margin: 4px 0; font-size: 12px; white-space: pre-wrap; }
 ";
 
 fn fmt_opt(x: Option<f64>, decimals: usize) -> String {
@@ -145,6 +151,138 @@ fn circle_label(c: &CircleDoc, normal: char) -> String {
         "r = {:.1} mm, {normal} = {:.1} mm",
         c.radius_mm, c.height_mm
     )
+}
+
+/// The ISO 230-4 conditions the user states (operator, temperatures, table ball) and the
+/// instrument's serial, each "not given" with the option that gives it when absent.
+fn iso_rows(doc: &DiagnosisDoc) -> Vec<(String, String)> {
+    let temp = |t: Option<f64>, option: &str| match t {
+        Some(t) => format!("{t} °C"),
+        None => format!("not given (--{option})"),
+    };
+    let t = doc.temperature_c.clone().unwrap_or_default();
+    vec![
+        (
+            "Operator".into(),
+            doc.operator
+                .clone()
+                .unwrap_or_else(|| "not given (--operator)".into()),
+        ),
+        (
+            "Instrument".into(),
+            match doc.instrument.as_ref().and_then(|i| i.serial.as_deref()) {
+                Some(s) => format!("J-DBB, serial {s}"),
+                None => {
+                    "J-DBB, serial not reported (a `jdbb record` file carries it; this input has none)".into()
+                }
+            },
+        ),
+        (
+            "Machine temperature".into(),
+            temp(t.machine, "machine-temperature-c"),
+        ),
+        (
+            "Instrument temperature".into(),
+            temp(t.instrument, "instrument-temperature-c"),
+        ),
+        (
+            "Table ball, machine coordinates (G53)".into(),
+            match &doc.table_ball_mm {
+                Some(p) => {
+                    let given: Vec<String> = p
+                        .iter()
+                        .filter_map(|(k, v)| v.map(|v| format!("{k} = {v:.3} mm")))
+                        .collect();
+                    given.join(", ")
+                }
+                None => "not given (--table-ball x=..,y=..,z=..)".into(),
+            },
+        ),
+    ]
+}
+
+/// The plan (`plan` of the diagnosis) as a sentence and a table of its circles.
+fn plan_html(plan: Option<&serde_json::Value>) -> String {
+    let Some(p) = plan else {
+        return "not given (jdbb diagnose --record FILE --plan plan.json)".into();
+    };
+    let text = |k: &str| p.get(k).and_then(|v| v.as_str()).map(escape);
+    let num = |v: Option<&serde_json::Value>| v.and_then(|v| v.as_f64());
+    let mut parts: Vec<String> = vec![];
+    if let Some(f) = text("file") {
+        parts.push(format!("<b>{f}</b>"));
+    }
+    if let Some(x) = text("purpose") {
+        parts.push(format!("purpose {x}"));
+    }
+    if let Some(x) = text("program") {
+        parts.push(format!("program {x}"));
+    }
+    if let Some(x) = text("dialect") {
+        parts.push(format!("G-code dialect {x}"));
+    }
+    if let Some(x) = text("plane") {
+        parts.push(format!("plane {x}"));
+    }
+    if let Some(f) = num(p.get("feed_mm_min")) {
+        parts.push(format!("feed {f:.0} mm/min"));
+    }
+    if let Some(c) = p.get("centre_mm").and_then(|v| v.as_array()) {
+        let c: Vec<String> = c
+            .iter()
+            .map(|x| x.as_f64().map_or("?".into(), |x| format!("{x:.3}")))
+            .collect();
+        parts.push(format!(
+            "centre (program coordinates) ({}) mm",
+            c.join(", ")
+        ));
+    }
+    if let Some(a) = p.get("arc") {
+        let g = |k: &str| num(a.get(k)).unwrap_or(f64::NAN);
+        parts.push(if g("sweep_deg") >= 360.0 {
+            format!(
+                "full circles from {:.0}°, lead-in {:.0}°, overshoot {:.0}°",
+                g("start_deg"),
+                g("lead_in_deg"),
+                g("overshoot_deg")
+            )
+        } else {
+            format!(
+                "partial arcs of {:.0}° from {:.0}° (data {:.0}° from {:.0}°)",
+                g("sweep_deg"),
+                g("start_deg"),
+                g("data_sweep_deg"),
+                g("data_start_deg")
+            )
+        });
+    }
+    let mut out = parts.join(", ");
+    if let Some(circles) = p.get("circles").and_then(|v| v.as_array()) {
+        out.push_str("<table><tr><th>circle</th><th>radius mm</th><th>height mm</th><th>bar length D mm</th><th>plane</th><th>feed mm/min</th></tr>");
+        for (k, c) in circles.iter().enumerate() {
+            let f = |key: &str, d: usize| fmt_opt(num(c.get(key)), d);
+            let _ = write!(
+                out,
+                "<tr><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{}</td><td class=\"num\">{}</td></tr>",
+                k + 1,
+                f("radius_mm", 3),
+                f("height_mm", 3),
+                f("d_mm", 3),
+                c.get("plane").and_then(|v| v.as_str()).map_or("–".into(), escape),
+                f("feed_mm_min", 0)
+            );
+        }
+        out.push_str("</table>");
+    }
+    out
+}
+
+/// F max / min of one trace (µm) to the noise's digits, or a dash.
+fn f_cell(r: Option<&super::document::RangeDoc>, noise_um: f64) -> String {
+    match r {
+        Some(r) => format!("{} / {}", um(r.max_um, noise_um), um(r.min_um, noise_um)),
+        None => "–".into(),
+    }
 }
 
 /// The whole page (see the module docs).
@@ -234,16 +372,6 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
     if !pitch.is_empty() {
         rows.push(("Screw/scale pitch".into(), pitch.join(", ")));
     }
-    match &doc.plan {
-        Some(p) => {
-            let mut r = vec![];
-            object_rows(p, "", &mut r);
-            for (k, v) in r {
-                rows.push((format!("Plan: {k}"), v));
-            }
-        }
-        None => rows.push(("Plan".into(), "not given".into())),
-    }
     match &doc.calibration {
         Some(c) => {
             let mut r = vec![];
@@ -269,9 +397,30 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
             fmt_opt(doc.gain, 1)
         ),
     ));
+    rows.extend(iso_rows(doc));
     for (k, v) in rows {
         let _ = writeln!(h, "<tr><th>{}</th><td>{}</td></tr>", escape(&k), escape(&v));
     }
+    let _ = writeln!(
+        h,
+        "<tr><th>Compensation in force during the test</th><td>{}</td></tr>",
+        match &doc.compensation {
+            Some(c) => format!(
+                "{}<pre class=\"comp\">{}</pre>",
+                c.file
+                    .as_deref()
+                    .map_or(String::new(), |f| format!("from {}:", escape(f))),
+                escape(c.text.trim_end())
+            ),
+            None =>
+                "not given (jdbb diagnose --compensation TEXT or --compensation-file FILE)".into(),
+        }
+    );
+    let _ = writeln!(
+        h,
+        "<tr><th>Plan</th><td>{}</td></tr>",
+        plan_html(doc.plan.as_ref())
+    );
     let _ = writeln!(h, "</table>");
 
     // Effects ranked by share.
@@ -407,7 +556,7 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
     // G and H.
     let _ = writeln!(
         h,
-        "<h2>Circular deviation G and hysteresis H (ISO 230-4, minimum-zone centre)</h2>\n<table>\n<tr><th>circle</th><th>feed mm/min</th><th>G ccw µm</th><th>G cw µm</th><th>G both directions µm</th><th>H µm</th><th>minimum-zone centre (ccw): table ball at, µm</th><th>verdict</th></tr>"
+        "<h2>Circular deviation G and hysteresis H (ISO 230-4, minimum-zone centre)</h2>\n<table>\n<tr><th>circle</th><th>feed mm/min</th><th>G ccw µm</th><th>G cw µm</th><th>G both directions µm</th><th>H µm</th><th>F max / min ccw µm</th><th>F max / min cw µm</th><th>minimum-zone centre (ccw): table ball at, µm</th><th>verdict</th></tr>"
     );
     for c in &doc.circles {
         let verdict = match (tol, c.g_um) {
@@ -417,19 +566,21 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         };
         let _ = writeln!(
             h,
-            "<tr><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{}</td><td>{verdict}</td></tr>",
+            "<tr><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{}</td><td>{verdict}</td></tr>",
             escape(&circle_label(c, normal)),
             fmt_opt(c.feed_mm_min, 0),
             zone_cell(&c.ccw, tol, noise),
             zone_cell(&c.cw, tol, noise),
             zone_cell(&c.bidirectional, None, noise),
             um(c.h_um, noise),
+            f_cell(c.radial_deviation_f.as_ref().and_then(|f| f.ccw.as_ref()), noise),
+            f_cell(c.radial_deviation_f.as_ref().and_then(|f| f.cw.as_ref()), noise),
             escape(&centre_text(&c.ccw, noise)),
         );
     }
     let _ = writeln!(
         h,
-        "</table>\n<p class=\"note\">G: the radial width of the minimum zone (two concentric circles, closest together, enclosing the trace) of one circle in one direction; its centre is given as where it puts the table ball, relative to where the ball was assumed (as the set-up offset). H: the largest difference between the ccw and cw traces in a 1° bin. Pass: every circle's G in each direction is at most the tolerance.</p>"
+        "</table>\n<p class=\"note\">G: the radial width of the minimum zone (two concentric circles, closest together, enclosing the trace) of one circle in one direction; its centre is given as where it puts the table ball, relative to where the ball was assumed (as the set-up offset). H: the largest difference between the ccw and cw traces in a 1° bin. F (radial deviation, ISO 230-4): the largest (max) and smallest (min) deviation of the trace from the nominal circle, about the centre of the least-squares circle of all samples, with the radius as the calibrated bar measures it (so F includes the bar's length error, which its calibration bounds). Pass: every circle's G in each direction is at most the tolerance.</p>"
     );
 
     // Plots.
@@ -462,6 +613,24 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_plan_is_a_sentence_and_a_table_not_json() {
+        let plan = serde_json::json!({
+            "file": "plan.json", "purpose": "machine-test", "dialect": "linuxcnc",
+            "program": "test.ngc", "plane": "xy", "feed_mm_min": 1000.0,
+            "centre_mm": [100.0, 50.0, -20.0],
+            "arc": {"start_deg": 0.0, "sweep_deg": 360.0, "lead_in_deg": 10.0,
+                    "overshoot_deg": 10.0, "data_start_deg": 0.0, "data_sweep_deg": 360.0},
+            "circles": [{"radius_mm": 50.0, "height_mm": 0.0, "d_mm": 100.0, "plane": "xy",
+                         "feed_mm_min": 1000.0}]
+        });
+        let h = plan_html(Some(&plan));
+        assert!(h.starts_with("<b>plan.json</b>, purpose machine-test, program test.ngc, G-code dialect linuxcnc, plane xy, feed 1000 mm/min, centre (program coordinates) (100.000, 50.000, -20.000) mm, full circles from 0°, lead-in 10°, overshoot 10°"), "{h}");
+        assert!(h.contains("<td class=\"num\">50.000</td><td class=\"num\">0.000</td><td class=\"num\">100.000</td><td>xy</td>"), "{h}");
+        // No raw JSON left.
+        assert!(!h.contains("{\"") && !h.contains("\":"), "{h}");
+    }
 
     #[test]
     fn text_is_escaped() {

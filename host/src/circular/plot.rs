@@ -146,6 +146,7 @@ fn caption(d: &Diagnosis, view: &View) -> Vec<String> {
             um(s[0]), um(s[1]), um(s[2]), um(s[3])
         ),
         "G: radial width of the minimum zone of one circle in one direction (ISO 230-4, minimum-zone centre); H: largest ccw − cw difference in a 1° bin".to_string(),
+        "Dot: where a run (one direction of a circle) starts; arrowhead: the direction it runs".to_string(),
     ];
     if view.circle.is_none() {
         let normal = ['x', 'y', 'z'][3 - d.plane.0 - d.plane.1];
@@ -305,6 +306,34 @@ where
         chart
             .draw_series(LineSeries::new(pts, colour))
             .map_err(plot_err)?;
+    }
+    // Where each run starts (a dot) and which way it goes (an arrowhead a little way in).
+    for (run, pts) in run_points(d, view, &d.measured_dev_um, rad) {
+        if pts.len() < 3 {
+            continue;
+        }
+        let colour = run_colour(n_circles, run.circle, run.ccw);
+        chart
+            .draw_series(std::iter::once(Circle::new(pts[0], 5, colour.filled())))
+            .map_err(plot_err)?;
+        let k = (pts.len() / 12).clamp(1, pts.len() - 2);
+        let ahead = (k + (pts.len() / 50).max(1)).min(pts.len() - 1);
+        let (p, q) = (pts[k], pts[ahead]);
+        let (dx, dy) = (q.0 - p.0, q.1 - p.1);
+        let len = (dx * dx + dy * dy).sqrt();
+        if len > 0.0 {
+            let (ux, uy) = (dx / len, dy / len);
+            let (s, w) = (0.05, 0.025);
+            let tip = (p.0 + ux * s, p.1 + uy * s);
+            let left = (p.0 - uy * w, p.1 + ux * w);
+            let right = (p.0 + uy * w, p.1 - ux * w);
+            chart
+                .draw_series(std::iter::once(Polygon::new(
+                    vec![tip, left, right],
+                    colour.filled(),
+                )))
+                .map_err(plot_err)?;
+        }
     }
     for (_, pts) in run_points(d, view, &d.model_dev_um, rad) {
         chart

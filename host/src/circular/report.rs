@@ -121,6 +121,11 @@
 //!   .g_um                  ISO 230-4 circular deviation G with the minimum-zone centre: the
 //!                          larger of .ccw.g_um and .cw.g_um, µm
 //!   .h_um                  hysteresis H: largest ccw − cw difference in a 1° bin, µm
+//!   .radial_deviation_f    ISO 230-4 radial deviation F per direction, {ccw, cw}: {max_um,
+//!                          min_um} (null if not run), the largest and smallest deviation of
+//!                          the path from the nominal circle about the least-squares centre,
+//!                          the radius as the calibrated bar measures it
+//!                          ([`radial_deviation_f`])
 //!   .ccw, .cw, .bidirectional  the minimum zone of that trace (null if not run): {g_um (zone
 //!                          width), centre {<axis>_um, <axis>_um} (the minimum-zone centre as
 //!                          a table-ball position relative to where it was assumed, along the
@@ -135,6 +140,15 @@
 //! calibration              --calibration FILE: the instrument calibration (jdbb-core Calibration)
 //! plan                     the test plan, when the diagnosis was given one (read as an opaque
 //!                          object by the report and the history)
+//! operator                 --operator NAME
+//! temperature_c            {machine, instrument}: --machine-temperature-c,
+//!                          --instrument-temperature-c (°C; null if not given)
+//! table_ball_mm            {x, y, z}: --table-ball, machine coordinates (G53) of the table ball
+//!                          during the test, mm (null for an axis not given)
+//! compensation             {text, file}: the compensation in force during the test,
+//!                          --compensation TEXT or --compensation-file FILE (its text)
+//! instrument               {serial}: the instrument's serial number, from the record's
+//!                          `# instrument_serial:` header line (as the device reported it)
 //! ```
 // Index loops over the axes (k in 0..3) and samples mirror the equations; keep them.
 use super::diagnose::Diagnosis;
@@ -464,11 +478,19 @@ fn add_zones_and_shares(v: &mut serde_json::Value, d: &Diagnosis) {
             json!({"g_um": num(z.width_um), "centre": centre, "radius_offset_um": num(z.radius_offset_um)})
         }
     };
+    let f = radial_deviation_f(d);
+    let f_json = |r: &Option<(f64, f64)>| match r {
+        Some((max, min)) => json!({"max_um": num(*max), "min_um": num(*min)}),
+        None => Value::Null,
+    };
     let circles: Vec<Value> = d
         .circle_zones
         .iter()
-        .map(|c: &CircleZone| {
+        .enumerate()
+        .map(|(k, c): (usize, &CircleZone)| {
+            let [ccw, cw] = f.get(k).copied().unwrap_or([None, None]);
             json!({
+                "radial_deviation_f": {"ccw": f_json(&ccw), "cw": f_json(&cw)},
                 "radius_mm": num(c.radius_mm),
                 "height_mm": num(c.height_mm),
                 "feed_mm_min": num(c.feed_mm_min),
@@ -487,6 +509,38 @@ fn add_zones_and_shares(v: &mut serde_json::Value, d: &Diagnosis) {
     v["pitch_mm"] = json!({"x": d.pitch_mm[0], "y": d.pitch_mm[1], "z": d.pitch_mm[2]});
     v["circles"] = Value::Array(circles);
     v["minimum_zone"] = json!({"g_um": num(g), "h_um": num(h)});
+}
+
+/// ISO 230-4 radial deviation F of every circle, [ccw, cw], as (F max, F min) in µm: the
+/// largest and smallest deviation of the actual path from the nominal circle, with the centre
+/// of the least-squares circle of all samples (ISO 230-4's second way to set the centre) and the
+/// radius as the calibrated bar measures it: D − |p − t| = the plotted deviation + the length
+/// offset e (so F carries the instrument's length error, which its calibration bounds). None:
+/// the circle was not run in that direction.
+pub fn radial_deviation_f(d: &Diagnosis) -> Vec<[Option<(f64, f64)>; 2]> {
+    let e = if d.lsq_setup_um[3].is_finite() {
+        d.lsq_setup_um[3]
+    } else {
+        0.0
+    };
+    let mut out = vec![[None, None]; d.circles.len()];
+    for run in &d.runs {
+        let Some(slot) = out.get_mut(run.circle) else {
+            continue;
+        };
+        let cell = &mut slot[usize::from(!run.ccw)];
+        for i in run.range.clone() {
+            let v = d.measured_dev_um[i] + e;
+            if !v.is_finite() {
+                continue;
+            }
+            *cell = Some(match *cell {
+                Some((max, min)) => (f64::max(max, v), f64::min(min, v)),
+                None => (v, v),
+            });
+        }
+    }
+    out
 }
 
 /// Human summary of a synchronisation: cycle start, feed, clock, acceleration, the arcs used.

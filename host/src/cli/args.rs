@@ -77,6 +77,46 @@ pub fn seconds(s: &str) -> Result<f64, String> {
     }
 }
 
+/// `x=1,y=2` into per-axis values with `parse` for each value.
+pub fn per_axis<T>(
+    option: &str,
+    s: &str,
+    parse: impl Fn(&str) -> Option<T>,
+    form: &str,
+) -> crate::Result<[Option<T>; 3]> {
+    let mut out: [Option<T>; 3] = [None, None, None];
+    for part in s.split(',').filter(|p| !p.trim().is_empty()) {
+        let (k, v) = part.split_once('=').ok_or_else(|| {
+            crate::Error::Usage(format!("{option}: `{part}` should look like {form}"))
+        })?;
+        let axis = match k.trim() {
+            "x" => 0,
+            "y" => 1,
+            "z" => 2,
+            other => {
+                return Err(crate::Error::Usage(format!(
+                    "{option}: unknown axis `{other}`; use x, y or z"
+                )))
+            }
+        };
+        if out[axis].is_some() {
+            return Err(crate::Error::Usage(format!(
+                "{option}: axis {} is given twice",
+                k.trim()
+            )));
+        }
+        out[axis] = Some(parse(v.trim()).ok_or_else(|| {
+            crate::Error::Usage(format!("{option}: `{part}` should look like {form}"))
+        })?);
+    }
+    Ok(out)
+}
+
+/// `s` as a finite number, if it is one.
+pub fn finite_value(s: &str) -> Option<f64> {
+    s.parse::<f64>().ok().filter(|x| x.is_finite())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -2,11 +2,12 @@
 //! [`crate::compensate`].
 use std::path::PathBuf;
 
+use super::args::{finite_value as finite, per_axis};
 use super::output::print;
 use crate::circular::document::DiagnosisDoc;
 use crate::compensate::{plan, render, Controller, Current, Options, Placement};
 use crate::fsio::FileSet;
-use crate::{Error, Result};
+use crate::Result;
 
 /// Arguments of `jdbb compensate`.
 #[derive(Debug, clap::Args)]
@@ -17,9 +18,10 @@ pub struct CompensateArgs {
     /// The controller: linuxcnc, grblhal, marlin or klipper.
     #[arg(long)]
     pub controller: String,
-    /// The values in force, in the controller's format (LinuxCNC INI lines, grblHAL `$n=v`
-    /// lines, Marlin M425/M852/M92 lines, Klipper printer.cfg sections); the output gives new
-    /// totals.
+    /// The values in force, in the controller's format (LinuxCNC INI lines with `[TRAJ]
+    /// LINEAR_UNITS`, a `COMP_FILE` in force read beside this file; grblHAL `$n=v` lines; Marlin
+    /// M425/M852/M92 lines; Klipper printer.cfg sections with the `SKEW_PROFILE LOAD=` line of
+    /// the start macro); the output gives new totals in the controller's units.
     #[arg(long, value_name = "FILE")]
     pub current: Option<PathBuf>,
     /// Machine coordinates of the table ball during the test, e.g. `x=250,y=150,z=-300` (mm),
@@ -39,46 +41,6 @@ pub struct CompensateArgs {
     /// Replace files already in --out (a hand-edited table is not replaced without it).
     #[arg(long, requires = "out")]
     pub force: bool,
-}
-
-/// `x=1,y=2` into per-axis values with `parse` for each value.
-fn per_axis<T>(
-    option: &str,
-    s: &str,
-    parse: impl Fn(&str) -> Option<T>,
-    form: &str,
-) -> Result<[Option<T>; 3]> {
-    let mut out: [Option<T>; 3] = [None, None, None];
-    for part in s.split(',').filter(|p| !p.trim().is_empty()) {
-        let (k, v) = part
-            .split_once('=')
-            .ok_or_else(|| Error::Usage(format!("{option}: `{part}` should look like {form}")))?;
-        let axis = match k.trim() {
-            "x" => 0,
-            "y" => 1,
-            "z" => 2,
-            other => {
-                return Err(Error::Usage(format!(
-                    "{option}: unknown axis `{other}`; use x, y or z"
-                )))
-            }
-        };
-        if out[axis].is_some() {
-            return Err(Error::Usage(format!(
-                "{option}: axis {} is given twice",
-                k.trim()
-            )));
-        }
-        out[axis] =
-            Some(parse(v.trim()).ok_or_else(|| {
-                Error::Usage(format!("{option}: `{part}` should look like {form}"))
-            })?);
-    }
-    Ok(out)
-}
-
-fn finite(s: &str) -> Option<f64> {
-    s.parse::<f64>().ok().filter(|x| x.is_finite())
 }
 
 /// Run `jdbb compensate`.

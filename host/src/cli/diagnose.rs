@@ -65,6 +65,80 @@ pub struct DiagnoseArgs {
     /// counts_per_rev, zero_count, direction), for the report and the history.
     #[arg(long, value_name = "FILE")]
     pub calibration: Option<PathBuf>,
+    /// Who ran the test, for the report (ISO 230-4).
+    #[arg(long)]
+    pub operator: Option<String>,
+    /// The machine's temperature during the test (°C), for the report (ISO 230-4).
+    #[arg(long, value_name = "°C", allow_negative_numbers = true, value_parser = super::args::finite)]
+    pub machine_temperature_c: Option<f64>,
+    /// The instrument's temperature during the test (°C), for the report (ISO 230-4).
+    #[arg(long, value_name = "°C", allow_negative_numbers = true, value_parser = super::args::finite)]
+    pub instrument_temperature_c: Option<f64>,
+    /// Machine coordinates (G53) of the table ball during the test, e.g. `x=250,y=150,z=-300`
+    /// (mm), for the report (as `jdbb compensate --table-ball`).
+    #[arg(long, value_name = "x=..,y=..,z=..")]
+    pub table_ball: Option<String>,
+    /// The compensation in force during the test, in words (e.g. `BACKLASH X 0.010 mm, no
+    /// COMP_FILE`), for the report and the history.
+    #[arg(long, value_name = "TEXT", conflicts_with = "compensation_file")]
+    pub compensation: Option<String>,
+    /// The compensation in force during the test as a file (e.g. the INI section or the `M503`
+    /// output; its text goes into the report and the history).
+    #[arg(long, value_name = "FILE")]
+    pub compensation_file: Option<PathBuf>,
+}
+
+/// Longest `--compensation-file` taken into the diagnosis (bytes).
+const MAX_COMPENSATION_BYTES: usize = 64 * 1024;
+
+/// The test's conditions from the options (ISO 230-4: operator, temperatures, table ball,
+/// compensation in force) and the record's header (instrument serial), as fields of the
+/// diagnosis JSON (documented in `circular::report`); read before the work, so a bad option
+/// costs nothing.
+fn conditions(args: &DiagnoseArgs) -> Result<serde_json::Value> {
+    use serde_json::json;
+    let mut json = json!({});
+    if let Some(o) = &args.operator {
+        json["operator"] = json!(o);
+    }
+    if args.machine_temperature_c.is_some() || args.instrument_temperature_c.is_some() {
+        json["temperature_c"] = json!({
+            "machine": args.machine_temperature_c,
+            "instrument": args.instrument_temperature_c,
+        });
+    }
+    if let Some(s) = &args.table_ball {
+        let [x, y, z] =
+            super::args::per_axis("--table-ball", s, super::args::finite_value, "x=250 (mm)")?;
+        json["table_ball_mm"] = json!({"x": x, "y": y, "z": z});
+    }
+    if let Some(t) = &args.compensation {
+        json["compensation"] = json!({"text": t});
+    }
+    if let Some(f) = &args.compensation_file {
+        let text = crate::table::read_text(f)?;
+        if text.len() > MAX_COMPENSATION_BYTES {
+            return Err(Error::input(
+                f,
+                1,
+                0,
+                format!(
+                    "{} bytes: give the compensation in force, not a whole configuration (at most {} KiB; the relevant section or the M503 output)",
+                    text.len(),
+                    MAX_COMPENSATION_BYTES / 1024
+                ),
+            ));
+        }
+        json["compensation"] = json!({"file": f.display().to_string(), "text": text});
+    }
+    if let Some(record) = &args.record {
+        if let Some(serial) =
+            crate::circular::input::record_header_value(record, crate::table::INSTRUMENT_SERIAL)?
+        {
+            json["instrument"] = json!({"serial": serial});
+        }
+    }
+    Ok(json)
 }
 
 /// The calibration file of `--calibration` as JSON, checked against jdbb-core's Calibration.
@@ -129,6 +203,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         Some(s) => parse_pitch(s)?,
         None => [None; 3],
     };
+    let conditions = conditions(args)?;
     let mut synced = None;
     let (path, d) = match (&args.samples, &args.record, &args.path, &args.plan) {
         (Some(samples), _, _, _) => read_samples(samples, pitch)?,
@@ -157,6 +232,11 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         json["sync"] = sync_json(plan, sync);
     }
     let verdict = add_run_facts(&mut json, args, &diag)?;
+    if let serde_json::Value::Object(m) = conditions {
+        for (k, v) in m {
+            json[k] = v;
+        }
+    }
     if args.json {
         emit(&json_text(&json))?;
     } else {

@@ -43,14 +43,40 @@ pub enum HistoryCommand {
         #[arg(long)]
         machine: String,
         /// Only this effect, e.g. backlash_x.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "figure")]
         effect: Option<String>,
+        /// Trend the circular deviation G (`g`) or the hysteresis H (`h`) of each run instead of
+        /// the effects.
+        #[arg(long, value_name = "g|h")]
+        figure: Option<String>,
+        /// A tolerance (µm) to hold G, H or an effect in µm against: a line on the plot, and the
+        /// runs over it named.
+        #[arg(long, value_parser = super::args::positive)]
+        tolerance_um: Option<f64>,
         /// Also plot the trend to this SVG file.
         #[arg(long, visible_alias = "out", short = 'o', value_name = "OUT.svg")]
         plot: Option<PathBuf>,
-        /// Replace --plot if it exists (a regular file only; never a link or a device).
-        #[arg(long, requires = "plot")]
+        /// Also write the trend as CSV to this file (one row per run and quantity).
+        #[arg(long, value_name = "OUT.csv")]
+        csv: Option<PathBuf>,
+        /// Replace --plot or --csv if it exists (a regular file only; never a link or a device).
+        #[arg(long)]
         force: bool,
+    },
+    /// File a change of a machine's compensation (e.g. the settings `jdbb compensate` gave,
+    /// once entered): `history trend` marks it and fits its slope only after it.
+    Comp {
+        #[arg(long)]
+        machine: String,
+        /// When the change was made (YYYY-MM-DD or RFC 3339).
+        #[arg(long, value_parser = crate::dates::parse_date)]
+        date: String,
+        /// What is in force from then on, in words.
+        #[arg(long, conflicts_with = "file", required_unless_present = "file")]
+        text: Option<String>,
+        /// What is in force from then on, as a file (the INI section, the M503 output, ...).
+        #[arg(long, value_name = "FILE")]
+        file: Option<PathBuf>,
     },
 }
 
@@ -172,21 +198,65 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
         HistoryCommand::Trend {
             machine,
             effect,
+            figure,
+            tolerance_um,
             plot,
+            csv,
             force,
         } => {
-            if let Some(file) = plot {
+            if *force && plot.is_none() && csv.is_none() {
+                return Err(crate::Error::Usage(
+                    "--force replaces the --plot or --csv file: give one of them".into(),
+                ));
+            }
+            for file in [plot, csv].into_iter().flatten() {
                 crate::fsio::check_destination(file, *force)?;
             }
+            let figure = figure.as_deref().map(trend::Figure::parse).transpose()?;
             let h = History::open_existing(&path)?;
             let runs = h.runs(machine)?;
-            let trends = trend::trend(&runs, effect.as_deref())?;
-            let mut s = trend::render(machine, &runs, &trends);
+            let marks = trend::compensation_marks(&runs, &h.compensations(machine)?);
+            let trends = match figure {
+                Some(f) => trend::figure_trend(&runs, f),
+                None => trend::trend(&runs, effect.as_deref())?,
+            };
+            let mut s = trend::render(machine, &runs, &trends, &marks, *tolerance_um);
             if let Some(file) = plot {
-                crate::fsio::write_via(file, *force, |tmp| trend::plot_svg(tmp, machine, &trends))?;
+                crate::fsio::write_via(file, *force, |tmp| {
+                    trend::plot_svg(tmp, machine, &trends, &marks, *tolerance_um)
+                })?;
                 let _ = writeln!(s, "plot written to {}", file.display());
             }
+            if let Some(file) = csv {
+                let text = trend::csv(machine, &runs, &trends, &marks);
+                crate::fsio::write_file(file, text.as_bytes(), *force)?;
+                let _ = writeln!(s, "CSV written to {}", file.display());
+            }
             print(&s)
+        }
+        HistoryCommand::Comp {
+            machine,
+            date,
+            text,
+            file,
+        } => {
+            let (text, source) = match (text, file) {
+                (Some(t), _) => (t.clone(), None),
+                (None, Some(f)) => (crate::table::read_text(f)?, Some(f.display().to_string())),
+                (None, None) => {
+                    return Err(crate::Error::Usage(
+                        "give what is in force from --date on: --text TEXT or --file FILE".into(),
+                    ))
+                }
+            };
+            // An existing history only (a mistyped --db is an error), opened to write.
+            drop(History::open_existing(&path)?);
+            let mut h = History::open(&path)?;
+            let id = h.add_compensation(machine, date, &text, source.as_deref())?;
+            print(&format!(
+                "filed compensation change {id} of {machine} on {date} in {}\n",
+                path.display()
+            ))
         }
     }
 }

@@ -3,11 +3,11 @@
 //! [`super::marlin`], [`super::klipper`]). Read into one map from a setting's key (as those
 //! modules name it, e.g. `JOINT_0.BACKLASH`, `$160`, `M425.X`, `xy_skew`) to its value.
 //! Lines a format does not use are ignored; a value that is not a number is an input error at
-//! `file:line:column`.
+//! `file:line:column`. Reading a file in a controller's format ([`Current::read`]) is in the parent module:
+//! the parsers live with each controller, and this module depends on none of them.
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use super::Controller;
 use crate::{Error, Result};
 
 /// Values in force, by key.
@@ -16,6 +16,9 @@ pub struct Current {
     values: BTreeMap<String, f64>,
     /// Text settings (e.g. a LinuxCNC `COMP_FILE` name), by key.
     texts: BTreeMap<String, String>,
+    /// Decimals each value was written with, by key (where the format rounds, e.g. Marlin's
+    /// `M503`).
+    decimals: BTreeMap<String, usize>,
     pub source: Option<PathBuf>,
 }
 
@@ -23,37 +26,6 @@ impl Current {
     /// Nothing in force given.
     pub fn none() -> Current {
         Current::default()
-    }
-
-    /// Read `path` in the format of `controller`.
-    pub fn read(path: &Path, controller: Controller) -> Result<Current> {
-        let text = crate::table::read_text(path)?;
-        let mut c = parse(path, &text, controller)?;
-        if c.values.is_empty() && c.texts.is_empty() && has_content(&text) {
-            // Nothing of this controller's in a file with something in it: another format.
-            let other = Controller::ALL.iter().copied().find(|&o| {
-                o != controller
-                    && parse(path, &text, o)
-                        .is_ok_and(|c| !c.values.is_empty() || !c.texts.is_empty())
-            });
-            return Err(Error::input(
-                path,
-                1,
-                0,
-                format!(
-                    "no {} setting in this file{}; give --current the values in force in the format of --controller {}",
-                    controller.name(),
-                    other.map_or(String::new(), |o| format!(
-                        " (it reads as a {} file: is --controller {} meant?)",
-                        o.name(),
-                        o.name()
-                    )),
-                    controller.name()
-                ),
-            ));
-        }
-        c.source = Some(path.to_path_buf());
-        Ok(c)
     }
 
     pub fn get(&self, key: &str) -> Option<f64> {
@@ -68,6 +40,21 @@ impl Current {
         self.values.insert(key.into(), value);
     }
 
+    /// Record that the value of `key` was written with `decimals` decimals.
+    pub fn set_decimals(&mut self, key: impl Into<String>, decimals: usize) {
+        self.decimals.insert(key.into(), decimals);
+    }
+
+    /// The decimals the value of `key` was written with, where recorded.
+    pub fn decimals(&self, key: &str) -> Option<usize> {
+        self.decimals.get(key).copied()
+    }
+
+    /// Whether anything (a number or a text) was read.
+    pub fn has_values(&self) -> bool {
+        !self.values.is_empty() || !self.texts.is_empty()
+    }
+
     pub fn set_text(&mut self, key: impl Into<String>, value: impl Into<String>) {
         self.texts.insert(key.into(), value.into());
     }
@@ -76,24 +63,6 @@ impl Current {
     pub fn is_empty(&self) -> bool {
         self.values.is_empty() && self.texts.is_empty() && self.source.is_none()
     }
-}
-
-/// `text` read in the format of `controller`.
-fn parse(path: &Path, text: &str, controller: Controller) -> Result<Current> {
-    match controller {
-        Controller::LinuxCnc => super::linuxcnc::parse_current(path, text),
-        Controller::GrblHal => super::grblhal::parse_current(path, text),
-        Controller::Marlin => super::marlin::parse_current(path, text),
-        Controller::Klipper => super::klipper::parse_current(path, text),
-    }
-}
-
-/// Whether `text` has a line that is neither blank nor a comment (`#`, `;`).
-fn has_content(text: &str) -> bool {
-    text.lines().any(|l| {
-        let t = l.trim();
-        !t.is_empty() && !t.starts_with('#') && !t.starts_with(';')
-    })
 }
 
 /// A number at `path:line:col` (1-based), or an input error naming `what`.

@@ -22,6 +22,10 @@
 //! [stepper_x]
 //! rotation_distance: 40
 //! ```
+//! Several `[skew_correction <name>]` profiles: the one a `SKEW_PROFILE LOAD=<name>` line in the
+//! file names (e.g. the start macro's) is the one in force; with no such line (or lines naming
+//! different profiles) `compensate` refuses to guess when a skew is to change, listing the
+//! profiles. A single profile is taken as in force, and said.
 use std::path::Path;
 
 use super::current::{key_value, number, Current};
@@ -29,7 +33,7 @@ use super::{
     change, defaults_note, scale_epsilon, skew_factors, Block, Cannot, Change, MachineErrors, Plan,
 };
 use crate::circular::model::Axis;
-use crate::Result;
+use crate::{Error, Result};
 
 /// Side AD of the rhombus `SET_SKEW` is given, mm.
 pub const SIDE_MM: f64 = 100.0;
@@ -41,7 +45,20 @@ pub const PROFILE: &str = "jdbb";
 pub fn parse_current(path: &Path, text: &str) -> Result<Current> {
     let mut c = Current::none();
     let mut section = String::new();
+    // Skew profiles by name (`[skew_correction <name>]`; "" for a bare section), in file order.
+    let mut profiles: Vec<(String, Vec<(String, f64)>)> = vec![];
+    let mut loaded: Vec<String> = vec![];
     for (n, raw) in text.lines().enumerate() {
+        if let Some(i) = raw.find("SKEW_PROFILE") {
+            let words = raw[i..].split_whitespace().skip(1);
+            for w in words {
+                if let Some(name) = w.strip_prefix("LOAD=").or_else(|| w.strip_prefix("load=")) {
+                    if !loaded.iter().any(|l| l == name) {
+                        loaded.push(name.to_string());
+                    }
+                }
+            }
+        }
         let (line, shift) = match raw.strip_prefix("#*#") {
             Some(rest) => (rest, 3),
             None => (raw, 0),
@@ -66,14 +83,68 @@ pub fn parse_current(path: &Path, text: &str) -> Result<Current> {
         let col = col + shift;
         if section.starts_with("skew_correction") && key.ends_with("_skew") {
             let v = number(path, n + 1, col, &value, &key)?;
-            c.set(key, v);
+            let name = section["skew_correction".len()..].trim().to_string();
+            let at = match profiles.iter().position(|(p, _)| *p == name) {
+                Some(i) => i,
+                None => {
+                    profiles.push((name, vec![]));
+                    profiles.len() - 1
+                }
+            };
+            profiles[at].1.push((key, v));
         } else if section.starts_with("stepper_") && key == "rotation_distance" {
             let v = number(path, n + 1, col, &value, &key)?;
             c.set(format!("{section}.rotation_distance"), v);
         }
     }
+    let named = |p: &str| {
+        if p.is_empty() {
+            "[skew_correction]".to_string()
+        } else {
+            p.to_string()
+        }
+    };
+    let chosen = match (&profiles[..], &loaded[..]) {
+        ([], _) => None,
+        ([one], []) => Some((one, format!("the only skew profile in --current, {}, is taken as in force (no SKEW_PROFILE LOAD= line says which is loaded)", named(&one.0)))),
+        (_, [name]) => match profiles.iter().find(|(p, _)| p == name) {
+            Some(p) => Some((p, format!("skew profile {name} is taken as in force (SKEW_PROFILE LOAD={name} in --current)"))),
+            None => {
+                c.set_text(SKEW_AMBIGUOUS, format!("SKEW_PROFILE LOAD={name} names no profile in the file, which has {}", profiles.iter().map(|(p, _)| named(p)).collect::<Vec<_>>().join(", ")));
+                None
+            }
+        },
+        _ => {
+            c.set_text(
+                SKEW_AMBIGUOUS,
+                format!(
+                    "the file has {} skew profiles ({}){}",
+                    profiles.len(),
+                    profiles.iter().map(|(p, _)| named(p)).collect::<Vec<_>>().join(", "),
+                    if loaded.is_empty() {
+                        String::new()
+                    } else {
+                        format!(" and loads {}", loaded.join(" and "))
+                    }
+                ),
+            );
+            None
+        }
+    };
+    if let Some(((_, values), said)) = chosen {
+        for (k, v) in values {
+            c.set(k.clone(), *v);
+        }
+        c.set_text(SKEW_IN_FORCE, said);
+    }
     Ok(c)
 }
+
+/// The [`Current`] text key saying which skew profile was taken as in force.
+const SKEW_IN_FORCE: &str = "skew_correction.in_force";
+
+/// The [`Current`] text key saying why no skew profile could be taken as in force.
+const SKEW_AMBIGUOUS: &str = "skew_correction.ambiguous";
 
 /// The `ac, bd, ad` lengths (mm) whose `calc_skew_factor` is `factor`.
 pub fn skew_lengths(factor: f64) -> (f64, f64, f64) {
@@ -86,7 +157,7 @@ pub fn skew_lengths(factor: f64) -> (f64, f64, f64) {
 }
 
 /// What to change in Klipper (module docs).
-pub fn plan(m: &MachineErrors, current: &Current) -> Plan {
+pub fn plan(m: &MachineErrors, current: &Current) -> Result<Plan> {
     let mut p = Plan {
         title: "Klipper (mainline), mm".into(),
         ..Default::default()
@@ -94,6 +165,15 @@ pub fn plan(m: &MachineErrors, current: &Current) -> Plan {
     p.notes.extend(defaults_note(current));
     let mut set = vec![];
     let planes = [("XY", "xy_skew"), ("XZ", "xz_skew"), ("YZ", "yz_skew")];
+    if skew_factors(m).iter().any(Option::is_some) {
+        if let Some(why) = current.text(SKEW_AMBIGUOUS) {
+            return Err(Error::Usage(format!(
+                "--current: which skew profile is in force? {why}; keep only that profile in the --current file, or add the SKEW_PROFILE LOAD=<name> line of your start macro to it"
+            )));
+        }
+        p.notes
+            .extend(current.text(SKEW_IN_FORCE).map(str::to_string));
+    }
     for ((plane, key), factor) in planes.into_iter().zip(skew_factors(m)) {
         let Some((k, src)) = factor else { continue };
         let c = change(
@@ -188,7 +268,7 @@ pub fn plan(m: &MachineErrors, current: &Current) -> Plan {
             });
         }
     }
-    p
+    Ok(p)
 }
 
 #[cfg(test)]

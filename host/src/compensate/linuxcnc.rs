@@ -27,7 +27,19 @@
 //! interpolates has the measured amplitude.
 //!
 //! Joints: X, Y, Z are joints 0, 1, 2 (trivkins `coordinates=XYZ`); a gantry's second joint of an
-//! axis takes the same values. Units: mm (`[TRAJ] LINEAR_UNITS = mm`).
+//! axis takes the same values.
+//!
+//! Units: machine units, `[TRAJ] LINEAR_UNITS` (`mm`/`metric` or `inch`/`in`/`imperial`) as the
+//! `--current` file says; without it mm is assumed and the title says so. `BACKLASH`, `COMP_FILE`
+//! positions and trims, and the values in force are all in machine units; `--table-ball` and
+//! `--travel` stay in mm.
+//!
+//! A `COMP_FILE` in force (named in `--current`) makes LinuxCNC ignore `BACKLASH`: the `BACKLASH`
+//! in force is then not counted, and every change of that joint goes into a table **merged** with
+//! the one in force (read next to the `--current` file, its `COMP_FILE_TYPE` as given there,
+//! default 0): the trims in force, interpolated as LinuxCNC does, plus the change, on the union of
+//! both tables' positions. If that table cannot be read, `compensate` refuses rather than replace
+//! it.
 //!
 //! # `--current` format
 //! The INI sections and keys in force, and HAL `setp` lines, e.g.
@@ -38,8 +50,8 @@
 //! BACKLASH = 0.0
 //! setp matrixkins.C_xy 0.0
 //! ```
-//! `[AXIS_n]` (LinuxCNC 2.7) counts as `[JOINT_n]`; `COMP_FILE` in a section is noted; other
-//! sections, keys and lines are ignored.
+//! `[AXIS_n]` (LinuxCNC 2.7) counts as `[JOINT_n]`; `COMP_FILE` and `COMP_FILE_TYPE` in a section
+//! are read, as is `[TRAJ] LINEAR_UNITS`; other sections, keys and lines are ignored.
 use std::path::Path;
 
 use super::current::{key_value, number, Current};
@@ -50,10 +62,99 @@ use crate::{Error, Result};
 /// Largest number of triplets LinuxCNC takes per joint.
 pub const MAX_COMP_ENTRIES: usize = 256;
 
+/// The [`Current`] key of `[TRAJ] LINEAR_UNITS` (text `mm` or `inch`).
+pub const LINEAR_UNITS: &str = "TRAJ.LINEAR_UNITS";
+
+/// The machine units of `current`: (name, mm per unit, decimals to print), and whether they
+/// were given.
+fn machine_units(current: &Current) -> (&'static str, f64, usize, bool) {
+    match current.text(LINEAR_UNITS) {
+        Some("inch") => ("inch", 25.4, 7, true),
+        Some(_) => ("mm", 1.0, 6, true),
+        None => ("mm", 1.0, 6, false),
+    }
+}
+
+/// The comp table in force for joint `k` (named by `--current`, read next to it), as trims
+/// (nominal, forward, reverse) in mm; None if none is in force.
+fn table_in_force(
+    current: &Current,
+    k: usize,
+    mm_per_unit: f64,
+) -> Result<Option<(String, Vec<CompRow>)>> {
+    let Some(name) = current.text(&format!("JOINT_{k}.COMP_FILE")) else {
+        return Ok(None);
+    };
+    let dir = current
+        .source
+        .as_deref()
+        .and_then(Path::parent)
+        .unwrap_or(Path::new("."));
+    let file = dir.join(name);
+    let refuse = |why: String| {
+        Error::Usage(format!(
+            "joint {k} has COMP_FILE = {name} in force (--current says so), and LinuxCNC ignores BACKLASH while it is set, so the change must be merged into that table: {why}; put a copy of {name} next to the --current file (as it sits next to the INI), or remove COMP_FILE from --current if it is no longer in force"
+        ))
+    };
+    let text = std::fs::read_to_string(&file)
+        .map_err(|e| refuse(format!("{} cannot be read ({e})", file.display())))?;
+    let kind = current
+        .get(&format!("JOINT_{k}.COMP_FILE_TYPE"))
+        .unwrap_or(0.0);
+    let mut rows: Vec<CompRow> = vec![];
+    // As LinuxCNC's loader: triplets until the first line that is not three numbers.
+    for line in text.lines() {
+        let v: Vec<f64> = line
+            .split_whitespace()
+            .map_while(|w| w.parse::<f64>().ok().filter(|x| x.is_finite()))
+            .collect();
+        if v.len() != 3 || line.split_whitespace().count() != 3 {
+            break;
+        }
+        let (nominal, a, b) = (v[0], v[1], v[2]);
+        let (fwd, rev) = if kind == 0.0 {
+            (nominal - a, nominal - b)
+        } else {
+            (a, b)
+        };
+        if rows.last().is_some_and(|r| r.0 >= nominal * mm_per_unit) {
+            return Err(refuse(format!(
+                "{}: its positions are not increasing at {nominal}",
+                file.display()
+            )));
+        }
+        rows.push((nominal * mm_per_unit, fwd * mm_per_unit, rev * mm_per_unit));
+    }
+    if rows.is_empty() {
+        return Err(refuse(format!(
+            "{} has no `nominal a b` line",
+            file.display()
+        )));
+    }
+    Ok(Some((name.to_string(), rows)))
+}
+
+/// The forward and reverse trims of `table` at `x`, as LinuxCNC interpolates them (linearly,
+/// end values held beyond the table).
+fn trims_at(table: &[CompRow], x: f64) -> (f64, f64) {
+    let (first, last) = (table[0], table[table.len() - 1]);
+    if x <= first.0 {
+        return (first.1, first.2);
+    }
+    if x >= last.0 {
+        return (last.1, last.2);
+    }
+    let i = table.partition_point(|r| r.0 <= x);
+    let (a, b) = (table[i - 1], table[i]);
+    let t = (x - a.0) / (b.0 - a.0);
+    (a.1 + t * (b.1 - a.1), a.2 + t * (b.2 - a.2))
+}
+
 /// Read the `--current` format (module docs).
 pub fn parse_current(path: &Path, text: &str) -> Result<Current> {
     let mut c = Current::none();
     let mut joint: Option<usize> = None;
+    let mut traj = false;
     for (n, line) in text.lines().enumerate() {
         let t = line.trim();
         if t.is_empty() || t.starts_with('#') || t.starts_with(';') {
@@ -61,6 +162,7 @@ pub fn parse_current(path: &Path, text: &str) -> Result<Current> {
         }
         if t.starts_with('[') {
             let name = t.trim_start_matches('[').split(']').next().unwrap_or("");
+            traj = name.trim() == "TRAJ";
             joint = name
                 .strip_prefix("JOINT_")
                 .or_else(|| name.strip_prefix("AXIS_"))
@@ -80,6 +182,26 @@ pub fn parse_current(path: &Path, text: &str) -> Result<Current> {
             }
             continue;
         }
+        if traj {
+            if let Some((key, value, col)) = key_value(line) {
+                if key == "LINEAR_UNITS" {
+                    let unit = match value.to_ascii_lowercase().as_str() {
+                        "mm" | "metric" => "mm",
+                        "inch" | "in" | "imperial" => "inch",
+                        _ => {
+                            return Err(Error::input(
+                                path,
+                                n + 1,
+                                col,
+                                format!("LINEAR_UNITS: `{value}` is not a unit LinuxCNC knows; use mm or inch as in the machine's INI"),
+                            ))
+                        }
+                    };
+                    c.set_text(LINEAR_UNITS, unit);
+                }
+            }
+            continue;
+        }
         let (Some(j), Some((key, value, col))) = (joint, key_value(line)) else {
             continue;
         };
@@ -89,6 +211,18 @@ pub fn parse_current(path: &Path, text: &str) -> Result<Current> {
                 c.set(format!("JOINT_{j}.BACKLASH"), v);
             }
             "COMP_FILE" => c.set_text(format!("JOINT_{j}.COMP_FILE"), value),
+            "COMP_FILE_TYPE" => {
+                let v = number(path, n + 1, col, &value, "COMP_FILE_TYPE")?;
+                if v != 0.0 && v != 1.0 {
+                    return Err(Error::input(
+                        path,
+                        n + 1,
+                        col,
+                        format!("COMP_FILE_TYPE: `{value}` should be 0 or 1"),
+                    ));
+                }
+                c.set(format!("JOINT_{j}.COMP_FILE_TYPE"), v);
+            }
             _ => {}
         }
     }
@@ -159,8 +293,16 @@ fn comp_table(
 
 /// What to change in LinuxCNC (module docs).
 pub fn plan(m: &MachineErrors, current: &Current, opts: &Options) -> Result<Plan> {
+    let (unit, u, decimals, units_given) = machine_units(current);
     let mut p = Plan {
-        title: "LinuxCNC 2.9 (trivkins), joints X=0 Y=1 Z=2, machine units mm".into(),
+        title: format!(
+            "LinuxCNC 2.9 (trivkins), joints X=0 Y=1 Z=2, machine units {unit}{}",
+            if units_given {
+                ""
+            } else {
+                " (assumed: give [TRAJ] LINEAR_UNITS in --current)"
+            }
+        ),
         ..Default::default()
     };
     p.notes.extend(defaults_note(current));
@@ -168,19 +310,81 @@ pub fn plan(m: &MachineErrors, current: &Current, opts: &Options) -> Result<Plan
     for axis in Axis::ALL {
         let k = axis.index();
         let key = format!("JOINT_{k}.BACKLASH");
-        let cur = current.get(&key);
-        let b0 = cur.unwrap_or(0.0);
-        let delta = m.backlash_um[k].as_ref().map_or(0.0, |b| 1e-3 * b.value);
+        let old_table = table_in_force(current, k, u)?;
+        let cur_backlash = current.get(&key);
+        if let (Some((name, _)), Some(b)) = (&old_table, cur_backlash) {
+            p.notes.push(format!(
+                "joint {k}: BACKLASH = {b} in force is ignored by LinuxCNC while COMP_FILE = {name} is set, so it is not counted"
+            ));
+        }
+        // The backlash in force (mm): BACKLASH, or the table's forward − reverse trim.
+        let (cur_mu, b0_mm) = match &old_table {
+            Some((_, rows)) => {
+                let mean = rows.iter().map(|r| r.1 - r.2).sum::<f64>() / rows.len() as f64;
+                (Some(mean / u), mean)
+            }
+            None => (cur_backlash, cur_backlash.unwrap_or(0.0) * u),
+        };
+        let delta_mm = m.backlash_um[k].as_ref().map_or(0.0, |b| 1e-3 * b.value);
         let because_backlash = m.backlash_um[k].as_ref().map(|b| b.text());
-        if m.position_dependent(axis) {
-            let b_new = b0 + delta;
-            let (rows, note) = comp_table(m, axis, b_new, opts)?;
+        let to_change = m.position_dependent(axis) || because_backlash.is_some();
+        if m.position_dependent(axis) || (old_table.is_some() && to_change) {
             let name = format!("{}.comp", axis.letter());
+            let rows: Vec<CompRow>;
+            let note;
+            match &old_table {
+                Some((old_name, old)) => {
+                    // The trims in force plus the change, on the union of both tables' positions.
+                    let (ours, n) = if m.position_dependent(axis) {
+                        comp_table(m, axis, delta_mm, opts)?
+                    } else {
+                        (vec![(0.0, 0.5 * delta_mm, -0.5 * delta_mm)], None)
+                    };
+                    note = n;
+                    let mut xs: Vec<f64> = old.iter().map(|r| r.0).collect();
+                    if m.position_dependent(axis) {
+                        xs.extend(ours.iter().map(|r| r.0));
+                    }
+                    xs.sort_by(f64::total_cmp);
+                    xs.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+                    if xs.len() > MAX_COMP_ENTRIES {
+                        return Err(Error::Usage(format!(
+                            "joint {k}: merging {old_name} ({} entries) with the new trims needs {} entries, more than LinuxCNC's {MAX_COMP_ENTRIES}: give --travel {}=MIN:MAX within {old_name}'s span, or thin {old_name}",
+                            old.len(),
+                            xs.len(),
+                            axis.letter()
+                        )));
+                    }
+                    rows = xs
+                        .into_iter()
+                        .map(|x| {
+                            let (f0, r0) = trims_at(old, x);
+                            let (f1, r1) = trims_at(&ours, x);
+                            (x, f0 + f1, r0 + r1)
+                        })
+                        .collect();
+                    p.notes.push(format!(
+                        "joint {k}: {name} is {old_name} in force ({} entries) with the change added at the same positions, not a replacement of it (LinuxCNC ignores BACKLASH while a COMP_FILE is set)",
+                        old.len()
+                    ));
+                }
+                None => {
+                    let (r, n) = comp_table(m, axis, b0_mm + delta_mm, opts)?;
+                    rows = r;
+                    note = n;
+                }
+            }
             let mut text = String::new();
-            for (nominal, fwd, rev) in &rows {
+            for row in &rows {
+                let (nominal, fwd, rev) = (row.0 / u, row.1 / u, row.2 / u);
                 let line = match opts.comp_file_type {
-                    0 => format!("{nominal:.6} {:.7} {:.7}\n", nominal - fwd, nominal - rev),
-                    _ => format!("{nominal:.6} {fwd:.7} {rev:.7}\n"),
+                    0 => format!(
+                        "{nominal:.6} {:.d$} {:.d$}\n",
+                        nominal - fwd,
+                        nominal - rev,
+                        d = decimals + 1
+                    ),
+                    _ => format!("{nominal:.6} {fwd:.d$} {rev:.d$}\n", d = decimals + 1),
                 };
                 text.push_str(&line);
             }
@@ -210,41 +414,41 @@ pub fn plan(m: &MachineErrors, current: &Current, opts: &Options) -> Result<Plan
                 )),
             });
             if let Some(because) = because_backlash.clone().or_else(|| {
-                (b0 != 0.0).then(|| "the BACKLASH in force, which COMP_FILE overrides".into())
+                (old_table.is_none() && b0_mm != 0.0)
+                    .then(|| "the BACKLASH in force, which COMP_FILE overrides".into())
             }) {
                 p.changes.push(change(
                     because,
                     format!("[JOINT_{k}] backlash in {name} (forward − reverse trim)"),
-                    "mm",
-                    cur,
+                    unit,
+                    cur_mu,
                     0.0,
-                    delta,
-                    6,
+                    delta_mm / u,
+                    decimals,
                 ));
             }
             ini.push(format!("[JOINT_{k}]"));
             ini.push(format!("COMP_FILE = {name}"));
             ini.push(format!("COMP_FILE_TYPE = {}", opts.comp_file_type));
             p.files.push((name.clone(), text));
-            p.notes.push(format!(
-                "joint {k}: BACKLASH is ignored while COMP_FILE is set, so {name}'s forward − reverse difference is the backlash compensation ({b_new:.6} mm; give a BACKLASH in force with --current to keep it); the file has no comments because LinuxCNC stops reading at the first line that is not three numbers"
-            ));
-            if opts.placement.table_ball_mm[k].is_none() {
+            if old_table.is_none() {
+                p.notes.push(format!(
+                    "joint {k}: BACKLASH is ignored while COMP_FILE is set, so {name}'s forward − reverse difference is the backlash compensation ({:.d$} {unit}; give a BACKLASH in force with --current to keep it); the file has no comments because LinuxCNC stops reading at the first line that is not three numbers",
+                    (b0_mm + delta_mm) / u,
+                    d = decimals
+                ));
+            }
+            if m.position_dependent(axis) && opts.placement.table_ball_mm[k].is_none() {
                 p.notes.push(format!(
                     "{name}: positions assume the table ball at machine {} = 0; give --table-ball {}=POSITION (its machine coordinate, G53) so the table sits where the errors were measured",
                     axis.letter().to_ascii_uppercase(),
                     axis.letter()
                 ));
             }
-            if opts.placement.travel_mm[k].is_none() {
+            if m.position_dependent(axis) && opts.placement.travel_mm[k].is_none() {
                 p.notes.push(format!(
                     "{name} spans the tested circle only; a scale error is linear, so --travel {}=MIN:MAX extends it over the axis",
                     axis.letter()
-                ));
-            }
-            if let Some(old) = current.text(&format!("JOINT_{k}.COMP_FILE")) {
-                p.notes.push(format!(
-                    "joint {k} already has COMP_FILE = {old}: what the test showed is what remains with it, so add these trims to its values at the same positions rather than replacing it"
                 ));
             }
             p.notes.extend(note);
@@ -252,11 +456,11 @@ pub fn plan(m: &MachineErrors, current: &Current, opts: &Options) -> Result<Plan
             let c = change(
                 b.text(),
                 format!("[JOINT_{k}] BACKLASH"),
-                "mm",
-                cur,
+                unit,
+                cur_mu,
                 0.0,
-                delta,
-                6,
+                delta_mm / u,
+                decimals,
             );
             if c.new < 0.0 {
                 p.notes.push(format!(
@@ -264,7 +468,7 @@ pub fn plan(m: &MachineErrors, current: &Current, opts: &Options) -> Result<Plan
                 ));
             }
             ini.push(format!("[JOINT_{k}]"));
-            ini.push(format!("BACKLASH = {:.6}", c.new));
+            ini.push(format!("BACKLASH = {:.d$}", c.new, d = decimals));
             p.changes.push(c);
         }
     }

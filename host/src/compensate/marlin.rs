@@ -17,7 +17,11 @@
 //!
 //! # `--current` format
 //! The `M425`, `M852` and `M92` lines in force, as `M503` prints them (`echo:` prefixes and
-//! comments are fine), e.g.
+//! comments are fine). `M503` prints two decimals (`M852` six): a value in force rounded so
+//! makes the new total wrong by up to half its last digit (±5 µm of `M425` backlash, ±62.5 µm/m
+//! of scale through `M92 X80.00`), which the output says with where to read the exact values
+//! (what was sent with `M92`/`M425`/`M852` before `M500`, else `Configuration.h` /
+//! `Configuration_adv.h`: Marlin has no command that prints the EEPROM with more digits). E.g.
 //! ```text
 //! echo:  M92 X80.00 Y80.00 Z400.00 E93.00
 //! echo:  M425 F1.00 S0.00 X0.01 Y0.01 Z0.00
@@ -54,10 +58,40 @@ pub fn parse_current(path: &Path, text: &str) -> Result<Current> {
             };
             let key = format!("{code}.{letter}");
             let v = number(path, n + 1, *col, value, &key)?;
+            let decimals = value.trim().split_once('.').map_or(0, |(_, f)| {
+                f.chars().take_while(char::is_ascii_digit).count()
+            });
+            if !value.contains(['e', 'E']) {
+                c.set_decimals(key.clone(), decimals);
+            }
             c.set(key, v);
         }
     }
     Ok(c)
+}
+
+/// How far a value in force may be from what Marlin holds, given the decimals it was written
+/// with (`M503` rounds): half its last digit, as the error it makes in the new total, in µm
+/// (`M425` distances) or µm/m (`M852` factors, `M92` steps/mm); None when it is written exactly
+/// enough (within 1 µm or µm/m) or its decimals are not known.
+fn rounding(current: &Current, key: &str) -> Option<String> {
+    let d = current.decimals(key)?;
+    let v = current.get(key)?;
+    let half = 0.5 * 10f64.powi(-(d as i32));
+    let (err, unit) = match key.split('.').next()? {
+        "M425" if key == "M425.F" => return None,
+        "M425" => (
+            1e3 * half * current.get("M425.F").unwrap_or(1.0).abs().min(1.0),
+            "µm",
+        ),
+        "M852" => (1e6 * half, "µm/m"),
+        "M92" if v != 0.0 => (1e6 * half / v.abs(), "µm/m"),
+        _ => return None,
+    };
+    (err >= 1.0).then(|| {
+        let (code, letter) = key.split_once('.').unwrap_or((key, ""));
+        format!("{code} {letter}{v:.d$} (±{half} → ±{err:.1} {unit})")
+    })
 }
 
 /// What to change in Marlin (module docs).
@@ -68,6 +102,8 @@ pub fn plan(m: &MachineErrors, current: &Current) -> Plan {
     };
     p.notes.extend(defaults_note(current));
     let mut lines = vec![];
+    // Values in force a change is built on, for the rounding note.
+    let mut used: Vec<String> = vec![];
 
     // Backlash: the effective distance is F·X.
     let f_cur = current.get("M425.F");
@@ -97,6 +133,7 @@ pub fn plan(m: &MachineErrors, current: &Current) -> Plan {
             });
             continue;
         }
+        used.push(key.clone());
         let c = change(
             b.text(),
             format!("M425 {l}"),
@@ -134,6 +171,7 @@ pub fn plan(m: &MachineErrors, current: &Current) -> Plan {
     let mut skew = vec![];
     for ((word, plane, key), factor) in planes.into_iter().zip(skew_factors(m)) {
         let Some((k, src)) = factor else { continue };
+        used.push(key.to_string());
         let c = change(
             src.text(),
             format!("M852 {word} ({plane} skew factor)"),
@@ -161,6 +199,7 @@ pub fn plan(m: &MachineErrors, current: &Current) -> Plan {
         let factor = 1.0 / (1.0 + eps);
         match current.get(&format!("M92.{l}")) {
             Some(cur) => {
+                used.push(format!("M92.{l}"));
                 let c = change(src.text(), format!("M92 {l}"), "steps/mm", Some(cur), 0.0, cur * (factor - 1.0), 6);
                 steps.push(format!("{l}{:.6}", c.new));
                 p.changes.push(c);
@@ -181,6 +220,13 @@ pub fn plan(m: &MachineErrors, current: &Current) -> Plan {
     }
     if !steps.is_empty() {
         lines.push(format!("M92 {}", steps.join(" ")));
+    }
+    let rough: Vec<String> = used.iter().filter_map(|k| rounding(current, k)).collect();
+    if !rough.is_empty() {
+        p.notes.push(format!(
+            "the values in force are rounded as M503 prints them: {}; the new totals may be wrong by as much. Marlin has no command that prints them with more digits (the EEPROM holds them exactly): give --current the values as last sent with M92/M425/M852 before M500, or, if never changed, as in Configuration.h (DEFAULT_AXIS_STEPS_PER_UNIT) and Configuration_adv.h (BACKLASH_DISTANCE_MM, BACKLASH_CORRECTION)",
+            rough.join(", ")
+        ));
     }
     if !lines.is_empty() {
         lines.push("M500".into());

@@ -96,6 +96,56 @@ impl Controller {
     }
 }
 
+impl Current {
+    /// Read `path` (`--current`) in the format of `controller`; a file with nothing of this
+    /// controller's in it is an input error that names the controller it reads as, if any.
+    pub fn read(path: &std::path::Path, controller: Controller) -> Result<Current> {
+        let text = crate::table::read_text(path)?;
+        let mut c = parse_current(path, &text, controller)?;
+        if !c.has_values() && has_content(&text) {
+            // Nothing of this controller's in a file with something in it: another format.
+            let other = Controller::ALL.iter().copied().find(|&o| {
+                o != controller && parse_current(path, &text, o).is_ok_and(|c| c.has_values())
+            });
+            return Err(Error::input(
+                path,
+                1,
+                0,
+                format!(
+                    "no {} setting in this file{}; give --current the values in force in the format of --controller {}",
+                    controller.name(),
+                    other.map_or(String::new(), |o| format!(
+                        " (it reads as a {} file: is --controller {} meant?)",
+                        o.name(),
+                        o.name()
+                    )),
+                    controller.name()
+                ),
+            ));
+        }
+        c.source = Some(path.to_path_buf());
+        Ok(c)
+    }
+}
+
+/// `text` read in the `--current` format of `controller`.
+fn parse_current(path: &std::path::Path, text: &str, controller: Controller) -> Result<Current> {
+    match controller {
+        Controller::LinuxCnc => linuxcnc::parse_current(path, text),
+        Controller::GrblHal => grblhal::parse_current(path, text),
+        Controller::Marlin => marlin::parse_current(path, text),
+        Controller::Klipper => klipper::parse_current(path, text),
+    }
+}
+
+/// Whether `text` has a line that is neither blank nor a comment (`#`, `;`).
+fn has_content(text: &str) -> bool {
+    text.lines().any(|l| {
+        let t = l.trim();
+        !t.is_empty() && !t.starts_with('#') && !t.starts_with(';')
+    })
+}
+
 /// The standard-error multiple below which an effect is left alone.
 pub const SIGNIFICANT_SIGMAS: f64 = 3.0;
 
@@ -354,7 +404,7 @@ pub fn plan(doc: &DiagnosisDoc, current: &Current, opts: &Options) -> Result<Pla
         Controller::LinuxCnc => linuxcnc::plan(&m, current, opts)?,
         Controller::GrblHal => grblhal::plan(&m, current),
         Controller::Marlin => marlin::plan(&m, current),
-        Controller::Klipper => klipper::plan(&m, current),
+        Controller::Klipper => klipper::plan(&m, current)?,
     };
     for t in &m.tuning {
         p.cannot.push(tuning_advice(t, opts.controller));
@@ -718,6 +768,189 @@ mod tests {
             assert!(e.to_string().contains(want), "{ctl:?}: {e}");
             assert_eq!(e.exit_code(), 2);
         }
+    }
+
+    #[test]
+    fn linuxcnc_in_inches_reads_and_writes_inches() {
+        let d = doc(&[
+            ("backlash_y", 8.0, 0.01, &[("b_um", 8.0)]),
+            ("scale_x", 100.0, 0.1, &[("a_um_per_m", 100.0)]),
+        ]);
+        let inch = current(
+            Controller::LinuxCnc,
+            "[TRAJ]\nLINEAR_UNITS = inch\n[JOINT_1]\nBACKLASH = 0.0001\n",
+        );
+        let mut o = opts(Controller::LinuxCnc);
+        o.placement.table_ball_mm = [Some(254.0), Some(0.0), None];
+        let p = plan(&d, &inch, &o).unwrap();
+        assert!(p.title.contains("machine units inch"), "{}", p.title);
+        // 0.0001 in in force (2.54 µm) + 8 µm = 0.0001 + 0.000314961 in.
+        let c = p
+            .changes
+            .iter()
+            .find(|c| c.setting == "[JOINT_1] BACKLASH")
+            .unwrap();
+        assert_eq!((c.unit.as_str(), c.current), ("inch", 0.0001));
+        assert!((c.new - (0.0001 + 0.008 / 25.4)).abs() < 1e-12, "{c:?}");
+        assert!(p.blocks[0]
+            .lines
+            .contains(&"BACKLASH = 0.0004150".to_string()));
+        // The comp table: positions and trims in inches; the table ball at 10 in.
+        let (_, table) = &p.files[0];
+        let first: Vec<f64> = table
+            .lines()
+            .next()
+            .unwrap()
+            .split(' ')
+            .map(|w| w.parse().unwrap())
+            .collect();
+        let x_mm = first[0] * 25.4;
+        assert!((x_mm - 204.0).abs() < 1e-4, "{first:?}");
+        let want_in = -1e-4 * (x_mm - 254.0) / 25.4;
+        assert!(
+            (first[1] - want_in).abs() < 1e-7 && (first[2] - want_in).abs() < 1e-7,
+            "{first:?}"
+        );
+        // Without LINEAR_UNITS: mm, and the title says it is assumed.
+        let p = plan(&d, &Current::none(), &o).unwrap();
+        assert!(p.title.contains("machine units mm (assumed"), "{}", p.title);
+        let bad = tempfile::tempdir().unwrap();
+        let f = bad.path().join("c.ini");
+        std::fs::write(&f, "[TRAJ]\nLINEAR_UNITS = furlong\n").unwrap();
+        let e = Current::read(&f, Controller::LinuxCnc).unwrap_err();
+        assert!(e.to_string().contains(":2:16: LINEAR_UNITS"), "{e}");
+    }
+
+    #[test]
+    fn linuxcnc_comp_file_in_force_is_merged_and_its_backlash_setting_not_counted() {
+        let d = doc(&[("backlash_x", 4.0, 0.01, &[("b_um", 4.0)])]);
+        let dir = tempfile::tempdir().unwrap();
+        let ini = dir.path().join("mill.ini");
+        std::fs::write(
+            &ini,
+            "[JOINT_0]\nBACKLASH = 0.010\nCOMP_FILE = old.comp\nCOMP_FILE_TYPE = 1\n",
+        )
+        .unwrap();
+        let o = opts(Controller::LinuxCnc);
+        // The table missing: refuse, never replace it unseen.
+        let e = plan(&d, &Current::read(&ini, Controller::LinuxCnc).unwrap(), &o).unwrap_err();
+        assert!(e.to_string().contains("merged into that table"), "{e}");
+        assert_eq!(e.exit_code(), 2);
+        // 2 µm of backlash in force through the table, and a trim that grows with X.
+        std::fs::write(
+            dir.path().join("old.comp"),
+            "-100 0.001 -0.001\n100 0.003 0.001\n",
+        )
+        .unwrap();
+        let p = plan(&d, &Current::read(&ini, Controller::LinuxCnc).unwrap(), &o).unwrap();
+        assert!(
+            p.blocks
+                .iter()
+                .all(|b| b.lines.iter().all(|l| !l.starts_with("BACKLASH"))),
+            "{:?}",
+            p.blocks
+        );
+        let (name, table) = &p.files[0];
+        assert_eq!(name, "x.comp");
+        let rows: Vec<Vec<f64>> = table
+            .lines()
+            .map(|l| l.split(' ').map(|w| w.parse().unwrap()).collect())
+            .collect();
+        let want = [[-100.0, 0.003, -0.003], [100.0, 0.005, -0.001]];
+        assert_eq!(rows.len(), 2, "{table}");
+        for (r, w) in rows.iter().zip(want) {
+            for (a, b) in r.iter().zip(w) {
+                assert!((a - b).abs() < 1e-9, "{table}");
+            }
+        }
+        let c = p
+            .changes
+            .iter()
+            .find(|c| c.setting.contains("backlash in x.comp"))
+            .unwrap();
+        assert!(
+            (c.current - 0.002).abs() < 1e-12 && (c.new - 0.006).abs() < 1e-12,
+            "{c:?}"
+        );
+        assert!(p
+            .notes
+            .iter()
+            .any(|n| n.contains("BACKLASH = 0.01 in force is ignored")));
+        assert!(p.notes.iter().any(|n| n.contains("not a replacement")));
+    }
+
+    #[test]
+    fn marlin_values_rounded_by_m503_are_warned_with_their_error_and_where_to_read_them() {
+        let d = doc(&[
+            ("backlash_x", 8.0, 0.01, &[("b_um", 8.0)]),
+            ("scale_x", 100.0, 0.1, &[("a_um_per_m", 100.0)]),
+        ]);
+        let m503 = current(
+            Controller::Marlin,
+            "echo:  M92 X80.00 Y80.00 Z400.00 E93.00\necho:  M425 F1.00 S0.00 X0.01 Y0.01 Z0.00\n",
+        );
+        let p = plan(&d, &m503, &opts(Controller::Marlin)).unwrap();
+        let note = p
+            .notes
+            .iter()
+            .find(|n| n.contains("rounded as M503 prints them"))
+            .unwrap_or_else(|| panic!("{:?}", p.notes));
+        // X0.01: ±0.005 mm = ±5 µm; X80.00 steps/mm: ±0.005/80 = ±62.5 µm/m.
+        assert!(note.contains("M425 X0.01 (±0.005 → ±5.0 µm)"), "{note}");
+        assert!(note.contains("M92 X80.00 (±0.005 → ±62.5 µm/m)"), "{note}");
+        assert!(
+            !note.contains("Y80") && !note.contains("M425 Y"),
+            "only values used: {note}"
+        );
+        assert!(
+            note.contains("Configuration.h") && note.contains("EEPROM"),
+            "{note}"
+        );
+        // Exact values given: no warning.
+        let exact = current(Controller::Marlin, "M92 X80.0125\nM425 F1 X0.0104\n");
+        let p = plan(&d, &exact, &opts(Controller::Marlin)).unwrap();
+        assert!(p.notes.iter().all(|n| !n.contains("M503")), "{:?}", p.notes);
+    }
+
+    #[test]
+    fn klipper_of_several_skew_profiles_takes_the_loaded_one_or_asks() {
+        let d = doc(&[("squareness_xy", 20.0, 0.05, &[("s_um_per_m", 20.0)])]);
+        let profiles = "#*# [skew_correction cold]\n#*# xy_skew = 0.0001\n#*# [skew_correction hot]\n#*# xy_skew = 0.0003\n";
+        // No LOAD line: refuse, listing the profiles.
+        let c = current(Controller::Klipper, profiles);
+        let e = plan(&d, &c, &opts(Controller::Klipper)).unwrap_err();
+        let msg = e.to_string();
+        assert!(
+            msg.contains("2 skew profiles (cold, hot)") && msg.contains("SKEW_PROFILE LOAD="),
+            "{msg}"
+        );
+        assert_eq!(e.exit_code(), 2);
+        // The start macro loads the first one: it is in force, not the last.
+        let c = current(
+            Controller::Klipper,
+            &format!("[gcode_macro START_PRINT]\ngcode:\n  SKEW_PROFILE LOAD=cold\n{profiles}"),
+        );
+        let p = plan(&d, &c, &opts(Controller::Klipper)).unwrap();
+        assert_eq!(p.changes[0].current, 0.0001);
+        assert!(
+            (p.changes[0].new - (0.0001 + 20e-6)).abs() < 1e-15,
+            "{:?}",
+            p.changes[0]
+        );
+        assert!(
+            p.notes
+                .iter()
+                .any(|n| n.contains("cold is taken as in force")),
+            "{:?}",
+            p.notes
+        );
+        // A LOAD of a profile the file does not have: refuse.
+        let c = current(
+            Controller::Klipper,
+            &format!("SKEW_PROFILE LOAD=warm\n{profiles}"),
+        );
+        let e = plan(&d, &c, &opts(Controller::Klipper)).unwrap_err();
+        assert!(e.to_string().contains("LOAD=warm names no profile"), "{e}");
     }
 
     #[test]

@@ -15,6 +15,10 @@
 //! - Runs are comparable when their conditions match: plane, circles (radius and height within
 //!   0.5 mm), feed (within 2 %), test plan and instrument calibration (equal as JSON). The trend
 //!   ([`trend`]) compares every run with the latest and says what differs.
+//! - The compensation in force: a run keeps what its diagnosis states (`jdbb diagnose
+//!   --compensation`, column `runs.compensation`), and `jdbb history comp` files a change on its
+//!   own (table `compensations`: date, text, source; migration 4). The trend marks both
+//!   ([`trend::compensation_marks`]) and fits its slope only after the last mark.
 //!
 //! May use: [`crate::circular::document`] (the diagnosis file), rusqlite, plotters.
 use std::path::{Path, PathBuf};
@@ -156,6 +160,20 @@ pub struct Run {
     pub pass: Option<bool>,
     /// Machine effects (not the set-up), in the diagnosis' order.
     pub effects: Vec<EffectRow>,
+    /// The compensation in force during the run, as the diagnosis says (`jdbb diagnose
+    /// --compensation`); None if it does not.
+    pub compensation: Option<String>,
+}
+
+/// A change of a machine's compensation filed with `jdbb history comp`: from `date_utc` on,
+/// `text` is in force.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CompensationEvent {
+    pub id: i64,
+    pub date_utc: String,
+    pub text: String,
+    /// The file the text came from, if any.
+    pub source: Option<String>,
 }
 
 /// The outcome of [`History::add`].
@@ -392,8 +410,8 @@ impl History {
         }
         tx.execute(
             "INSERT INTO runs (machine_id, date_utc, added_utc, source, digest, samples, conditions,
-                 g_um, h_um, final_rms_um, tolerance_um, pass, diagnosis, jdbb_version)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14)",
+                 g_um, h_um, final_rms_um, tolerance_um, pass, diagnosis, jdbb_version, compensation)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)",
             params![
                 machine_id,
                 date,
@@ -409,6 +427,7 @@ impl History {
                 doc.tolerance.as_ref().map(|t| t.pass),
                 text,
                 env!("CARGO_PKG_VERSION"),
+                doc.compensation.as_ref().map(|c| c.text.as_str()),
             ],
         )
         .map_err(&db)?;
@@ -448,6 +467,12 @@ impl History {
     /// The runs of `machine`, oldest first; an unknown machine is a usage error naming the
     /// known ones.
     pub fn runs(&self, machine: &str) -> Result<Vec<Run>> {
+        let machine_id = self.machine_id(machine)?;
+        self.runs_of(machine_id)
+    }
+
+    /// The id of `machine`; an unknown machine is a usage error naming the known ones.
+    fn machine_id(&self, machine: &str) -> Result<i64> {
         let id: Option<i64> = self
             .conn
             .query_row(
@@ -469,11 +494,65 @@ impl History {
                 }
             )));
         };
+        Ok(machine_id)
+    }
+
+    /// File a compensation change of `machine` (which must have runs): from `date_utc` on,
+    /// `text` (read from `source`, if a file) is in force. Returns the event's id.
+    pub fn add_compensation(
+        &mut self,
+        machine: &str,
+        date_utc: &str,
+        text: &str,
+        source: Option<&str>,
+    ) -> Result<i64> {
+        if text.trim().is_empty() {
+            return Err(Error::Usage(
+                "the compensation is empty: give what was set (--text TEXT or --file FILE)".into(),
+            ));
+        }
+        let machine_id = self.machine_id(machine)?;
+        self.conn
+            .execute(
+                "INSERT INTO compensations (machine_id, date_utc, added_utc, text, source)
+                 VALUES (?1, ?2, ?3, ?4, ?5)",
+                params![machine_id, date_utc, crate::dates::now_utc(), text, source],
+            )
+            .map_err(self.db())?;
+        Ok(self.conn.last_insert_rowid())
+    }
+
+    /// The compensation changes filed for `machine`, oldest first.
+    pub fn compensations(&self, machine: &str) -> Result<Vec<CompensationEvent>> {
+        let machine_id = self.machine_id(machine)?;
+        let mut st = self
+            .conn
+            .prepare(
+                "SELECT id, date_utc, text, source FROM compensations WHERE machine_id = ?1
+                 ORDER BY date_utc, id",
+            )
+            .map_err(self.db())?;
+        let rows = st
+            .query_map(params![machine_id], |r| {
+                Ok(CompensationEvent {
+                    id: r.get(0)?,
+                    date_utc: r.get(1)?,
+                    text: r.get(2)?,
+                    source: r.get(3)?,
+                })
+            })
+            .map_err(self.db())?;
+        rows.collect::<rusqlite::Result<Vec<_>>>()
+            .map_err(self.db())
+    }
+
+    /// The runs of the machine `machine_id`, oldest first.
+    fn runs_of(&self, machine_id: i64) -> Result<Vec<Run>> {
         let mut st = self
             .conn
             .prepare(
                 "SELECT id, date_utc, added_utc, source, samples, conditions, g_um, h_um,
-                        final_rms_um, tolerance_um, pass
+                        final_rms_um, tolerance_um, pass, compensation
                  FROM runs WHERE machine_id = ?1 ORDER BY date_utc, id",
             )
             .map_err(self.db())?;
@@ -493,6 +572,7 @@ impl History {
                     tolerance_um: r.get(9)?,
                     pass: r.get(10)?,
                     effects: vec![],
+                    compensation: r.get(11)?,
                 })
             })
             .map_err(self.db())?;
@@ -689,7 +769,7 @@ mod tests {
             }
         }
         let h = History::open(&path).unwrap();
-        assert_eq!(h.version().unwrap(), 3);
+        assert_eq!(h.version().unwrap(), schema::latest());
         let runs = h.runs("mill").unwrap();
         let value = |n: &str| runs[0].effects.iter().find(|e| e.name == n).unwrap().value;
         assert_eq!(

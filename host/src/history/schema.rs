@@ -57,6 +57,20 @@ pub const MIGRATIONS: &[Migration] = &[
     ),
     // 3: the signs of the trade (diagnosis format 2): see [`to_format_2`].
     Migration::Code(to_format_2),
+    // 4: the compensation in force during a run (the diagnosis' `compensation.text`), and
+    // compensation changes filed on their own (`jdbb history comp`).
+    Migration::Sql(
+        "ALTER TABLE runs ADD COLUMN compensation TEXT;
+    CREATE TABLE compensations (
+        id INTEGER PRIMARY KEY,
+        machine_id INTEGER NOT NULL REFERENCES machines(id),
+        date_utc TEXT NOT NULL,
+        added_utc TEXT NOT NULL,
+        text TEXT NOT NULL,
+        source TEXT
+    );
+    CREATE INDEX compensations_by_machine_date ON compensations (machine_id, date_utc);",
+    ),
 ];
 
 /// Migration 3: runs stored before diagnosis format 2 keep their meaning under its signs.

@@ -1,9 +1,24 @@
 //! The trend of a machine's effects over its runs: each effect's value ± σ per run, whether the
 //! run is comparable with the latest (and what differs if not), the change between the first and
-//! the last comparable run; and the same as an SVG plot.
+//! the last comparable run, the slope per month with its σ; and the same as an SVG plot and a
+//! CSV file. Instead of the effects, the circular deviation G or the hysteresis H of each run
+//! ([`Figure`]).
 //!
 //! A run in which an effect was not selected has no value for it: the effect was below what that
 //! test could detect (shown as `not found`), which is not the same as zero.
+//!
+//! # Compensation changes
+//! A change of the machine's compensation changes what the test sees, so the trend marks it
+//! ([`Mark`]): where a `jdbb history comp` event was filed, and between two runs whose
+//! diagnoses state different compensations in force (`jdbb diagnose --compensation`). The slope
+//! is fitted over the comparable runs **since the last mark** only; the text, the plot (a dashed
+//! vertical line) and the CSV (`compensation_changed`) show the marks.
+//!
+//! # Slope
+//! Least squares of value against time (months of 30.4375 days) over the comparable runs that
+//! found the effect since the last mark, weighted by 1/σ² where every run has a σ. Its σ is the
+//! fit's, scaled up by √(χ²/(n − 2)) when the runs scatter more than their σ say (n ≥ 3); without
+//! σ per run (G, H) it is the residual scatter's, which needs 3 runs.
 use std::fmt::Write;
 use std::path::Path;
 
@@ -11,7 +26,7 @@ use plotters::prelude::*;
 use time::format_description::well_known::Rfc3339;
 use time::OffsetDateTime;
 
-use super::Run;
+use super::{CompensationEvent, Run};
 use crate::units::{format_estimate, format_to, human};
 use crate::{Error, Result};
 
@@ -22,8 +37,22 @@ pub struct Point {
     pub date_utc: String,
     pub value: Option<f64>,
     pub sigma: Option<f64>,
+    /// Where the value has no σ of its own (G, H): the run's noise (its residual RMS, µm), the
+    /// digits it is shown to.
+    pub noise: Option<f64>,
     /// What differs from the latest run (empty: comparable).
     pub differences: Vec<String>,
+}
+
+impl Point {
+    /// `value ± σ`, or the value to its noise's digits, or `not found`.
+    fn text(&self) -> String {
+        match (self.value, self.sigma, self.noise) {
+            (None, _, _) => "not found".into(),
+            (Some(v), None, Some(n)) => format_to(v, n),
+            (Some(v), s, _) => format_estimate(v, s),
+        }
+    }
 }
 
 /// One effect over the runs.
@@ -55,6 +84,187 @@ impl EffectTrend {
             sigma,
             days(&b.date_utc)? - days(&a.date_utc)?,
         ))
+    }
+}
+
+/// Days in the month of a slope (a mean Gregorian month).
+pub const DAYS_PER_MONTH: f64 = 30.4375;
+
+/// A figure of the whole run to trend instead of the effects (`--figure`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Figure {
+    /// The circular deviation G (the largest minimum-zone G of a circle and direction).
+    G,
+    /// The hysteresis H (the largest of a circle).
+    H,
+}
+
+impl Figure {
+    /// `g` or `h`, any case; the error says what to give.
+    pub fn parse(s: &str) -> Result<Figure> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "g" => Ok(Figure::G),
+            "h" => Ok(Figure::H),
+            _ => Err(Error::Usage(format!(
+                "--figure {s}: give g (circular deviation G) or h (hysteresis H)"
+            ))),
+        }
+    }
+
+    /// The name a trend of it carries (the diagnosis JSON's, without the unit).
+    pub fn name(self) -> &'static str {
+        match self {
+            Figure::G => "circular_deviation_g",
+            Figure::H => "hysteresis_h",
+        }
+    }
+}
+
+/// The trend of G or H over `runs` (oldest first): σ per run is not known (its digits are the
+/// run's noise).
+pub fn figure_trend(runs: &[Run], figure: Figure) -> Vec<EffectTrend> {
+    let Some(latest) = runs.last() else {
+        return vec![];
+    };
+    vec![EffectTrend {
+        name: figure.name().into(),
+        unit: "um".into(),
+        points: runs
+            .iter()
+            .map(|r| Point {
+                run_id: r.id,
+                date_utc: r.date_utc.clone(),
+                value: match figure {
+                    Figure::G => r.g_um,
+                    Figure::H => r.h_um,
+                },
+                sigma: None,
+                noise: r.final_rms_um,
+                differences: r.conditions.differences(&latest.conditions),
+            })
+            .collect(),
+    }]
+}
+
+/// A change of the compensation in force (module docs).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mark {
+    pub date_utc: String,
+    /// What is in force from then on (the first line, for people).
+    pub text: String,
+    /// Where the mark comes from, in words.
+    pub why: String,
+}
+
+/// The compensation changes of a machine: its `history comp` events and the runs whose stated
+/// compensation differs from the run before (when both state one and no event lies between),
+/// by date.
+pub fn compensation_marks(runs: &[Run], events: &[CompensationEvent]) -> Vec<Mark> {
+    let first_line = |t: &str| {
+        let l = t
+            .lines()
+            .find(|l| !l.trim().is_empty())
+            .unwrap_or("")
+            .trim();
+        let more = t.lines().filter(|l| !l.trim().is_empty()).count() > 1;
+        format!("{l}{}", if more { " …" } else { "" })
+    };
+    let mut marks: Vec<Mark> = events
+        .iter()
+        .map(|e| Mark {
+            date_utc: e.date_utc.clone(),
+            text: first_line(&e.text),
+            why: format!("history comp {}", e.id),
+        })
+        .collect();
+    for w in runs.windows(2) {
+        let (a, b) = (&w[0], &w[1]);
+        let (Some(ca), Some(cb)) = (&a.compensation, &b.compensation) else {
+            continue;
+        };
+        let between = events
+            .iter()
+            .any(|e| e.date_utc > a.date_utc && e.date_utc <= b.date_utc);
+        if ca.trim() != cb.trim() && !between {
+            marks.push(Mark {
+                date_utc: b.date_utc.clone(),
+                text: first_line(cb),
+                why: format!("run {} states another compensation than run {}", b.id, a.id),
+            });
+        }
+    }
+    marks.sort_by(|x, y| x.date_utc.cmp(&y.date_utc));
+    marks
+}
+
+/// A slope per month and its σ (module docs, *Slope*).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Slope {
+    pub per_month: f64,
+    pub sigma: Option<f64>,
+    /// Runs it was fitted over.
+    pub runs: usize,
+    /// The mark it starts after, if any.
+    pub since: Option<String>,
+}
+
+impl EffectTrend {
+    /// The slope over the comparable runs since the last of `marks` (module docs).
+    pub fn slope(&self, marks: &[Mark]) -> Option<Slope> {
+        let since = marks.last().map(|m| m.date_utc.clone());
+        let pts: Vec<(f64, f64, Option<f64>)> = self
+            .points
+            .iter()
+            .filter(|p| p.differences.is_empty())
+            .filter(|p| since.as_ref().is_none_or(|s| p.date_utc >= *s))
+            .filter_map(|p| Some((days(&p.date_utc)? / DAYS_PER_MONTH, p.value?, p.sigma)))
+            .collect();
+        let n = pts.len();
+        if n < 2 {
+            return None;
+        }
+        let weighted = pts.iter().all(|p| p.2.is_some_and(|s| s > 0.0));
+        let w = |p: &(f64, f64, Option<f64>)| {
+            if weighted {
+                p.2.map_or(1.0, |s| 1.0 / (s * s))
+            } else {
+                1.0
+            }
+        };
+        let sw: f64 = pts.iter().map(w).sum();
+        let mx = pts.iter().map(|p| w(p) * p.0).sum::<f64>() / sw;
+        let my = pts.iter().map(|p| w(p) * p.1).sum::<f64>() / sw;
+        let sxx: f64 = pts.iter().map(|p| w(p) * (p.0 - mx).powi(2)).sum();
+        if sxx <= 0.0 {
+            return None;
+        }
+        let slope = pts
+            .iter()
+            .map(|p| w(p) * (p.0 - mx) * (p.1 - my))
+            .sum::<f64>()
+            / sxx;
+        let chi2: f64 = pts
+            .iter()
+            .map(|p| w(p) * (p.1 - my - slope * (p.0 - mx)).powi(2))
+            .sum();
+        let sigma = if weighted {
+            let scale = if n >= 3 {
+                (chi2 / (n - 2) as f64).max(1.0)
+            } else {
+                1.0
+            };
+            Some((scale / sxx).sqrt())
+        } else if n >= 3 {
+            Some((chi2 / (n - 2) as f64 / sxx).sqrt())
+        } else {
+            None
+        };
+        Some(Slope {
+            per_month: slope,
+            sigma,
+            runs: n,
+            since,
+        })
     }
 }
 
@@ -107,6 +317,7 @@ pub fn trend(runs: &[Run], effect: Option<&str>) -> Result<Vec<EffectTrend>> {
                         date_utc: r.date_utc.clone(),
                         value: e.and_then(|e| e.value),
                         sigma: e.and_then(|e| e.sigma),
+                        noise: None,
                         differences: r.conditions.differences(&latest.conditions),
                     }
                 })
@@ -117,8 +328,16 @@ pub fn trend(runs: &[Run], effect: Option<&str>) -> Result<Vec<EffectTrend>> {
         .collect())
 }
 
-/// The text of `jdbb history trend`.
-pub fn render(machine: &str, runs: &[Run], trends: &[EffectTrend]) -> String {
+/// The text of `jdbb history trend`: per trend its runs with the compensation marks among
+/// them by date, the change and the slope over the comparable runs, and the runs over
+/// `tolerance_um` (applied to values in µm, by magnitude).
+pub fn render(
+    machine: &str,
+    runs: &[Run],
+    trends: &[EffectTrend],
+    marks: &[Mark],
+    tolerance_um: Option<f64>,
+) -> String {
     let mut s = String::new();
     let Some(latest) = runs.last() else {
         return format!("machine {machine}: no runs\n");
@@ -133,13 +352,22 @@ pub fn render(machine: &str, runs: &[Run], trends: &[EffectTrend]) -> String {
     if trends.is_empty() {
         let _ = writeln!(s, "no machine effect was found in any run");
     }
+    let mark_line = |s: &mut String, m: &Mark| {
+        let _ = writeln!(
+            s,
+            "  {}  -- compensation changed: {} ({})",
+            m.date_utc, m.text, m.why
+        );
+    };
     for t in trends {
         let _ = writeln!(s, "{} ({})", t.name, human(&t.unit));
+        let mut next_mark = 0;
         for p in &t.points {
-            let v = match p.value {
-                Some(v) => format_estimate(v, p.sigma),
-                None => "not found".into(),
-            };
+            while let Some(m) = marks.get(next_mark).filter(|m| m.date_utc <= p.date_utc) {
+                mark_line(&mut s, m);
+                next_mark += 1;
+            }
+            let v = p.text();
             let flag = if p.differences.is_empty() {
                 String::new()
             } else {
@@ -147,21 +375,141 @@ pub fn render(machine: &str, runs: &[Run], trends: &[EffectTrend]) -> String {
             };
             let _ = writeln!(s, "  {}  run {:<3} {v}{flag}", p.date_utc, p.run_id);
         }
+        for m in &marks[next_mark.min(marks.len())..] {
+            mark_line(&mut s, m);
+        }
+        // Without σ (G, H): the digits of the noisiest run.
+        let noise = t.points.iter().filter_map(|p| p.noise).reduce(f64::max);
+        let estimate = |x: f64, sigma: Option<f64>| match (sigma, noise) {
+            (None, Some(n)) => format_to(x, n),
+            _ => format_estimate(x, sigma),
+        };
         if let Some((d, sigma, dt)) = t.change() {
             let _ = writeln!(
                 s,
                 "  change over the comparable runs: {} {} in {dt:.0} days",
-                format_estimate(d, sigma),
+                estimate(d, sigma),
                 human(&t.unit)
+            );
+        }
+        match t.slope(marks) {
+            Some(sl) => {
+                let _ = writeln!(
+                    s,
+                    "  slope over the {} comparable runs{}: {} {}/month{}",
+                    sl.runs,
+                    sl.since.as_ref().map_or(String::new(), |d| format!(
+                        " since the compensation change of {d}"
+                    )),
+                    estimate(sl.per_month, sl.sigma),
+                    human(&t.unit),
+                    if sl.sigma.is_none() {
+                        " (σ needs a third run)"
+                    } else {
+                        ""
+                    }
+                );
+            }
+            None if !marks.is_empty() => {
+                let _ = writeln!(
+                    s,
+                    "  slope: fewer than 2 comparable runs since the last compensation change"
+                );
+            }
+            None => {}
+        }
+        if let Some(tol) = tolerance_um {
+            if t.unit != "um" {
+                let _ = writeln!(
+                    s,
+                    "  tolerance {tol} µm: not applied ({} is in {})",
+                    t.name,
+                    human(&t.unit)
+                );
+                continue;
+            }
+            let over: Vec<String> = t
+                .points
+                .iter()
+                .filter(|p| p.value.is_some_and(|v| v.abs() > tol))
+                .map(|p| p.run_id.to_string())
+                .collect();
+            let _ = writeln!(
+                s,
+                "  tolerance {tol} µm: {}",
+                if over.is_empty() {
+                    "every run within it".to_string()
+                } else {
+                    format!("over it in run {}", over.join(", "))
+                }
             );
         }
     }
     s
 }
 
+/// `text` as one CSV field: quoted (with `""` for a quote) where it holds a comma, a quote or a
+/// line break.
+fn csv_field(text: &str) -> String {
+    if text.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", text.replace('"', "\"\""))
+    } else {
+        text.to_string()
+    }
+}
+
+/// The trend as CSV (`--csv FILE`), one row per run and trend: `machine, quantity, unit, run,
+/// date_utc, value, sigma, comparable` (with what differs if not), `compensation_changed` (a
+/// mark lies after the previous run, up to this one) and `compensation` (in force, as the
+/// run's diagnosis states it). Empty `value`: not found; empty `sigma`: not known.
+pub fn csv(machine: &str, runs: &[Run], trends: &[EffectTrend], marks: &[Mark]) -> String {
+    let mut s = String::from(
+        "machine,quantity,unit,run,date_utc,value,sigma,comparable,differences,compensation_changed,compensation\n",
+    );
+    let num = |x: Option<f64>| x.map_or(String::new(), |v| format!("{v}"));
+    for t in trends {
+        let mut prev: Option<&str> = None;
+        for p in &t.points {
+            let changed = marks.iter().any(|m| {
+                m.date_utc.as_str() <= p.date_utc.as_str()
+                    && prev.is_none_or(|d| m.date_utc.as_str() > d)
+            });
+            let comp = runs
+                .iter()
+                .find(|r| r.id == p.run_id)
+                .and_then(|r| r.compensation.as_deref())
+                .unwrap_or("");
+            let _ = writeln!(
+                s,
+                "{},{},{},{},{},{},{},{},{},{},{}",
+                csv_field(machine),
+                csv_field(&t.name),
+                t.unit,
+                p.run_id,
+                p.date_utc,
+                num(p.value),
+                num(p.sigma),
+                p.differences.is_empty(),
+                csv_field(&p.differences.join("; ")),
+                changed,
+                csv_field(comp.trim_end())
+            );
+            prev = Some(&p.date_utc);
+        }
+    }
+    s
+}
+
 /// Plot the trends into an SVG file: one panel per effect, value ± σ against the date;
-/// comparable runs filled, others hollow and grey.
-pub fn plot_svg(file: &Path, machine: &str, trends: &[EffectTrend]) -> Result<()> {
+/// comparable runs filled, others hollow and grey; compensation marks as dashed vertical lines,
+/// the tolerance (on values in µm) as red lines at ± it (+ only for G and H).
+pub fn plot_svg(
+    file: &Path,
+    machine: &str,
+    trends: &[EffectTrend],
+    marks: &[Mark],
+    tolerance_um: Option<f64>,
+) -> Result<()> {
     crate::circular::plot::register_font();
     let err = |e: &dyn std::fmt::Display| Error::Numerics(format!("plotting failed: {e}"));
     let panel_h = 260u32;
@@ -172,7 +520,7 @@ pub fn plot_svg(file: &Path, machine: &str, trends: &[EffectTrend]) -> Result<()
     title
         .titled(
             &format!(
-                "J-DBB history of {machine}: effects ± σ (filled: comparable with the latest run; hollow: not)"
+                "J-DBB history of {machine}: ± σ (filled: comparable with the latest run; hollow: not; dashed: compensation changed)"
             ),
             ("sans-serif", 17),
         )
@@ -208,10 +556,22 @@ pub fn plot_svg(file: &Path, machine: &str, trends: &[EffectTrend]) -> Result<()
                 ))
             })
             .collect();
-        let lo = pts.iter().map(|p| p.1 - p.2).fold(f64::INFINITY, f64::min);
+        let tol = tolerance_um.filter(|_| t.unit == "um");
+        let figure = t.name == Figure::G.name() || t.name == Figure::H.name();
+        let tol_lines: Vec<f64> = match tol {
+            Some(v) if figure => vec![v],
+            Some(v) => vec![v, -v],
+            None => vec![],
+        };
+        let lo = pts
+            .iter()
+            .map(|p| p.1 - p.2)
+            .chain(tol_lines.iter().copied())
+            .fold(f64::INFINITY, f64::min);
         let hi = pts
             .iter()
             .map(|p| p.1 + p.2)
+            .chain(tol_lines.iter().copied())
             .fold(f64::NEG_INFINITY, f64::max);
         let (lo, hi) = if lo.is_finite() {
             let pad = ((hi - lo) * 0.15)
@@ -258,6 +618,26 @@ pub fn plot_svg(file: &Path, machine: &str, trends: &[EffectTrend]) -> Result<()
                 .draw_series(LineSeries::new([(x0, 0.0), (x1, 0.0)], BLACK.mix(0.3)))
                 .map_err(|e| err(&e))?;
         }
+        let red = RGBColor(200, 30, 30);
+        for v in &tol_lines {
+            chart
+                .draw_series(LineSeries::new([(x0, *v), (x1, *v)], red.stroke_width(2)))
+                .map_err(|e| err(&e))?;
+        }
+        let orange = RGBColor(230, 120, 0);
+        for m in marks {
+            let Some(x) = days(&m.date_utc).map(|d| d - d0) else {
+                continue;
+            };
+            // Dashed: short segments up the panel.
+            let n = 24;
+            chart
+                .draw_series((0..n).step_by(2).map(|k| {
+                    let y = |k: usize| lo + (hi - lo) * k as f64 / n as f64;
+                    PathElement::new(vec![(x, y(k)), (x, y(k + 1))], orange.stroke_width(2))
+                }))
+                .map_err(|e| err(&e))?;
+        }
         let blue = RGBColor(31, 119, 180);
         let grey = RGBColor(150, 150, 150);
         chart
@@ -280,4 +660,73 @@ pub fn plot_svg(file: &Path, machine: &str, trends: &[EffectTrend]) -> Result<()
     }
     root.present().map_err(|e| err(&e))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn trend(points: &[(&str, f64, Option<f64>)]) -> EffectTrend {
+        EffectTrend {
+            name: "circular_deviation_g".into(),
+            unit: "um".into(),
+            points: points
+                .iter()
+                .enumerate()
+                .map(|(k, (d, v, s))| Point {
+                    run_id: k as i64 + 1,
+                    date_utc: format!("{d}T00:00:00Z"),
+                    value: Some(*v),
+                    sigma: *s,
+                    noise: None,
+                    differences: vec![],
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn slope_per_month_and_its_sigma() {
+        // 2 µm in 30 days, two runs without σ per run: the slope, no σ.
+        let t = trend(&[("2026-01-01", 1.0, None), ("2026-01-31", 3.0, None)]);
+        let s = t.slope(&[]).unwrap();
+        assert!((s.per_month - 2.0 * 30.4375 / 30.0).abs() < 1e-9, "{s:?}");
+        assert_eq!(s.sigma, None, "two runs without σ: no σ");
+        // Scatter about a line: σ from the residuals, √(RSS/(n−2)/Sxx).
+        let t = trend(&[
+            ("2026-01-01", 0.0, None),
+            ("2026-01-31", 1.0, None),
+            ("2026-03-02", 1.0, None),
+        ]);
+        let s = t.slope(&[]).unwrap();
+        let x: Vec<f64> = [0.0, 30.0, 60.0].iter().map(|d| d / 30.4375).collect();
+        let sxx: f64 = x.iter().map(|v| (v - x[1]).powi(2)).sum();
+        let slope = (x[2] - x[1]) / sxx;
+        let res: Vec<f64> = [0.0, 1.0, 1.0]
+            .iter()
+            .zip(&x)
+            .map(|(y, xi)| y - (2.0 / 3.0) - slope * (xi - x[1]))
+            .collect();
+        let want = (res.iter().map(|r| r * r).sum::<f64>() / sxx).sqrt();
+        assert!((s.per_month - slope).abs() < 1e-9 && (s.sigma.unwrap() - want).abs() < 1e-9);
+        // Weighted: runs with σ that agree with the line keep the fit's σ, √(1/Σw(x−x̄)²).
+        let t = trend(&[
+            ("2026-01-01", 0.0, Some(0.1)),
+            ("2026-01-31", 30.0 / 30.4375, Some(0.1)),
+            ("2026-03-02", 60.0 / 30.4375, Some(0.1)),
+        ]);
+        let s = t.slope(&[]).unwrap();
+        assert!((s.per_month - 1.0).abs() < 1e-9);
+        assert!(
+            (s.sigma.unwrap() - (0.01 / sxx).sqrt()).abs() < 1e-12,
+            "{s:?}"
+        );
+        // Only since the last mark.
+        let mark = Mark {
+            date_utc: "2026-01-15T00:00:00Z".into(),
+            text: "x".into(),
+            why: "test".into(),
+        };
+        assert_eq!(t.slope(&[mark]).unwrap().runs, 2);
+    }
 }

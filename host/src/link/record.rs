@@ -21,6 +21,11 @@
 //! kill *during* a multi-page `write` system call could in principle cut it at a page boundary;
 //! the writes here are a few kB and last microseconds.)
 //!
+//! **The instrument.** When the device first describes itself, the record gets a comment line
+//! `# instrument_serial: <24 hex digits>` ([`crate::table::INSTRUMENT_SERIAL`]): right after the
+//! header as a device greets before it streams, so a report can name the instrument; readers skip
+//! it as every comment line.
+//!
 //! [`READ_TIMEOUT`]: super::stream::READ_TIMEOUT
 use std::ffi::OsString;
 use std::fs::{self, File, OpenOptions};
@@ -411,6 +416,27 @@ pub fn record_to<P: Read + Write, W: Write + Truncate>(
         }
         let check = &mut out.check;
         let polled = stream.poll(|b| check.lines(&mut lines, &mut batch, b));
+        // The device's description first: its serial line goes before the samples of the read
+        // that brought it.
+        if !info_shown {
+            if let Some(info) = stream.info() {
+                out.check.set_calibration(&info.calibration);
+                let serial = format!(
+                    "# {}: {}\n",
+                    crate::table::INSTRUMENT_SERIAL,
+                    super::stream::serial_number(info)
+                );
+                if let Err(source) = out.append(serial.as_bytes(), &[]) {
+                    return End::Write(Error::RecordWrite {
+                        path: path.to_path_buf(),
+                        position: position(out.lines, out.last.as_ref()),
+                        source,
+                    });
+                }
+                on_info(info);
+                info_shown = true;
+            }
+        }
         let written = out.append(&lines, &batch);
         lines.clear();
         batch.clear();
@@ -420,13 +446,6 @@ pub fn record_to<P: Read + Write, W: Write + Truncate>(
                 position: position(out.lines, out.last.as_ref()),
                 source,
             });
-        }
-        if !info_shown {
-            if let Some(info) = stream.info() {
-                out.check.set_calibration(&info.calibration);
-                on_info(info);
-                info_shown = true;
-            }
         }
         if let Some(r) = stream.run_ended() {
             return End::Restarted(*r);
@@ -608,11 +627,13 @@ mod tests {
         (end, out, *stream.stats())
     }
 
-    /// The data lines of a CSV, checked whole, as (seq, t_us).
+    /// The data lines of a CSV (not the serial's comment line), checked whole, as (seq, t_us).
     fn rows(csv: &[u8]) -> Vec<(u64, u64)> {
         let text = std::str::from_utf8(csv).unwrap();
         assert!(text.is_empty() || text.ends_with('\n'), "torn: {text:?}");
         text.lines()
+            // The serial the device reported (written when it describes itself).
+            .filter(|l| !l.starts_with("# instrument_serial: "))
             .map(|l| {
                 let f: Vec<&str> = l.split(',').collect();
                 assert_eq!(f.len(), 5, "{l}");
@@ -685,9 +706,12 @@ mod tests {
             panic!("{end:?}")
         };
         assert!(e.to_string().contains("whole lines"), "{e}");
-        // Nothing fit whole in one write of 160 lines: cut back to nothing, not a torn line.
+        // Nothing fit whole in one write of 160 lines: cut back to the serial's line before them,
+        // not a torn line.
         assert!(rows(&out.file.data).is_empty());
-        assert_eq!(out.committed, 0);
+        let serial = "# instrument_serial: 000000000000000000000000\n";
+        assert_eq!(out.file.data, serial.as_bytes());
+        assert_eq!(out.committed, serial.len() as u64);
 
         // Two writes fit, the third does not: the file keeps the first two reads' lines.
         let mut disk = CsvOut::new(

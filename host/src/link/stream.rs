@@ -873,12 +873,18 @@ pub fn interrupt_flag() -> Arc<AtomicBool> {
     .clone()
 }
 
+/// The instrument's serial number: its chip's unique ID as 24 upper-case hex digits (the board's
+/// USB serial number; all zero on QEMU).
+pub fn serial_number(info: &DeviceInfo) -> String {
+    info.chip_id.iter().map(|b| format!("{b:02X}")).collect()
+}
+
 /// One line about the device: board, firmware, protocol, sample rate, bar lengths, serial number,
 /// why it last started (flagged when it reset itself after a crash) and what its clocks run from
 /// (flagged when it is not the crystal).
 pub fn describe_info(info: &DeviceInfo) -> String {
     let [a, b, c] = info.firmware_version;
-    let serial: String = info.chip_id.iter().map(|b| format!("{b:02X}")).collect();
+    let serial = serial_number(info);
     format!(
         "{:?}, firmware {a}.{b}.{c}, protocol {}, {} Hz, L1 {} mm, L2 {} mm, {}, serial {serial}, reset {:#04x}{}, clock {}",
         info.board,

@@ -1,0 +1,192 @@
+//! `jdbb history trend` over a machine that wears and is compensated: G with a tolerance, the
+//! slope per month with its σ fitted only since the compensation changed, the change marked
+//! (filed with `history comp`, and stated by the diagnoses' `--compensation`), CSV export.
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn ok(args: &[&str]) -> String {
+    let o = Command::new(env!("CARGO_BIN_EXE_jdbb"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "jdbb {args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8(o.stdout).unwrap()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A diagnosis of a machine with `backlash_um` of play, tested on `date` under `compensation`.
+fn run(dir: &Path, name: &str, backlash_um: f64, date: &str, compensation: &str) -> PathBuf {
+    let csv = dir.join(format!("{name}.csv"));
+    let rep = dir.join(name);
+    let effect = format!("backlash_x={backlash_um}");
+    ok(&[
+        "simulate",
+        "--radius",
+        "60",
+        "--rate",
+        "100",
+        "--effect",
+        &effect,
+        "--sigma-um",
+        "0.2",
+        "--seed",
+        "5",
+        "-o",
+        s(&csv),
+    ]);
+    ok(&[
+        "diagnose",
+        "--samples",
+        s(&csv),
+        "--report",
+        s(&rep),
+        "--machine",
+        "mill",
+        "--date",
+        date,
+        "--compensation",
+        compensation,
+    ]);
+    rep.join("diagnosis.json")
+}
+
+#[test]
+fn trend_marks_compensation_changes_fits_the_slope_after_them_and_exports_csv() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("h.sqlite");
+    // Wear of 1 µm/month, then the backlash compensated on 2026-04-10, then 0.5 µm/month.
+    let runs = [
+        (6.0, "2026-01-01", "BACKLASH = 0"),
+        (7.0, "2026-02-01", "BACKLASH = 0"),
+        (8.0, "2026-03-01", "BACKLASH = 0"),
+        (1.0, "2026-05-01", "BACKLASH = 0.008"),
+        (1.5, "2026-06-01", "BACKLASH = 0.008"),
+        (2.0, "2026-07-01", "BACKLASH = 0.008"),
+    ];
+    for (k, (b, date, comp)) in runs.iter().enumerate() {
+        let d = run(dir.path(), &format!("r{k}"), *b, date, comp);
+        ok(&[
+            "history",
+            "add",
+            "--db",
+            s(&db),
+            "--machine",
+            "mill",
+            "--diagnosis",
+            s(&d),
+        ]);
+    }
+    let out = ok(&[
+        "history",
+        "comp",
+        "--db",
+        s(&db),
+        "--machine",
+        "mill",
+        "--date",
+        "2026-04-10",
+        "--text",
+        "BACKLASH = 0.008 (jdbb compensate)",
+    ]);
+    assert!(
+        out.starts_with("filed compensation change 1 of mill on 2026-04-10"),
+        "{out}"
+    );
+
+    let csv = dir.path().join("trend.csv");
+    let plot = dir.path().join("trend.svg");
+    let out = ok(&[
+        "history",
+        "trend",
+        "--db",
+        s(&db),
+        "--machine",
+        "mill",
+        "--effect",
+        "backlash_x",
+        "--csv",
+        s(&csv),
+        "--plot",
+        s(&plot),
+    ]);
+    // One mark (the event; runs 3 and 4 state the same change, not marked twice), between them.
+    let lines: Vec<&str> = out.lines().collect();
+    let marks: Vec<usize> = (0..lines.len())
+        .filter(|&i| lines[i].contains("compensation changed"))
+        .collect();
+    assert_eq!(marks.len(), 1, "{out}");
+    assert!(
+        lines[marks[0] - 1].contains("run 3") && lines[marks[0] + 1].contains("run 4"),
+        "{out}"
+    );
+    // The slope since the change: 0.5 µm over each of the months May–June (31 d) and June–July
+    // (30 d), in months of 30.4375 days.
+    let slope_line = lines.iter().find(|l| l.contains("slope over the")).unwrap();
+    assert!(
+        slope_line.contains("3 comparable runs since the compensation change of 2026-04-10"),
+        "{out}"
+    );
+    let nums: Vec<f64> = slope_line
+        .split(": ")
+        .nth(1)
+        .unwrap()
+        .split_whitespace()
+        .filter_map(|w| w.parse().ok())
+        .collect();
+    let (slope, sigma) = (nums[0], nums[1]);
+    let want = 1.0 / (61.0 / 30.4375);
+    assert!(sigma > 0.0 && sigma < 0.1, "{slope_line}");
+    assert!(
+        (slope - want).abs() < 3.0 * sigma + 0.02,
+        "{slope_line}: want {want}"
+    );
+    // The CSV: one row per run, the change flagged at the first run after it.
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let rows: Vec<Vec<&str>> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert_eq!(text.lines().next().unwrap(), "machine,quantity,unit,run,date_utc,value,sigma,comparable,differences,compensation_changed,compensation");
+    assert_eq!(rows.len(), 6);
+    for (k, r) in rows.iter().enumerate() {
+        let value: f64 = r[5].parse().unwrap();
+        assert!((value - runs[k].0).abs() < 0.1, "{r:?}");
+        assert_eq!(r[9], if k == 3 { "true" } else { "false" }, "{r:?}");
+        assert_eq!(r[10], runs[k].2);
+    }
+    assert!(std::fs::read_to_string(&plot)
+        .unwrap()
+        .contains("compensation changed"));
+
+    // G with a tolerance: the worn runs are over it, the compensated ones within.
+    let out = ok(&[
+        "history",
+        "trend",
+        "--db",
+        s(&db),
+        "--machine",
+        "mill",
+        "--figure",
+        "G",
+        "--tolerance-um",
+        "4",
+    ]);
+    assert!(out.contains("circular_deviation_g (µm)"), "{out}");
+    assert!(
+        out.contains("tolerance 4 µm: over it in run 1, 2, 3\n"),
+        "{out}"
+    );
+    // Without the marks the slope over all six runs would be negative; the text says since when.
+    assert!(
+        out.contains("since the compensation change of 2026-04-10"),
+        "{out}"
+    );
+}
