@@ -294,13 +294,18 @@ impl DiagnosisDoc {
             })?;
         for (k, e) in doc.effects.iter().enumerate() {
             if e.effect().is_none() {
-                return Err(Error::Input {
-                    location: path.display().to_string(),
-                    message: format!(
+                // The name as the file spells it (JSON escapes included) places the error.
+                let spelled = serde_json::to_string(&e.name).expect("JSON of a string");
+                let (line, column) = position_of_text(text, &spelled);
+                return Err(Error::input(
+                    path,
+                    line,
+                    column,
+                    format!(
                         "effects[{k}]: unknown effect `{}`; was the file written by a newer jdbb?",
                         e.name
                     ),
-                });
+                ));
             }
         }
         Ok(doc)
@@ -492,8 +497,12 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
 
 /// Line and column (1-based) of the first `"key"` in `text`; (1, 1) if not found.
 fn position_of_key(text: &str, key: &str) -> (usize, usize) {
-    let needle = format!("\"{key}\"");
-    match text.find(&needle) {
+    position_of_text(text, &format!("\"{key}\""))
+}
+
+/// Line and column (1-based) of the first `needle` in `text`; (1, 1) if it is not there.
+fn position_of_text(text: &str, needle: &str) -> (usize, usize) {
+    match text.find(needle) {
         Some(at) => {
             let before = &text[..at];
             let line = before.matches('\n').count() + 1;
