@@ -275,10 +275,13 @@ impl Mechanism {
 
     /// The bar-2 direction for ball distance `d_mm` and lean azimuth `azimuth_rad` (in bar 1's
     /// frame, from +x towards +y): the deflection φ from the triangle B1–J–B2 (law of cosines).
+    /// Bar 2 stays on the spindle side of the joint (φ < 90°, the half sphere
+    /// [`Self::bar2_direction`] covers): a slot plane holds the whole line through J, but the
+    /// bar cannot fold back past perpendicular to bar 1, so a smaller D is unreachable.
     pub fn direction_for_pose(&self, d_mm: f64, azimuth_rad: f64) -> Result<V3, PoseError> {
         let (l1, l2) = (self.l1_mm, self.l2_mm);
         let cos_phi = (d_mm * d_mm - l1 * l1 - l2 * l2) / (2.0 * l1 * l2);
-        if !(-1.0..=1.0).contains(&cos_phi) {
+        if !(cos_phi > 0.0 && cos_phi <= 1.0) {
             return Err(PoseError::Unreachable);
         }
         let sin_phi = (1.0 - cos_phi * cos_phi).sqrt();
