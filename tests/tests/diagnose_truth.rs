@@ -23,6 +23,7 @@ use jdbb_tests::gmachine::{
     Axis, Cyclic, Dialect, Interference, MachineErrors, ReversalSpike, Scale2, SimConfig,
     Simulation, Squareness,
 };
+use rand::{Rng, SeedableRng};
 
 /// The table ball (program = machine coordinates): off a whole pitch of 4 and 5 mm on X and Y.
 const BALL: [f64; 3] = [253.7, 61.3, -20.0];
@@ -35,12 +36,23 @@ fn make_plan(radii: &[f64], heights: &[f64], plane: Plane) -> Plan {
 /// Run `plan` on the G-code machine with `errors` (feed override, unknown start, clock off by
 /// tens of ppm, 0.2 µm noise, 250 Hz), synchronise from D and diagnose with `pitch`.
 fn run(plan: &Plan, errors: MachineErrors, seed: u64, pitch: [Option<f64>; 3]) -> Diagnosis {
+    run_noise(plan, errors, seed, pitch, 0.2)
+}
+
+/// [`run`] with a noise of `noise_um` (σ on D).
+fn run_noise(
+    plan: &Plan,
+    errors: MachineErrors,
+    seed: u64,
+    pitch: [Option<f64>; 3],
+    noise_um: f64,
+) -> Diagnosis {
     let mut cfg = SimConfig::new(Dialect::LinuxCnc, BALL);
     cfg.errors = errors;
     cfg.machine.feed_override_pct = 97.0 + (seed % 5) as f64;
     cfg.instrument.clock_ppm = if seed.is_multiple_of(2) { 41.0 } else { -33.0 };
     cfg.instrument.start_delay_s = 2.0 + (seed % 3) as f64;
-    cfg.instrument.noise_um = 0.2;
+    cfg.instrument.noise_um = noise_um;
     cfg.instrument.seed = seed;
     cfg.instrument.sample_rate_hz = 250.0;
     let rec = Simulation::new(&write_program(plan, PlanDialect::Linuxcnc), cfg)
@@ -366,4 +378,347 @@ fn z_effects_over_several_heights() {
     let cz_truth = 5.0 - 30.0 * BALL[2] * 1e-3;
     let (cz, sz) = param(&d.effects[0], 2);
     assert_unbiased("setup_offset.z", cz, sz, cz_truth, 0.1, &s);
+}
+
+/// A random set-up: the table ball up to ±60 µm off in x and y, the bar up to ±20 µm long.
+fn random_setup(rng: &mut impl Rng) -> MachineErrors {
+    MachineErrors {
+        setup_offset_um: [rng.gen_range(-60.0..60.0), rng.gen_range(-60.0..60.0), 0.0],
+        length_offset_um: rng.gen_range(-20.0..20.0),
+        ..MachineErrors::default()
+    }
+}
+
+/// Hidden effects drawn at random (issue 3's test, its truth now the G-code machine's
+/// mechanisms): a random set-up, one effect among scale, second-order scale, play, cyclic,
+/// interference, squareness, servo delay and scale mismatch, a random radius and noise; the
+/// diagnosis must name that effect alone, its value unbiased (1 % or a small absolute term,
+/// + 3σ, σ under 10 %), and the set-up where the ball is. Cyclic and interference are drawn on
+/// Y only: on X they disturb the synchronisation (see
+/// [`a_cyclic_error_along_the_feed_in_biases_the_synchronised_feed`]). Seeded: every run draws
+/// the same cases.
+#[test]
+fn a_hidden_random_mechanism_is_named_alone_with_its_value() {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(2026);
+    let pitch_y = 8.0;
+    for case in 0..16u64 {
+        let axis = if rng.gen_bool(0.5) { 0 } else { 1 };
+        let other = 1 - axis;
+        let letter = ["x", "y"];
+        let sign = if rng.gen_bool(0.5) { 1.0 } else { -1.0 };
+        let phase: f64 = rng.gen_range(0.0..std::f64::consts::TAU);
+        let radius: f64 = rng.gen_range(84.0..96.0);
+        let mut e = random_setup(&mut rng);
+        let setup = e.setup_offset_um;
+        // (reported name, its truth, absolute term of the bias bound)
+        let (name, truth, abs) = match case % 8 {
+            0 => {
+                // One radius: only scale_x − scale_y shows.
+                let a = sign * rng.gen_range(10.0..40.0);
+                e.scale_um_per_m[axis] = a;
+                let truth = if axis == 0 { a } else { -a };
+                ("scale_mismatch_xy".to_string(), truth, 0.3)
+            }
+            1 => {
+                // One radius: b·j² of axis j is the same data as a bow of the other axis towards
+                // j; the bow is named, w = b·R².
+                let b = sign * rng.gen_range(400.0..1500.0);
+                e.scale2[axis] = Scale2 {
+                    um_per_m2: b,
+                    origin_mm: BALL[axis],
+                };
+                let name = format!("straightness_{}_{}", letter[other], letter[axis]);
+                (name, b * (radius * 1e-3).powi(2), 0.05)
+            }
+            2 => {
+                let b = rng.gen_range(2.0..10.0);
+                e.backlash_um[axis] = b;
+                (format!("backlash_{}", letter[axis]), b, 0.05)
+            }
+            3 => {
+                let a = rng.gen_range(1.0..4.0);
+                e.cyclic[1] = Cyclic {
+                    amplitude_um: a,
+                    pitch_mm: pitch_y,
+                    phase_rad: phase,
+                };
+                ("cyclic_y".to_string(), a, 0.03)
+            }
+            4 => {
+                let b = rng.gen_range(0.06..0.2);
+                e.interference[1] = Interference {
+                    latency_ms: b,
+                    pitch_mm: pitch_y,
+                    phase_rad: phase,
+                };
+                ("interference_y".to_string(), b, 0.003)
+            }
+            5 => {
+                let s = sign * rng.gen_range(20.0..60.0);
+                e.squareness = vec![Squareness {
+                    axis: Axis::X,
+                    by: Axis::Y,
+                    um_per_m: s,
+                }];
+                ("squareness_xy".to_string(), s, 0.3)
+            }
+            6 => {
+                // X later than Y by Δτ: servo_mismatch_xy = τ_x − τ_y.
+                let t = rng.gen_range(0.1..0.6);
+                e.servo_delay_ms[axis] = t;
+                let truth = if axis == 0 { t } else { -t };
+                ("servo_mismatch_xy".to_string(), truth, 0.01)
+            }
+            _ => {
+                let a = sign * rng.gen_range(10.0..40.0);
+                e.scale_um_per_m = [0.5 * a, -0.5 * a, 0.0];
+                ("scale_mismatch_xy".to_string(), a, 0.3)
+            }
+        };
+        let sigma = rng.gen_range(0.1..0.5);
+        let seed = rng.gen();
+        let p = make_plan(&[radius], &[0.0], Plane::Xy);
+        let d = run_noise(&p, e.clone(), seed, [None, Some(pitch_y), None], sigma);
+        let context = format!(
+            "case {case}: hidden {name} (R {radius:.1} mm, σ {sigma:.2} µm)\n{}",
+            summary(&d)
+        );
+        assert_eq!(machine_names(&d), vec![name.clone()], "{context}");
+        let f = d.effects.iter().find(|f| f.effect.name() == name).unwrap();
+        assert_unbiased(&name, f.value, f.sigma.unwrap(), truth, abs, &context);
+        // The set-up is where the ball is (a scale counted from the program origin moves the
+        // circle's centre by a·ball, which the set-up takes).
+        let c_truth = setup[0] - e.scale_um_per_m[0] * BALL[0] * 1e-3;
+        let (c, sc) = param(&d.effects[0], 0);
+        assert_unbiased("setup_offset.x", c, sc, c_truth, 0.5, &context);
+        assert!(
+            d.final_rms_um < 1.3 * sigma.max(0.1),
+            "rms {}\n{context}",
+            d.final_rms_um
+        );
+    }
+}
+
+/// Two mechanisms at once, play on X and a slide leaning towards −X, are both named with their
+/// values.
+#[test]
+fn two_mechanisms_at_once_are_both_named() {
+    let p = make_plan(&[90.0], &[0.0], Plane::Xy);
+    let mut e = random_setup(&mut rand::rngs::StdRng::seed_from_u64(5));
+    e.backlash_um[0] = 6.0;
+    e.squareness = vec![Squareness {
+        axis: Axis::X,
+        by: Axis::Y,
+        um_per_m: -40.0,
+    }];
+    let d = run_noise(&p, e, 9, [None; 3], 0.3);
+    let mut n = machine_names(&d);
+    n.sort();
+    assert_eq!(n, vec!["backlash_x", "squareness_xy"], "{}", summary(&d));
+    let s = summary(&d);
+    let get = |n: &str| d.effects.iter().find(|f| f.effect.name() == n).unwrap();
+    let f = get("backlash_x");
+    assert_unbiased("backlash_x", f.value, f.sigma.unwrap(), 6.0, 0.05, &s);
+    let f = get("squareness_xy");
+    assert_unbiased("squareness_xy", f.value, f.sigma.unwrap(), -40.0, 0.3, &s);
+}
+
+/// Near the noise floor: 0.2 µm of play on X under 0.5 µm of noise (its σ is about
+/// σ_D/√(m/8) ≈ 0.01 µm with m ≈ 17 000 samples; 0.1 µm on D at most, twice the 0.05 µm
+/// floor) is found with its value; 0.02 µm (about 2σ, under the floor) is not named.
+#[test]
+fn a_small_play_near_the_noise_floor() {
+    let p = make_plan(&[90.0], &[0.0], Plane::Xy);
+    let with = |b: f64| {
+        let mut e = MachineErrors {
+            setup_offset_um: [12.0, -7.0, 0.0],
+            length_offset_um: 3.0,
+            ..MachineErrors::default()
+        };
+        e.backlash_um[0] = b;
+        e
+    };
+    let d = run_noise(&p, with(0.2), 11, [None; 3], 0.5);
+    let f = only(&d, "backlash_x");
+    let s = f.sigma.unwrap();
+    assert!(s > 0.005 && s < 0.025, "σ {s}\n{}", summary(&d));
+    assert_unbiased("backlash_x", f.value, s, 0.2, 0.01, &summary(&d));
+    let d = run_noise(&p, with(0.02), 12, [None; 3], 0.5);
+    assert!(machine_names(&d).is_empty(), "{}", summary(&d));
+}
+
+/// One radius: an isotropic scale (both axes +30 µm/m) looks exactly like a longer bar, so
+/// nothing is named, the group is said, and e takes a·R (4 + 30·0.09 = 6.7 µm). Two radii about
+/// the same ball (the J-DBB's free bar length) separate it: scale_x and scale_y named, e = 4 µm.
+#[test]
+fn one_radius_confounds_isotropic_scale_and_two_radii_separate_it() {
+    let e = MachineErrors {
+        setup_offset_um: [20.0, 10.0, 0.0],
+        length_offset_um: 4.0,
+        scale_um_per_m: [30.0, 30.0, 0.0],
+        ..MachineErrors::default()
+    };
+    let d = run(
+        &make_plan(&[90.0], &[0.0], Plane::Xy),
+        e.clone(),
+        3,
+        [None; 3],
+    );
+    let s = summary(&d);
+    assert!(machine_names(&d).is_empty(), "{s}");
+    assert!(
+        d.confounded
+            .iter()
+            .any(|g| g.contains(&"length_offset".to_string()) && g.contains(&"scale_x".to_string())),
+        "{s}"
+    );
+    let f = &d.effects[1];
+    assert_unbiased(
+        "e (one radius)",
+        f.value,
+        f.sigma.unwrap(),
+        4.0 + 30.0 * 0.09,
+        0.05,
+        &s,
+    );
+
+    let d = run(
+        &make_plan(&[95.0, 85.0], &[0.0], Plane::Xy),
+        e,
+        4,
+        [None; 3],
+    );
+    let s = summary(&d);
+    let mut n = machine_names(&d);
+    n.sort();
+    assert_eq!(n, vec!["scale_x", "scale_y"], "{s}");
+    for name in ["scale_x", "scale_y"] {
+        let f = d.effects.iter().find(|f| f.effect.name() == name).unwrap();
+        assert_unbiased(name, f.value, f.sigma.unwrap(), 30.0, 0.3, &s);
+    }
+    let f = &d.effects[1];
+    assert_unbiased("e (two radii)", f.value, f.sigma.unwrap(), 4.0, 0.1, &s);
+}
+
+/// A circle above the table ball cannot tell c_z from the bar length; a circle through the
+/// ball's height does not see c_z at all. Both are said as confounded, nothing is named.
+#[test]
+fn a_circle_above_the_table_ball_confounds_c_z_with_the_bar_length() {
+    let e = MachineErrors {
+        setup_offset_um: [5.0, 5.0, 8.0],
+        length_offset_um: 2.0,
+        ..MachineErrors::default()
+    };
+    let d = run(
+        &make_plan(&[85.0], &[30.0], Plane::Xy),
+        e.clone(),
+        8,
+        [None; 3],
+    );
+    assert!(machine_names(&d).is_empty(), "{}", summary(&d));
+    assert!(
+        d.confounded.contains(&vec![
+            "setup_offset.z".to_string(),
+            "length_offset".to_string()
+        ]),
+        "{:?}",
+        d.confounded
+    );
+    let d = run(&make_plan(&[85.0], &[0.0], Plane::Xy), e, 8, [None; 3]);
+    assert!(machine_names(&d).is_empty(), "{}", summary(&d));
+    assert!(
+        d.confounded.contains(&vec!["setup_offset.z".to_string()]),
+        "{:?}",
+        d.confounded
+    );
+}
+
+/// 24 noise draws (and clock, feed and start) of the same machine: the z-scores
+/// (value − truth)/σ of 4 µm of play on Y scatter with a standard deviation near 1 (with 24
+/// draws, 0.7..1.35 covers > 95 %) and a mean near 0; a σ off by the set-up's coupling, by the
+/// timing σ or by a wrong dof fails, and so does a bias of more than about 0.5σ.
+#[test]
+fn standard_errors_match_the_scatter_over_seeds() {
+    let p = make_plan(&[90.0], &[0.0], Plane::Xy);
+    let mut z = vec![];
+    for seed in 0..24u64 {
+        let mut e = MachineErrors {
+            setup_offset_um: [40.0, -25.0, 0.0],
+            length_offset_um: 2.0,
+            ..MachineErrors::default()
+        };
+        e.backlash_um[1] = 4.0;
+        let d = run_noise(&p, e, 1000 + seed, [None; 3], 0.4);
+        let f = only(&d, "backlash_y");
+        z.push((f.value - 4.0) / f.sigma.unwrap());
+    }
+    let mean = z.iter().sum::<f64>() / z.len() as f64;
+    let sd = (z.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (z.len() - 1) as f64).sqrt();
+    eprintln!("z-scores: mean {mean:.3}, sd {sd:.3}");
+    assert!(mean.abs() < 0.6, "mean z {mean}: {z:?}");
+    assert!(sd > 0.7 && sd < 1.35, "sd of z {sd}: {z:?}");
+}
+
+/// erfc(x) for x ≥ 0 (Abramowitz & Stegun 7.1.26, error under 1.5·10⁻⁷).
+fn erfc(x: f64) -> f64 {
+    let t = 1.0 / (1.0 + 0.327_591_1 * x);
+    let poly = t
+        * (0.254_829_592
+            + t * (-0.284_496_736
+                + t * (1.421_413_741 + t * (-1.453_152_027 + t * 1.061_405_429))));
+    poly * (-x * x).exp()
+}
+
+/// The false-alarm bound per run of the selection rule `diagnose` uses (docs/tests.md): extended
+/// BIC with γ = ½, so the first effect chosen among N candidate families on m samples must
+/// lower m·ln(SSR/m) by more than k·ln m + 2γ·ln N = k·ln m + ln N. Under no effect that drop is
+/// χ²_k, and a k-parameter family's rate P(χ²_k > k·ln m + ln N) is at most the 1-parameter
+/// one, so P(any) ≤ N·P(χ²₁ > ln(m·N)) = N·erfc(√(ln(m·N)/2)). The 0.05 µm floor only removes
+/// alarms, so this is an upper bound.
+fn false_alarm_bound(m: usize, n: usize) -> f64 {
+    let x = ((m * n) as f64).ln();
+    n as f64 * erfc((0.5 * x).sqrt())
+}
+
+/// The smallest k with P(Poisson(λ) > k) < 1 %.
+fn poisson_upper(lambda: f64) -> usize {
+    let (mut k, mut term, mut cdf) = (0usize, (-lambda).exp(), (-lambda).exp());
+    while 1.0 - cdf >= 0.01 {
+        k += 1;
+        term *= lambda / k as f64;
+        cdf += term;
+    }
+    k
+}
+
+/// A machine without errors (random set-ups and noise, 40 runs) names a machine effect no more
+/// often than the selection rule allows: the count of runs with an alarm must stay within the
+/// 99 % Poisson bound of 40 × the per-run bound of [`false_alarm_bound`] (about 1 % per run at
+/// m ≈ 17 000 samples and N ≈ 15 candidates, so at most 2 alarms). A rule laxer than stated
+/// (plain BIC: ≈ N·P(χ²₁ > ln m) ≈ 4 %, or no floor) fails.
+#[test]
+fn null_data_report_no_machine_effect_at_the_stated_false_alarm_rate() {
+    let p = make_plan(&[90.0], &[0.0], Plane::Xy);
+    let mut rng = rand::rngs::StdRng::seed_from_u64(77);
+    let (runs, mut alarms, mut bound_sum) = (40, 0, 0.0);
+    let mut named = vec![];
+    for _ in 0..runs {
+        let e = random_setup(&mut rng);
+        let sigma = rng.gen_range(0.1..0.8);
+        let d = run_noise(&p, e, rng.gen(), [None; 3], sigma);
+        bound_sum += false_alarm_bound(d.samples, d.candidates.len());
+        let n = machine_names(&d);
+        if !n.is_empty() {
+            alarms += 1;
+            named.push(n);
+        }
+    }
+    let allowed = poisson_upper(bound_sum);
+    eprintln!(
+        "{alarms} false alarms in {runs} runs, expected at most {bound_sum:.2}, allowed {allowed}"
+    );
+    assert!(
+        alarms <= allowed,
+        "{alarms} false alarms in {runs} null runs ({named:?}); the rule allows {allowed} (λ {bound_sum:.2})"
+    );
 }
