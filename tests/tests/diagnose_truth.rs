@@ -392,8 +392,8 @@ fn random_setup(rng: &mut impl Rng) -> MachineErrors {
 /// Hidden effects drawn at random (issue 3's test, its truth now the G-code machine's
 /// mechanisms): a random set-up, one effect among scale, second-order scale, play, cyclic,
 /// interference, squareness, servo delay and scale mismatch, a random radius and noise; the
-/// diagnosis must name that effect alone, its value unbiased (1 % or a small absolute term,
-/// + 3σ, σ under 10 %), and the set-up where the ball is. Cyclic and interference are drawn on
+/// diagnosis must name that effect alone, its value unbiased (1 % or a small absolute term
+/// plus 3σ, σ under 10 %), and the set-up where the ball is. Cyclic and interference are drawn on
 /// Y only: on X they disturb the synchronisation (see
 /// [`a_cyclic_error_along_the_feed_in_biases_the_synchronised_feed`]). Seeded: every run draws
 /// the same cases.
