@@ -722,6 +722,10 @@ fn poisson_upper(lambda: f64) -> usize {
 /// (docs/tests.md).
 #[test]
 fn null_data_report_no_machine_effect_at_the_stated_false_alarm_rate() {
+    // The helpers against known values: erfc(1), P(χ²₁ > 3.841) = 5 %, Poisson(0.23) > 2 < 1 %.
+    assert!((erfc(1.0) - 0.157_299_207).abs() < 1e-6);
+    assert!((erfc((0.5f64 * 3.841).sqrt()) - 0.05).abs() < 1e-4);
+    assert_eq!(poisson_upper(0.23), 2);
     let p = make_plan(&[90.0], &[0.0], Plane::Xy);
     let mut rng = rand::rngs::StdRng::seed_from_u64(77);
     let (runs, mut alarms, mut bound_sum) = (40, 0, 0.0);
