@@ -271,6 +271,45 @@ fn a_cyclic_error_along_the_feed_in_biases_the_synchronised_feed() {
     assert_unbiased("cyclic_x cos_um", cs, sc, a * psi.sin(), tol, &s);
 }
 
+/// The cyclic phase on Z in a vertical plane (YZ, the 220° test from −20°): Z's screw has a
+/// 2 µm error at an 8 mm pitch, δ = A·sin(2π·z/P + φ) in machine coordinates, and the table ball
+/// stands at Z −20 (2.5 pitches: half a pitch off), so the truth against the position relative to
+/// the ball is turned by ψ = φ + 2π·(−20)/8. A phase from the program origin is off by π and
+/// flips both components; so does a flipped sign.
+#[test]
+fn the_cyclic_phase_on_z_in_a_vertical_plane_is_measured_from_the_table_ball() {
+    let spec = PlanSpec::machine_test(
+        &[90.0],
+        &[0.0],
+        Plane::Yz,
+        1000.0,
+        BALL,
+        PlanDialect::Linuxcnc,
+    )
+    .with_arc(220.0);
+    let spec = PlanSpec {
+        start_deg: -20.0,
+        ..spec
+    };
+    let p = plan(&spec, &Calibration::DEFAULT).unwrap();
+    let (a, pitch, phi) = (2.0, 8.0, 1.1);
+    let mut errors = MachineErrors::default();
+    errors.cyclic[2] = Cyclic {
+        amplitude_um: a,
+        pitch_mm: pitch,
+        phase_rad: phi,
+    };
+    let d = run(&p, errors, 31, [None, None, Some(pitch)]);
+    let f = only(&d, "cyclic_z");
+    let s = summary(&d);
+    let psi = phi + std::f64::consts::TAU * BALL[2] / pitch;
+    let tol = 0.01 * a + 0.02;
+    let (sn, ss) = param(f, 0);
+    let (cs, sc) = param(f, 1);
+    assert_unbiased("cyclic_z sin_um", sn, ss, a * psi.cos(), tol, &s);
+    assert_unbiased("cyclic_z cos_um", cs, sc, a * psi.sin(), tol, &s);
+}
+
 /// Interference: Y's read head reports late by τ(y) = 0.15 ms·sin(2π·y/4 mm + 1.0), so the
 /// axis runs ahead by v·τ(y): `interference_y` of 0.15 µm per mm/s, its (sin, cos) components
 /// against the position relative to the table ball turned by 2π·61.3/4 like the cyclic error's.
