@@ -21,8 +21,9 @@ fn fails(args: &[&str], code: i32, want: &str) -> String {
     assert_eq!(o.status.code(), Some(code), "{args:?}: {err}");
     assert!(err.contains(want), "{args:?}: wanted `{want}` in `{err}`");
     assert!(!err.contains("panicked"), "{args:?}: {err}");
+    // A hang, not a speed check (a debug build on busy cores): bad input is refused, not chewed.
     assert!(
-        t0.elapsed() < Duration::from_secs(20),
+        t0.elapsed() < Duration::from_secs(120),
         "{args:?} took {:?}",
         t0.elapsed()
     );

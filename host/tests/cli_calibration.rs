@@ -268,9 +268,11 @@ fn a_device_that_does_not_answer_is_an_error() {
         err.contains("did not answer SetCalibration within 8 s"),
         "{err}"
     );
+    // It waited out its 8 s (a lower bound a busy machine cannot break); the upper bound only
+    // catches a hang, generous for a debug build on busy cores.
     let waited = t0.elapsed();
     assert!(
-        waited >= std::time::Duration::from_secs(7) && waited < std::time::Duration::from_secs(15),
+        waited >= std::time::Duration::from_secs(7) && waited < std::time::Duration::from_secs(60),
         "{waited:?}"
     );
 }

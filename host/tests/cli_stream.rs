@@ -64,13 +64,19 @@ impl Pty {
 
     /// Read what jdbb sent until `want` arrives, answering each command as the firmware does
     /// (Pong to a Ping, Info to the rest); panic after `timeout`.
-    fn expect_command(&mut self, want: Command, timeout: Duration) {
-        self.expect_command_after(want, timeout, &[]);
+    /// Returns every command seen up to and including `want`.
+    fn expect_command(&mut self, want: Command, timeout: Duration) -> Vec<Result<Command, ()>> {
+        self.expect_command_after(want, timeout, &[])
     }
 
     /// [`Pty::expect_command`], sending `before_answer` (batches of the run going on) just
     /// before the answer to `want`.
-    fn expect_command_after(&mut self, want: Command, timeout: Duration, before_answer: &[u8]) {
+    fn expect_command_after(
+        &mut self,
+        want: Command,
+        timeout: Duration,
+        before_answer: &[u8],
+    ) -> Vec<Result<Command, ()>> {
         let t0 = Instant::now();
         let mut dec = Decoder::<MAX_FRAME_LEN>::new();
         let mut seen = Vec::new();
@@ -97,13 +103,49 @@ impl Pty {
                     _ if self.answers => self.send(&encode(&DeviceMsg::Info(info()))),
                     _ => {}
                 }
-                seen.push(c);
+                seen.push(c.map_err(|_| ()));
             }
             if seen.contains(&Ok(want)) {
-                return;
+                return seen;
             }
         }
         panic!("jdbb did not send {want:?} within {timeout:?}; got {seen:?}");
+    }
+
+    /// Every command jdbb sends until it closes the port (its exit), answering as the firmware
+    /// does; panics after `timeout`.
+    fn commands_until_closed(&mut self, timeout: Duration) -> Vec<Result<Command, ()>> {
+        let t0 = Instant::now();
+        let mut dec = Decoder::<MAX_FRAME_LEN>::new();
+        let mut seen = Vec::new();
+        while t0.elapsed() < timeout {
+            let mut pfd = libc::pollfd {
+                fd: self.master.as_raw_fd(),
+                events: libc::POLLIN,
+                revents: 0,
+            };
+            // SAFETY: one valid pollfd.
+            if unsafe { libc::poll(&mut pfd, 1, 50) } <= 0 {
+                continue;
+            }
+            if pfd.revents & libc::POLLIN == 0 {
+                return seen; // hung up: the slave side is closed
+            }
+            let mut buf = [0u8; 256];
+            let n = match self.master.read(&mut buf) {
+                Ok(0) | Err(_) => return seen,
+                Ok(n) => n,
+            };
+            let mut new = Vec::new();
+            dec.feed::<Command>(&buf[..n], |c| new.push(c));
+            for c in new {
+                if let Ok(Command::Ping(token)) = c {
+                    self.send(&encode(&DeviceMsg::Pong(token)));
+                }
+                seen.push(c.map_err(|_| ()));
+            }
+        }
+        panic!("jdbb did not close the port within {timeout:?}; sent {seen:?}");
     }
 
     fn send(&mut self, bytes: &[u8]) {
@@ -169,6 +211,10 @@ fn batch_frame(seq: u32) -> Vec<u8> {
     protocol::encode(&msg, &mut buf).unwrap().to_vec()
 }
 
+/// How long to wait for a command from `jdbb` before calling it a hang: generous, for a debug
+/// build starting on busy cores; the wait ends as soon as the command arrives.
+const WAIT: Duration = Duration::from_secs(60);
+
 fn spawn(args: &[&str]) -> Child {
     Proc::new(JDBB)
         .args(args)
@@ -179,7 +225,8 @@ fn spawn(args: &[&str]) -> Child {
         .expect("spawn jdbb")
 }
 
-/// Data lines of the CSV (header checked), once it holds `n` of them; panics after 10 s.
+/// Data lines of the CSV (header checked), once it holds `n` of them; panics after 60 s (a hang,
+/// generous for a debug build on busy cores: it returns as soon as the lines are there).
 fn wait_for_lines(path: &Path, n: usize) -> Vec<String> {
     let t0 = Instant::now();
     loop {
@@ -195,7 +242,7 @@ fn wait_for_lines(path: &Path, n: usize) -> Vec<String> {
             return lines;
         }
         assert!(
-            t0.elapsed() < Duration::from_secs(10),
+            t0.elapsed() < Duration::from_secs(60),
             "CSV has {} of {n} lines",
             lines.len()
         );
@@ -381,7 +428,7 @@ fn record_survives_sigkill_with_every_flushed_sample() {
         "--out",
         out.to_str().unwrap(),
     ]);
-    pty.expect_command(Command::Start, Duration::from_secs(10));
+    pty.expect_command(Command::Start, WAIT);
     // 20 batches in pieces of odd sizes, as a USB link would deliver them.
     let bytes: Vec<u8> = (0..20).flat_map(|k| batch_frame(16 * k)).collect();
     for chunk in bytes.chunks(333) {
@@ -412,7 +459,7 @@ fn record_ctrl_c_flushes_and_summarises() {
         "--out",
         out.to_str().unwrap(),
     ]);
-    pty.expect_command(Command::Start, Duration::from_secs(10));
+    pty.expect_command(Command::Start, WAIT);
     // Batches 0, 16, a corrupted copy of 32, then 48 and 64: 16 samples lost, 1 corrupt frame.
     let mut bytes = batch_frame(0);
     bytes.extend(batch_frame(16));
@@ -426,7 +473,7 @@ fn record_ctrl_c_flushes_and_summarises() {
     // SAFETY: signalling our own child.
     assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
     // The recorder tells the device to stop before it exits.
-    pty.expect_command(Command::Stop, Duration::from_secs(10));
+    pty.expect_command(Command::Stop, WAIT);
     let o = child.wait_with_output().unwrap();
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{stdout}{}", stderr(&o));
@@ -452,14 +499,13 @@ fn record_reports_unplug_and_keeps_the_data() {
         "--seconds",
         "30",
     ]);
-    pty.expect_command(Command::Start, Duration::from_secs(10));
+    pty.expect_command(Command::Start, WAIT);
     let bytes: Vec<u8> = (0..3).flat_map(|k| batch_frame(16 * k)).collect();
     pty.send(&bytes);
     wait_for_lines(&partial(&out), 48);
     drop(pty); // the device goes away: the master side closes
-    let t0 = Instant::now();
+               // The exit itself is the check (a hang would never return); no speed bound.
     let o = child.wait_with_output().unwrap();
-    assert!(t0.elapsed() < Duration::from_secs(10));
     assert!(!o.status.success());
     let e = stderr(&o);
     assert!(e.contains("unplugged"), "{e}");
@@ -481,7 +527,7 @@ fn record_reports_unplug_and_keeps_the_data() {
 fn live_prints_lines_and_stops_by_itself() {
     let mut pty = Pty::new();
     let child = spawn(&["live", "--port", &pty.slave_path, "--seconds", "1.5"]);
-    pty.expect_command(Command::Start, Duration::from_secs(10));
+    pty.expect_command(Command::Start, WAIT);
     let bytes: Vec<u8> = (0..4).flat_map(|k| batch_frame(16 * k)).collect();
     pty.send(&bytes);
     let o = child.wait_with_output().unwrap();
@@ -517,7 +563,7 @@ fn record_stops_by_itself_after_seconds() {
         "--seconds",
         "1",
     ]);
-    pty.expect_command(Command::Start, Duration::from_secs(10));
+    pty.expect_command(Command::Start, WAIT);
     let bytes: Vec<u8> = (0..2).flat_map(|k| batch_frame(16 * k)).collect();
     pty.send(&bytes);
     let o = child.wait_with_output().unwrap();
@@ -527,7 +573,7 @@ fn record_stops_by_itself_after_seconds() {
         stdout.contains("time limit reached") && stdout.contains("samples 32, lost 0"),
         "{stdout}"
     );
-    pty.expect_command(Command::Stop, Duration::from_secs(5));
+    pty.expect_command(Command::Stop, WAIT);
     check_csv(&out, &(0..32).collect::<Vec<_>>());
 }
 
@@ -544,13 +590,13 @@ fn sigterm_and_sighup_end_a_record_like_ctrl_c() {
             "--out",
             out.to_str().unwrap(),
         ]);
-        pty.expect_command(Command::Start, Duration::from_secs(10));
+        pty.expect_command(Command::Start, WAIT);
         let bytes: Vec<u8> = (0..3).flat_map(|k| batch_frame(16 * k)).collect();
         pty.send(&bytes);
         wait_for_lines(&partial(&out), 48);
         // SAFETY: signalling our own child.
         assert_eq!(unsafe { libc::kill(child.id() as i32, signal) }, 0);
-        pty.expect_command(Command::Stop, Duration::from_secs(10));
+        pty.expect_command(Command::Stop, WAIT);
         let o = child.wait_with_output().unwrap();
         let stdout = String::from_utf8_lossy(&o.stdout);
         assert!(
@@ -585,14 +631,14 @@ fn record_discards_the_run_before_its_start_and_stops_at_a_restart() {
         .into_iter()
         .flat_map(batch_frame)
         .collect();
-    pty.expect_command_after(Command::Start, Duration::from_secs(10), &old_run);
+    pty.expect_command_after(Command::Start, WAIT, &old_run);
     let run: Vec<u8> = (0..4).flat_map(|k| batch_frame(16 * k)).collect();
     pty.send(&run);
     wait_for_lines(&partial(&out), 64);
     // The device restarts by itself: the record ends with the run it had.
     let again: Vec<u8> = (0..2).flat_map(|k| batch_frame(16 * k)).collect();
     pty.send(&again);
-    pty.expect_command(Command::Stop, Duration::from_secs(10));
+    pty.expect_command(Command::Stop, WAIT);
     let o = child.wait_with_output().unwrap();
     let stdout = String::from_utf8_lossy(&o.stdout);
     let e = stderr(&o);
@@ -625,7 +671,7 @@ fn force_replaces_an_existing_recording() {
         "1",
         "--force",
     ]);
-    pty.expect_command(Command::Start, Duration::from_secs(10));
+    pty.expect_command(Command::Start, WAIT);
     pty.send(&batch_frame(0));
     let o = child.wait_with_output().unwrap();
     assert!(o.status.success(), "{}", stderr(&o));
@@ -636,7 +682,7 @@ fn force_replaces_an_existing_recording() {
 fn live_reports_a_device_restart() {
     let mut pty = Pty::new();
     let child = spawn(&["live", "--port", &pty.slave_path, "--seconds", "1.5"]);
-    pty.expect_command(Command::Start, Duration::from_secs(10));
+    pty.expect_command(Command::Start, WAIT);
     let mut bytes: Vec<u8> = (0..4).flat_map(|k| batch_frame(16 * k)).collect();
     bytes.extend(batch_frame(0));
     pty.send(&bytes);
@@ -667,7 +713,7 @@ fn an_unacknowledged_start_records_nothing_and_leaves_the_output_alone() {
         out.to_str().unwrap(),
         "--force",
     ]);
-    pty.expect_command(Command::Start, Duration::from_secs(10));
+    pty.expect_command(Command::Start, WAIT);
     // Batches without the answer to Start: another run's, never recorded.
     pty.send(&batch_frame(0));
     let o = child.wait_with_output().unwrap();
@@ -703,14 +749,14 @@ fn record_with_a_failing_standard_error_records_as_ever() {
         .stderr(Stdio::from(full))
         .spawn()
         .unwrap();
-    pty.expect_command(Command::Start, Duration::from_secs(10));
+    pty.expect_command(Command::Start, WAIT);
     let mut bytes = batch_frame(0);
     bytes.extend(batch_frame(16));
     pty.send(&bytes);
     wait_for_lines(&partial(&out), 32);
     // SAFETY: signalling our own child.
     assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
-    pty.expect_command(Command::Stop, Duration::from_secs(10));
+    pty.expect_command(Command::Stop, WAIT);
     let o = child.wait_with_output().unwrap();
     assert!(o.status.success(), "{:?}", o.status);
     check_csv(&out, &(0..32).collect::<Vec<_>>());
@@ -735,7 +781,7 @@ fn record_sets_suspect_samples_aside_and_says_so() {
         "--out",
         out.to_str().unwrap(),
     ]);
-    pty.expect_command(Command::Start, Duration::from_secs(10));
+    pty.expect_command(Command::Start, WAIT);
     let mut samples = heapless::Vec::new();
     for i in 0..BATCH_LEN as u64 {
         let mut s = sample(i);
@@ -760,7 +806,7 @@ fn record_sets_suspect_samples_aside_and_says_so() {
     wait_for_lines(&partial(&out), BATCH_LEN);
     // SAFETY: signalling our own child.
     assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
-    pty.expect_command(Command::Stop, Duration::from_secs(10));
+    pty.expect_command(Command::Stop, WAIT);
     let o = child.wait_with_output().unwrap();
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{stdout}{}", stderr(&o));
@@ -781,4 +827,43 @@ fn record_sets_suspect_samples_aside_and_says_so() {
         .map(|l| l.split(',').next().unwrap().parse().unwrap())
         .collect();
     assert_eq!(data, [0, 8, 9, 10, 11, 12, 13, 14, 15]);
+}
+
+/// `record --no-start` listens to a device that is already streaming: it sends no Ping, no
+/// Start and no Stop (only GetInfo, which changes nothing), skips the tail of the frame it
+/// joined in the middle of, and records from the first complete batch on — its sequence numbers
+/// as they come (48.., not renumbered from 0).
+#[test]
+fn record_no_start_only_listens_and_keeps_the_runs_numbers() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rec.csv");
+    let mut pty = Pty::new();
+    let child = spawn(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+        "--seconds",
+        "1",
+        "--no-start",
+    ]);
+    let mut sent = pty.expect_command(Command::GetInfo, WAIT);
+    // The run was going on: the second half of batch 32's frame, then whole batches.
+    let joined = batch_frame(32);
+    let mut bytes = joined[joined.len() / 2..].to_vec();
+    bytes.extend((3..5).flat_map(|k| batch_frame(16 * k)));
+    pty.send(&bytes);
+    sent.extend(pty.commands_until_closed(WAIT));
+    let o = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{stdout}{}", stderr(&o));
+    assert!(
+        sent.iter().all(|c| !matches!(
+            c,
+            Ok(Command::Start) | Ok(Command::Stop) | Ok(Command::Ping(_))
+        )),
+        "a listener must not drive the device: {sent:?}"
+    );
+    check_csv(&out, &(48..80).collect::<Vec<_>>());
 }

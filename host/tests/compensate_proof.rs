@@ -1,4 +1,10 @@
-//! The compensation's sign conventions, proven rather than asserted (issue 10).
+//! The compensation's sign conventions, proven rather than asserted (issue 10): a round trip on
+//! the project's own simulator (`jdbb::circular::simulate`, the fit's own effect models on the
+//! fit's `Path`), so the *machine's* conventions here are the diagnosis' own. What this proves is
+//! the controller side — that each emitted setting, applied with the controller's documented
+//! semantics, removes what the diagnosis measured. That the diagnosis measured the machine's
+//! real error with the right sign, phase and table positions is checked against the independent
+//! G-code machine in `tests/tests/compensate_truth.rs` (issue 21).
 //!
 //! For each controller: a simulated machine with known errors runs the circular test under the
 //! settings in force; `jdbb`'s diagnosis and `compensate` give new settings; the text they emit

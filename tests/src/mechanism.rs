@@ -275,10 +275,13 @@ impl Mechanism {
 
     /// The bar-2 direction for ball distance `d_mm` and lean azimuth `azimuth_rad` (in bar 1's
     /// frame, from +x towards +y): the deflection φ from the triangle B1–J–B2 (law of cosines).
+    /// Bar 2 stays on the spindle side of the joint (φ < 90°, the half sphere
+    /// [`Self::bar2_direction`] covers): a slot plane holds the whole line through J, but the
+    /// bar cannot fold back past perpendicular to bar 1, so a smaller D is unreachable.
     pub fn direction_for_pose(&self, d_mm: f64, azimuth_rad: f64) -> Result<V3, PoseError> {
         let (l1, l2) = (self.l1_mm, self.l2_mm);
         let cos_phi = (d_mm * d_mm - l1 * l1 - l2 * l2) / (2.0 * l1 * l2);
-        if !(-1.0..=1.0).contains(&cos_phi) {
+        if !(cos_phi > 0.0 && cos_phi <= 1.0) {
             return Err(PoseError::Unreachable);
         }
         let sin_phi = (1.0 - cos_phi * cos_phi).sqrt();
@@ -287,9 +290,12 @@ impl Mechanism {
     }
 
     /// The angle (rad) frame `k` must turn to so that it holds bar 2 in direction `u`: the root
-    /// of the grip point's miss in (−90°, 90°), by bisection. Err if it is beyond the range.
+    /// of the grip point's miss in (−90°, 90°), by Newton's method kept inside a bisection
+    /// bracket (the miss's derivative is the grip point against the turning normal,
+    /// d n/dθ = a × n). Err if it is beyond the range.
     pub fn frame_angle_for_direction_rad(&self, k: usize, u: V3) -> Result<f64, PoseError> {
-        let f = |t: f64| self.frames[k].miss_mm(u, t);
+        let frame = &self.frames[k];
+        let f = |t: f64| frame.miss_mm(u, t);
         let half = std::f64::consts::FRAC_PI_2 - 1e-9;
         let (mut lo, mut hi) = (-half, half);
         let (f_lo, f_hi) = (f(lo), f(hi));
@@ -297,18 +303,33 @@ impl Mechanism {
             return Err(PoseError::NoConvergence);
         }
         let rising = f_hi > f_lo;
+        let grip = sub(scale(u, frame.grip_mm), frame.pivot_mm);
+        let mut theta = 0.0;
         for _ in 0..200 {
-            let mid = 0.5 * (lo + hi);
-            if mid <= lo || mid >= hi {
+            let n = frame.normal(theta);
+            let value = dot(grip, n);
+            if value == 0.0 {
                 break;
             }
-            if (f(mid) > 0.0) == rising {
-                hi = mid;
+            // Keep the bracket: the root lies on the side where the miss changes sign.
+            if (value > 0.0) == rising {
+                hi = theta;
             } else {
-                lo = mid;
+                lo = theta;
             }
+            let slope = dot(grip, cross(frame.axis, n));
+            let newton = theta - value / slope;
+            let next = if slope != 0.0 && newton > lo && newton < hi {
+                newton
+            } else {
+                0.5 * (lo + hi)
+            };
+            if (next - theta).abs() < 1e-15 {
+                theta = next;
+                break;
+            }
+            theta = next;
         }
-        let theta = 0.5 * (lo + hi);
         if theta.abs() > FRAME_RANGE_RAD {
             return Err(PoseError::OutOfRange);
         }

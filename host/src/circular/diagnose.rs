@@ -11,9 +11,12 @@
 //!    residual of step 2. One pass over the samples accumulates the Gram matrix of all columns; the
 //!    forward selection then works on that small matrix only, which is why the whole search costs
 //!    one pass (O(m·n²)) plus O(n³) per trial.
-//! 4. Selection by BIC ([`crate::numerics::select`]) = m·ln(SSR/m) + k·ln(m): an effect is added while it lowers BIC. For one
-//!    added parameter this is a likelihood-ratio test at χ²₁ > ln m, i.e. a false-alarm rate of
-//!    P(χ²₁ > ln m) per candidate (0.16 % at m = 20 000; 2 parameters: P(χ²₂ > 2 ln m) = 5e-5).
+//! 4. Selection by extended BIC ([`crate::numerics::select`], γ = ½ in `Options::default()`) =
+//!    m·ln(SSR/m) + k·ln(m) + 2γ·ln C(N, s): an effect is added while it lowers it. For the first
+//!    of N candidate families with one parameter this is a likelihood-ratio test at
+//!    χ²₁ > ln m + ln N, so the chance that data without any effect name one is at most
+//!    N·P(χ²₁ > ln(m·N)) (≈ 0.6 % at m = 17 000, N = 15; the derivation and its test are in
+//!    `docs/tests.md`).
 //!    An effect must also reach [`MIN_EFFECT_UM`] on D somewhere on the test (the bound
 //!    Σ|β_c|·max|column_c|): with tens of thousands of samples, misfits of a few nanometres —
 //!    a backlash that is a dead zone rather than a step, a sample's timing off by a millisecond —

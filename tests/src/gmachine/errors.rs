@@ -33,6 +33,45 @@ pub struct Cyclic {
     pub phase_rad: f64,
 }
 
+/// Second-order scale of one axis: the screw's pitch is not constant but grows (or shrinks)
+/// linearly along the travel — a screw ground with a tapered lead, or warmed more at one end —
+/// so the lead error accumulated from the point `origin_mm`, where the lead is right, grows with
+/// the square of the distance: δ = b·(p − origin)², b in µm/m².
+///
+/// Sign: b > 0 means the lead is too long beyond `origin_mm` in + and too short below it, so the
+/// carriage ends up displaced towards **+** on both sides of the origin (it overshoots going up
+/// and falls short coming down from the origin). `origin_mm` is in program coordinates; a
+/// second-order error about another origin than the table ball also carries a first-order part
+/// 2·b·(ball − origin) (a scale) and a constant (a shift of the circle's centre): the physics,
+/// not a convention.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Scale2 {
+    /// b (µm per m²); 0 = none.
+    pub um_per_m2: f64,
+    /// Where the lead is right (mm, program coordinates).
+    pub origin_mm: f64,
+}
+
+/// Interference of the detection device of one axis (seed 000 §3.3), written as the mechanism:
+/// the read head of the axis' scale (or encoder) reports the position *late* by a latency that
+/// varies over each signal period P of the scale — an interpolator whose two quadrature
+/// channels are filtered unequally settles at a different delay at each point of the period:
+/// τ(p) = τ_c·sin(2π·p/P + φ), p the axis' position from the program origin.
+///
+/// The servo holds the *reading* on the command: reading(t) = actual(t − τ) = command(t), so the
+/// carriage runs **ahead** of its command by what the reading lags, actual(t) = command(t + τ),
+/// i.e. δ ≈ +v·τ(p): an error at the signal period whose amplitude grows with the speed and
+/// which changes sign with the direction of motion. In µm per mm/s the amplitude is τ_c in ms.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Interference {
+    /// τ_c (ms): the latency's amplitude; 0 = none.
+    pub latency_ms: f64,
+    /// The signal period P (mm); 0 = none.
+    pub pitch_mm: f64,
+    /// Phase φ (rad) at the program origin.
+    pub phase_rad: f64,
+}
+
 /// Stick at reversal of one axis: the axis lags its command by h right after it reverses and
 /// catches up with time constant τ.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -123,6 +162,11 @@ pub struct MachineErrors {
     pub reversal_spike: [ReversalSpike; 3],
     /// Drift of D (µm/min) from cycle start on (warm-up).
     pub drift_um_per_min: f64,
+    /// Second-order scale (a lead that changes along the screw) per axis.
+    pub scale2: [Scale2; 3],
+    /// Interference of each axis' detection device (a reading latency that varies over the
+    /// scale's signal period).
+    pub interference: [Interference; 3],
 }
 
 impl MachineErrors {
@@ -140,6 +184,12 @@ impl MachineErrors {
         }
         for s in &self.reversal_spike {
             all.extend([s.height_um, s.tau_ms]);
+        }
+        for s in &self.scale2 {
+            all.extend([s.um_per_m2, s.origin_mm]);
+        }
+        for i in &self.interference {
+            all.extend([i.latency_ms, i.pitch_mm, i.phase_rad]);
         }
         for s in &self.squareness {
             all.push(s.um_per_m);
@@ -172,6 +222,16 @@ impl MachineErrors {
         }
         if self.cyclic.iter().any(|c| c.pitch_mm < 0.0) {
             return Err("cyclic pitch_mm must be ≥ 0 (0 = no cyclic error)".into());
+        }
+        if self.interference.iter().any(|i| i.pitch_mm < 0.0) {
+            return Err("interference pitch_mm must be ≥ 0 (0 = no interference)".into());
+        }
+        if self
+            .interference
+            .iter()
+            .any(|i| i.pitch_mm > 0.0 && i.latency_ms.abs() > 10.0)
+        {
+            return Err("interference latency_ms must be within ±10 ms".into());
         }
         if self.reversal_spike.iter().any(|s| s.tau_ms < 0.0) {
             return Err("reversal spike tau_ms must be ≥ 0 (0 = no spike)".into());
@@ -228,6 +288,11 @@ impl MachineErrors {
     /// commanded coordinate `p_k` (mm), for the direction state of the axis at program time `t`.
     fn axis_error_um(&self, k: usize, p_k: f64, traj: &Trajectory, t: f64) -> f64 {
         let mut d = self.scale_um_per_m[k] * p_k * 1e-3;
+        let q = &self.scale2[k];
+        if q.um_per_m2 != 0.0 {
+            let from_origin_m = (p_k - q.origin_mm) * 1e-3;
+            d += q.um_per_m2 * from_origin_m * from_origin_m;
+        }
         let c = &self.cyclic[k];
         if c.pitch_mm > 0.0 && c.amplitude_um != 0.0 {
             d += c.amplitude_um * (std::f64::consts::TAU * p_k / c.pitch_mm + c.phase_rad).sin();
@@ -258,6 +323,14 @@ impl MachineErrors {
         for k in 0..3 {
             if self.servo_delay_ms[k] != 0.0 {
                 t_axis[k] = t - self.servo_delay_ms[k] * 1e-3;
+                lagged[k] = traj.position_at(t_axis[k])[k];
+            }
+            // Interference: the reading lags by τ(p), so the axis is where its command will be
+            // τ(p) later (τ < 0: earlier).
+            let i = &self.interference[k];
+            if i.pitch_mm > 0.0 && i.latency_ms != 0.0 {
+                let w = std::f64::consts::TAU * lagged[k] / i.pitch_mm + i.phase_rad;
+                t_axis[k] += i.latency_ms * 1e-3 * w.sin();
                 lagged[k] = traj.position_at(t_axis[k])[k];
             }
         }
@@ -447,6 +520,59 @@ mod tests {
         }
         // Before the reversal: the move from the initial + state to +x is no reversal.
         let p = e.actual(&t, 0.5 * t_rev, [0.0; 3]);
+        assert_eq!(p.actual_mm[0], p.command_mm[0]);
+    }
+    #[test]
+    fn scale2_is_quadratic_about_its_origin_and_positive_on_both_sides() {
+        let e = MachineErrors {
+            scale2: [
+                Scale2 {
+                    um_per_m2: 800.0,
+                    origin_mm: 100.0,
+                },
+                Scale2::default(),
+                Scale2::default(),
+            ],
+            ..Default::default()
+        };
+        for (x, expect_um) in [(100.0, 0.0), (150.0, 2.0), (50.0, 2.0), (0.0, 8.0)] {
+            let t = traj(&format!("G21 G90 G0 X{x}\n"));
+            let p = e.actual(&t, t.end_s + 1.0, [0.0; 3]);
+            let d = (p.actual_mm[0] - p.command_mm[0]) * 1e3;
+            assert!((d - expect_um).abs() < 1e-9, "x {x}: {d} µm vs {expect_um}");
+        }
+    }
+
+    #[test]
+    fn interference_runs_the_axis_ahead_by_speed_times_the_reading_latency() {
+        // +x at 600 mm/min = 10 mm/s, then back at the same feed.
+        let t = traj("G21 G90 G1 X40 F600\nX0\n");
+        let i = Interference {
+            latency_ms: 0.2,
+            pitch_mm: 4.0,
+            phase_rad: 0.3,
+        };
+        let e = MachineErrors {
+            interference: [i, Interference::default(), Interference::default()],
+            ..Default::default()
+        };
+        let check = |tt: f64, v_mm_s: f64| {
+            let p = e.actual(&t, tt, [0.0; 3]);
+            let x = p.command_mm[0];
+            let tau_s = 0.2e-3 * (std::f64::consts::TAU * x / 4.0 + 0.3).sin();
+            let d_um = (p.actual_mm[0] - x) * 1e3;
+            // δ = +v·τ(p) (to first order in τ at constant speed).
+            let expect = 1e3 * v_mm_s * tau_s;
+            assert!((d_um - expect).abs() < 1e-3, "t {tt}: {d_um} vs {expect}");
+            d_um
+        };
+        let mid_up = 0.5 * t.segments[0].t_end_s();
+        let mid_down = 0.5 * (t.segments[1].t_start_s + t.segments[1].t_end_s());
+        let a = check(mid_up, 10.0);
+        let b = check(mid_down, -10.0);
+        assert!(a.abs() > 0.2 && b.abs() > 0.2, "{a} {b}");
+        // Standing still: no error.
+        let p = e.actual(&t, t.end_s + 1.0, [0.0; 3]);
         assert_eq!(p.actual_mm[0], p.command_mm[0]);
     }
 }

@@ -10,7 +10,7 @@
 //!  G-code ──program──▶ blocks ──planner──▶ p(t) ──errors──▶ spindle & table ball ──▶ D(t)
 //!          (dialect)           (lookahead,       (δ per axis,                        │
 //!                               trapezoids)       set-up, drift)                     ▼
-//!   rows ◀── device D (core kernel) ◀── counts (core inverse, wandering lean ψ) ◀── D + noise
+//!   rows ◀── device D (core kernel) ◀── counts (mechanism model, wandering lean ψ) ◀── D + noise
 //!    ▲
 //!    └── device clock: t_us = t0 + round(t·(1 + ppm·1e-6)·1e6), nominal rate on that clock
 //! ```
@@ -91,6 +91,13 @@
 //! - *squareness* s (µm/m) of axis i by axis j: δ_i = s·(p_j − ball_j), j's coordinate relative
 //!   to the (nominal) table ball. On a circle in xy with δ_x = s·y: ΔD ≈ δ·u = s·x·y/R.
 //! - *cyclic* (A µm, pitch P mm, phase φ): δ_k = A·sin(2π·p_k/P + φ), p_k from the program origin.
+//! - *second-order scale* ([`Scale2`]: b µm/m², origin o mm): a lead that changes linearly along
+//!   the screw, δ_k = b·(p_k − o)², + on both sides of o for b > 0.
+//! - *interference* ([`Interference`]: τ_c ms, signal period P mm, phase φ): the read head reports
+//!   the position late by τ(p) = τ_c·sin(2π·p_k/P + φ) and the servo holds the reading on the
+//!   command, so the axis is at its command τ(p) *later*: actual_k(t) = command_k(t + τ(p)),
+//!   δ_k ≈ +v_k·τ(p) (τ_c in ms is the amplitude in µm per mm/s). Evaluated as a time shift,
+//!   after the servo delay.
 //! - *servo delay* τ_k (ms): a true delay, actual_k(t) = command_k(t − τ_k) (not −τ·v); the
 //!   axis' own errors above are evaluated at its delayed position and direction state, and a
 //!   squareness term uses the delayed position of the axis j that causes it.
@@ -102,7 +109,10 @@
 //!
 //! **Instrument.** D (true + Gaussian noise of σ = [`InstrumentConfig::noise_um`] on D itself,
 //! before quantisation) → deflection φ → frame angles for the lean azimuth ψ(t) → whole counts,
-//! with `jdbb_core::geometry::counts_for_distance` for the calibration in force. ψ is a random
+//! by the tests' own model of the instrument as built ([`crate::mechanism`]: frames as rigid
+//! bodies, bar 2 found where both grip points lie in the slot planes, encoders by eq. (G9)), for
+//! `true_calibration` if set, else the calibration in force — not by the core's inverse
+//! `counts_for_distance`, so a convention of the core model cannot cancel here. ψ is a random
 //! walk reflected within a band ([`AzimuthWalk`]); a D whose frames would leave ±75° at that ψ (or
 //! beyond L1 + L2) is an error ([`SimError::OutOfReach`]) naming the time and line. The device's
 //! D is the production kernel (`jdbb_core::geometry::Kernel`, what the firmware's sampler runs) on
@@ -127,7 +137,8 @@ pub mod recorder;
 mod words;
 
 pub use errors::{
-    Axis, BacklashEnds, Bow, Cyclic, LateralPlay, MachineErrors, ReversalSpike, Squareness,
+    Axis, BacklashEnds, Bow, Cyclic, Interference, LateralPlay, MachineErrors, ReversalSpike,
+    Scale2, Squareness,
 };
 pub use planner::{plan, MachineConfig, SegmentKind, Trajectory};
 pub use program::{

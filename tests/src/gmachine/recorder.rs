@@ -4,7 +4,7 @@
 
 use std::io::{self, Write};
 
-use jdbb_core::geometry::{self, Kernel};
+use jdbb_core::geometry::Kernel;
 use jdbb_core::Calibration;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -47,10 +47,10 @@ pub struct InstrumentConfig {
     /// The calibration in force: the counts are made with it and the device computes D with it.
     pub calibration: Calibration,
     /// The instrument as built, when it differs from the calibration in force (calibration
-    /// tests): the counts are made with this one — by the independent model of the instrument
-    /// as built ([`crate::mechanism`]), not the core model the calibration fits — while the
-    /// device computes D with `calibration`, as a J-DBB with unknown errors running a nominal
-    /// calibration does. None: the instrument is exactly `calibration`.
+    /// tests): the counts are made with this one while the device computes D with
+    /// `calibration`, as a J-DBB with unknown errors running a nominal calibration does. None:
+    /// the instrument is exactly `calibration`. Either way the counts come from the independent
+    /// model of the instrument as built ([`crate::mechanism`]), not from the core model.
     pub true_calibration: Option<Calibration>,
     /// Sample rate on the device's clock (Hz).
     pub sample_rate_hz: f64,
@@ -260,8 +260,9 @@ pub struct Samples<'a> {
     rng_noise: ChaCha8Rng,
     psi: f64,
     kernel: Kernel,
-    /// The instrument as built, when it differs from the calibration in force.
-    mechanism: Option<Mechanism>,
+    /// The instrument as built: `true_calibration`, else the calibration in force, built from
+    /// parts by the independent mechanism model.
+    mechanism: Mechanism,
     failed: bool,
 }
 
@@ -279,7 +280,7 @@ impl<'a> Samples<'a> {
             },
             psi: ins.azimuth.start_rad,
             kernel: Kernel::new(&ins.calibration),
-            mechanism: ins.true_calibration.as_ref().map(Mechanism::new),
+            mechanism: Mechanism::new(ins.true_calibration.as_ref().unwrap_or(&ins.calibration)),
             failed: false,
         }
     }
@@ -336,14 +337,12 @@ impl Iterator for Samples<'_> {
             d_true
         };
         let block = (t_p >= 0.0 && t_p < traj.end_s).then(|| traj.segment_at(t_p));
-        let counts = match &ins.true_calibration {
-            None => geometry::counts_for_distance(&ins.calibration, d_ins, self.psi),
-            Some(_) => self
-                .mechanism
-                .as_ref()
-                .and_then(|m| m.counts_for_pose(d_ins, self.psi).ok())
-                .map(|[a, b]| (a, b)),
-        };
+        // The counts: the independent model of the instrument as built, not the core's inverse.
+        let counts = self
+            .mechanism
+            .counts_for_pose(d_ins, self.psi)
+            .ok()
+            .map(|[a, b]| (a, b));
         let Some((enc1, enc2)) = counts else {
             self.failed = true;
             return Some(Err(SimError::OutOfReach {

@@ -25,3 +25,23 @@ pub fn machine_names(d: &Diagnosis) -> Vec<String> {
         .map(|f| f.effect.name())
         .collect()
 }
+
+/// `got ± sigma` is `truth`, without a bias a small σ would hide: the error is within the bias
+/// bound (1 % of |truth|, or `abs` where that is larger: the quantisation, the synchronisation's
+/// timing) plus 3σ, *and* σ itself is under 10 % of |truth| (or `abs`), so neither a biased
+/// estimate with a tiny σ nor a vague one with a large σ passes. `context` is printed on failure
+/// (e.g. the diagnosis summary).
+// Not every test file that shares this module checks a value.
+#[allow(dead_code)]
+pub fn assert_unbiased(what: &str, got: f64, sigma: f64, truth: f64, abs: f64, context: &str) {
+    let bias = (0.01 * truth.abs()).max(abs);
+    let err = (got - truth).abs();
+    assert!(
+        err <= bias + 3.0 * sigma,
+        "{what}: {got} ± {sigma} vs truth {truth}: off by {err}, more than {bias} + 3σ\n{context}"
+    );
+    assert!(
+        sigma <= (0.1 * truth.abs()).max(abs),
+        "{what}: σ {sigma} of truth {truth} is too large to check the value\n{context}"
+    );
+}
