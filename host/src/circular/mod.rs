@@ -30,6 +30,8 @@ pub mod plan;
 pub mod plot;
 pub mod report;
 pub mod runs;
+pub mod machine;
+pub mod record_sim;
 pub mod simulate;
 pub mod sync;
 pub mod words;

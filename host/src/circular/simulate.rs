@@ -357,7 +357,7 @@ pub fn write_csv(out: &mut dyn Write, path: &Path, d_mm: &[f64]) -> std::io::Res
 
 /// Parse `xy`, `yz`, `zx` into (i, j, normal).
 pub fn parse_plane(s: &str) -> Result<(usize, usize, usize)> {
-    match s {
+    match s.to_ascii_lowercase().as_str() {
         "xy" => Ok((0, 1, 2)),
         "yz" => Ok((1, 2, 0)),
         "zx" => Ok((2, 0, 1)),

@@ -85,6 +85,8 @@ pub struct Record {
     pub t0_us: f64,
     pub t_s: Vec<f64>,
     pub d_mm: Vec<f64>,
+    /// The plan the record was made for (its `# plan_id:` line), if it says.
+    pub plan_id: Option<String>,
     /// Line number of each sample in the file (errors name it).
     lines: Vec<u32>,
 }
@@ -106,6 +108,7 @@ impl Record {
             t0_us: 0.0,
             t_s: vec![],
             d_mm: vec![],
+            plan_id: t.header_comment(super::plan::PLAN_ID_KEY).map(str::to_string),
             lines: vec![],
         };
         let mut prev: Option<f64> = None;
@@ -152,6 +155,7 @@ impl Record {
             t0_us: 0.0,
             t_s,
             d_mm,
+            plan_id: None,
             lines,
         }
     }

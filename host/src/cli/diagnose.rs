@@ -119,6 +119,22 @@ fn add_run_facts(
     )))
 }
 
+/// Refuse a record made for another plan (its `# plan_id:` line names another id). A record
+/// without the line (made before plan ids, or by hand) is taken as it is.
+fn check_plan_id(rec: &Record, plan: &Plan, plan_file: &std::path::Path) -> Result<()> {
+    match &rec.plan_id {
+        Some(id) if *id != plan.id() => Err(Error::Input {
+            location: rec.path.display().to_string(),
+            message: format!(
+                "this record was made for another plan (plan_id {id}), not for {} (plan_id {}); give the plan.json the record was made with",
+                plan_file.display(),
+                plan.id()
+            ),
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// Run `jdbb diagnose`.
 pub fn run(args: &DiagnoseArgs) -> Result<()> {
     if let Some(dir) = &args.report {
@@ -135,6 +151,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         (None, Some(record), None, Some(plan_file)) => {
             let plan = Plan::read(plan_file)?;
             let rec = Record::read(record)?;
+            check_plan_id(&rec, &plan, plan_file)?;
             let sync = synchronise(&plan, &rec)?;
             check_holes(&rec, &sync)?;
             let data = data_path(&plan, &rec, &sync, pitch)?;

@@ -9,9 +9,10 @@ use std::time::Instant;
 use super::output::{emit, note};
 use super::stream_args::StreamArgs;
 use crate::link::record::{
-    check_output, create_partial, finish_output, partial_path, record_to, summary, CsvOut, End,
-    CSV_HEADER,
+    check_output, create_partial, finish_output, header, partial_path, record_to, summary, CsvOut,
+    End,
 };
+use crate::circular::plan::{Plan, PLAN_ID_KEY};
 use crate::link::stream::{describe_info, interrupt_flag, Stream};
 use crate::{Error, Result};
 
@@ -27,16 +28,25 @@ pub struct RecordArgs {
     /// Replace --out if it exists (a regular file only; never a link or a device).
     #[arg(long)]
     pub force: bool,
+    /// The plan.json of the program the machine runs: its id goes into the record (`# plan_id:`
+    /// line), so `jdbb diagnose --record --plan` can tell a record of another plan.
+    #[arg(long, value_name = "PLAN_JSON")]
+    pub plan: Option<PathBuf>,
 }
 
 /// Run `jdbb record`.
 pub fn run(args: &RecordArgs) -> Result<()> {
     args.stream.validate()?;
     check_output(&args.out, args.force)?;
+    let plan = args.plan.as_deref().map(Plan::read).transpose()?;
+    let head = header(&match &plan {
+        Some(p) => vec![(PLAN_ID_KEY, p.id())],
+        None => vec![],
+    });
     // The port first: a mistyped port leaves no file behind and touches none.
     let mut stream = Stream::open(&args.stream.port)?;
     let partial = partial_path(&args.out);
-    let file = create_partial(&partial)?;
+    let file = create_partial(&partial, &head)?;
     let interrupted = interrupt_flag();
     if let Err(e) = args.stream.start(&mut stream) {
         // Nothing recorded: remove the work file this run created (it holds the header only).
@@ -54,7 +64,7 @@ pub fn run(args: &RecordArgs) -> Result<()> {
         }
     ));
     let t0 = Instant::now();
-    let mut out = CsvOut::new(file, CSV_HEADER.len() as u64);
+    let mut out = CsvOut::new(file, head.len() as u64);
     let end = record_to(
         &mut stream,
         &mut out,

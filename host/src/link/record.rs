@@ -37,6 +37,17 @@ use crate::{Error, Result};
 /// First line of every recording.
 pub const CSV_HEADER: &str = "seq,t_us,enc1,enc2,d_mm\n";
 
+/// The text a record starts with: a `# key: value` comment line per entry of `comments` (e.g. the
+/// plan's id, which readers find with `Table::header_comment`), then [`CSV_HEADER`].
+pub fn header(comments: &[(&str, String)]) -> String {
+    let mut s = String::new();
+    for (k, v) in comments {
+        s.push_str(&format!("# {k}: {v}\n"));
+    }
+    s.push_str(CSV_HEADER);
+    s
+}
+
 /// Append one CSV line per sample to `out`: `seq,t_us,enc1,enc2,d_mm`, D with 7 decimals
 /// (0.1 nm; the on-chip D is good to ~10 nm).
 pub fn write_csv_lines(out: &mut Vec<u8>, samples: &[SeqSample]) {
@@ -248,8 +259,8 @@ pub fn check_output(out: &Path, force: bool) -> Result<()> {
 }
 
 /// Create the work file `partial` (it must not exist: never an existing file, never through a
-/// link) and write the header.
-pub fn create_partial(partial: &Path) -> Result<File> {
+/// link) and write `header` (see [`header`]).
+pub fn create_partial(partial: &Path, header: &str) -> Result<File> {
     let mut file = OpenOptions::new()
         .write(true)
         .create_new(true)
@@ -267,7 +278,7 @@ pub fn create_partial(partial: &Path) -> Result<File> {
                 }
             }
         })?;
-    file.write_all(CSV_HEADER.as_bytes())
+    file.write_all(header.as_bytes())
         .map_err(|source| Error::File {
             action: "cannot write",
             path: partial.to_path_buf(),
@@ -548,7 +559,7 @@ mod tests {
     fn unwritable_output_is_a_clear_error() {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("no/such/dir/x.csv");
-        let e = create_partial(&partial_path(&out)).unwrap_err();
+        let e = create_partial(&partial_path(&out), CSV_HEADER).unwrap_err();
         assert!(e.to_string().contains("cannot create"), "{e}");
     }
 
@@ -755,15 +766,15 @@ mod tests {
         let out = dir.path().join("rec.csv");
         let partial = partial_path(&out);
         assert_eq!(partial, dir.path().join("rec.csv.partial"));
-        drop(create_partial(&partial).unwrap());
+        drop(create_partial(&partial, CSV_HEADER).unwrap());
         // A second recorder may not take over the work file.
-        let e = create_partial(&partial).unwrap_err().to_string();
+        let e = create_partial(&partial, CSV_HEADER).unwrap_err().to_string();
         assert!(e.contains("did not finish"), "{e}");
         finish_output(&partial, &out, false).unwrap();
         assert!(!partial.exists());
         assert_eq!(std::fs::read_to_string(&out).unwrap(), CSV_HEADER);
         // Without --force, a file that appeared meanwhile is left alone.
-        drop(create_partial(&partial).unwrap());
+        drop(create_partial(&partial, CSV_HEADER).unwrap());
         std::fs::write(&out, "theirs\n").unwrap();
         let e = finish_output(&partial, &out, false)
             .unwrap_err()
