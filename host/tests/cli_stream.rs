@@ -245,6 +245,28 @@ fn no_such_port_is_a_clear_error() {
 }
 
 #[test]
+fn a_port_in_use_says_so_not_dialout() {
+    let pty = Pty::new();
+    // Another program holds the port (serialport opens it exclusively, as a terminal would).
+    let held = serialport::new(&pty.slave_path, 115_200).open().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.csv");
+    let o = jdbb(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("in use by another program"), "{e}");
+    assert!(!e.contains("dialout") && !e.contains("panicked"), "{e}");
+    assert!(!out.exists());
+    drop(held);
+}
+
+#[test]
 fn port_that_is_not_a_device_is_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("x.csv");

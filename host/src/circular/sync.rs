@@ -77,6 +77,25 @@ pub const REVERSAL_GUARD_S: f64 = 1e-3;
 /// plan: the record belongs to another program or the run was disturbed.
 pub const FEED_RANGE: (f64, f64) = (0.05, 3.0);
 
+/// The largest feed override a controller allows (%): a record whose arcs ran faster than this
+/// share of the plan's feed is not of this plan's program (or the program's F words were edited).
+pub const MAX_OVERRIDE_PERCENT: f64 = 150.0;
+
+/// Refuse a synchronisation whose feed on the arcs is beyond [`MAX_OVERRIDE_PERCENT`] of the
+/// plan's: the machine did not run this plan's program as written.
+pub fn check_feed(sync: &Sync, rec: &Record) -> Result<()> {
+    if sync.feed_percent > MAX_OVERRIDE_PERCENT {
+        return Err(Error::Input {
+            location: rec.path.display().to_string(),
+            message: format!(
+                "the arcs ran at {:.0} % of the plan's feed {} mm/min, more than a feed override allows ({MAX_OVERRIDE_PERCENT:.0} %): the machine ran another program, or its F words were edited. Record the plan's own program at an override of at most {MAX_OVERRIDE_PERCENT:.0} %, or give the plan.json of the program that ran",
+                sync.feed_percent, sync.programmed_feed_mm_min
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// A recording: time (s after its first sample) and D (mm).
 #[derive(Debug, Clone)]
 pub struct Record {

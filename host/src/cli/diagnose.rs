@@ -10,7 +10,7 @@ use crate::circular::model::parse_pitch;
 use crate::circular::plan::Plan;
 use crate::circular::plot::write_report;
 use crate::circular::report::{plan_json, summary, sync_json, sync_summary, to_json};
-use crate::circular::sync::{data_path, synchronise, Record};
+use crate::circular::sync::{check_feed, data_path, synchronise, Record};
 use crate::fsio::{check_dir_destination, write_dir};
 use crate::{Error, Result};
 
@@ -61,21 +61,26 @@ pub struct DiagnoseArgs {
     /// Date of the test, YYYY-MM-DD or RFC 3339 (default: now), for the report and the history.
     #[arg(long, value_parser = crate::dates::parse_date)]
     pub date: Option<String>,
-    /// The instrument calibration in force (JSON: l1_mm, l2_mm, enc1 and enc2 with
-    /// counts_per_rev, zero_count, direction), for the report and the history.
+    /// The instrument calibration in force (the TOML `jdbb calibrate -o` writes; JSON with
+    /// l1_mm, l2_mm, enc1 and enc2 is read too), for the report and the history.
     #[arg(long, value_name = "FILE")]
     pub calibration: Option<PathBuf>,
 }
 
-/// The calibration file of `--calibration` as JSON, checked against jdbb-core's Calibration.
+/// The calibration file of `--calibration` (TOML as `jdbb calibrate -o` writes it, or JSON),
+/// checked against jdbb-core's Calibration, as a JSON value for the diagnosis.
 fn read_calibration(file: &std::path::Path) -> Result<serde_json::Value> {
     let text = crate::table::read_text(file)?;
+    if !text.trim_start().starts_with('{') {
+        let cal = crate::instrument::file::parse_calibration(file, &text)?;
+        return Ok(serde_json::to_value(cal).expect("a calibration is plain data"));
+    }
     let cal: jdbb_core::calib::Calibration = serde_json::from_str(&text).map_err(|e| {
         Error::input(
             file,
             e.line(),
             e.column(),
-            format!("not an instrument calibration ({e}); expected JSON with l1_mm, l2_mm, enc1 and enc2 ({{counts_per_rev, zero_count, direction: Positive|Negative}})"),
+            format!("not an instrument calibration ({e}); expected the TOML `jdbb calibrate -o` writes, or JSON with l1_mm, l2_mm, enc1 and enc2 ({{counts_per_rev, zero_count, direction: Positive|Negative}})"),
         )
     })?;
     cal.validate().map_err(|e| Error::Input {
@@ -153,6 +158,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             let rec = Record::read(record)?;
             check_plan_id(&rec, &plan, plan_file)?;
             let sync = synchronise(&plan, &rec)?;
+            check_feed(&sync, &rec)?;
             check_holes(&rec, &sync)?;
             let data = data_path(&plan, &rec, &sync, pitch)?;
             synced = Some((plan_file, plan, sync));

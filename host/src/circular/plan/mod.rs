@@ -201,7 +201,7 @@ impl Plane {
     pub fn parse(s: &str) -> Option<Plane> {
         [Plane::Xy, Plane::Yz, Plane::Zx]
             .into_iter()
-            .find(|p| p.name() == s)
+            .find(|p| p.name().eq_ignore_ascii_case(s.trim()))
     }
 }
 
@@ -240,7 +240,9 @@ impl Dialect {
 
     /// The dialect called `name`.
     pub fn parse(name: &str) -> Option<Dialect> {
-        Dialect::ALL.into_iter().find(|d| d.name() == name)
+        Dialect::ALL
+            .into_iter()
+            .find(|d| d.name().eq_ignore_ascii_case(name.trim()))
     }
 
     /// The program's file name beside plan.json: `ballbar.ngc` (LinuxCNC), `ballbar.nc` (grbl),
