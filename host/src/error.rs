@@ -159,7 +159,7 @@ impl Error {
 /// name or the cable.
 fn port_hint(e: &serialport::Error) -> &'static str {
     let d = e.description.to_lowercase();
-    if d.contains("busy") || d.contains("in use") || d.contains("locked") {
+    if d.contains("busy") || d.contains("in use") || d.contains("lock") {
         "The port is in use by another program (another jdbb, a serial terminal, a slicer or ModemManager): close it, then try again"
     } else if d.contains("permission") || d.contains("access is denied") {
         "You may not open it: add yourself to the group that owns it (dialout on Debian and Ubuntu, uucp on Arch) and log in again"
