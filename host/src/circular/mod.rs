@@ -28,6 +28,7 @@ pub mod model;
 pub mod path;
 pub mod plan;
 pub mod plot;
+pub mod progress;
 pub mod report;
 pub mod runs;
 pub mod machine;

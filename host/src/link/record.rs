@@ -196,6 +196,8 @@ impl SampleCheck {
 pub enum End {
     /// `--seconds` elapsed.
     Time,
+    /// The plan's program ended (`jdbb record --plan`).
+    ProgramEnded,
     /// Ctrl-C, SIGTERM or SIGHUP.
     Interrupted,
     /// The source ended (EOF) or failed (unplugged): the error to report.
@@ -214,6 +216,7 @@ impl End {
     pub fn describe(&self) -> String {
         match self {
             End::Time => "time limit reached".into(),
+            End::ProgramEnded => "the plan's program ended".into(),
             End::Interrupted => "interrupted".into(),
             End::Lost(e) => format!("device lost: {e}"),
             End::Restarted(r) => format!("stopped: {r}"),
@@ -408,6 +411,29 @@ pub fn record_to<P: Read + Write, W: Write + Truncate>(
     interrupted: &AtomicBool,
     on_info: &mut dyn FnMut(&DeviceInfo),
 ) -> End {
+    record_watched(
+        stream,
+        out,
+        path,
+        deadline,
+        interrupted,
+        on_info,
+        &mut |_, _| false,
+    )
+}
+
+/// [`record_to`], with `watch` shown the samples of every read once they are in the file (with
+/// the stream's counts so far); it returns true to end the record ([`End::ProgramEnded`]: `jdbb
+/// record --plan` stops after the program's end).
+pub fn record_watched<P: Read + Write, W: Write + Truncate>(
+    stream: &mut Stream<P>,
+    out: &mut CsvOut<W>,
+    path: &Path,
+    deadline: Option<Instant>,
+    interrupted: &AtomicBool,
+    on_info: &mut dyn FnMut(&DeviceInfo),
+    watch: &mut dyn FnMut(&[SeqSample], &Stats) -> bool,
+) -> End {
     stream.set_one_run(true);
     let mut lines = Vec::with_capacity(1 << 16);
     let mut batch = Vec::new();
@@ -424,13 +450,17 @@ pub fn record_to<P: Read + Write, W: Write + Truncate>(
         let polled = stream.poll(|b| check.lines(&mut lines, &mut batch, b));
         let written = out.append(&lines, &batch);
         lines.clear();
-        batch.clear();
         if let Err(source) = written {
             return End::Write(Error::RecordWrite {
                 path: path.to_path_buf(),
                 position: position(out.lines, out.last.as_ref()),
                 source,
             });
+        }
+        let ended = !batch.is_empty() && watch(&batch, stream.stats());
+        batch.clear();
+        if ended {
+            return End::ProgramEnded;
         }
         if !info_shown {
             if let Some(info) = stream.info() {
