@@ -268,7 +268,8 @@ impl Table {
             let trimmed = text.trim();
             if trimmed.is_empty() || trimmed.starts_with('#') {
                 if self.header_line == 0 && self.comments.len() < 64 {
-                    self.comments.push(trimmed[trimmed.len().min(1)..].trim().to_string());
+                    self.comments
+                        .push(trimmed[trimmed.len().min(1)..].trim().to_string());
                 }
                 continue;
             }

@@ -897,8 +897,7 @@ fn record_with_a_plan_shows_progress_and_stops_after_the_program() {
 fn record_with_a_plan_says_when_cycle_start_was_missed() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("rec.csv");
-    let (plan, samples, start, _) =
-        planned_run(dir.path(), "[instrument]\nsample_rate_hz = 100\n");
+    let (plan, samples, start, _) = planned_run(dir.path(), "[instrument]\nsample_rate_hz = 100\n");
     // The operator pressed cycle start 10 s before starting the record.
     let late: Vec<Sample> = samples
         .iter()

@@ -39,8 +39,19 @@ fn plan_and_record(dir: &Path, machine: &str) {
     ok(
         dir,
         &[
-            "plan", "--radius", "90", "--feed", "1500", "--plane", "XY", "--dialect", "LinuxCNC",
-            "--centre", "100,50,-20", "--out", "plan",
+            "plan",
+            "--radius",
+            "90",
+            "--feed",
+            "1500",
+            "--plane",
+            "XY",
+            "--dialect",
+            "LinuxCNC",
+            "--centre",
+            "100,50,-20",
+            "--out",
+            "plan",
         ],
     );
     fs::write(
@@ -51,7 +62,13 @@ fn plan_and_record(dir: &Path, machine: &str) {
     ok(
         dir,
         &[
-            "simulate", "--plan", "plan/plan.json", "--machine", "m.toml", "-o", "rec.csv",
+            "simulate",
+            "--plan",
+            "plan/plan.json",
+            "--machine",
+            "m.toml",
+            "-o",
+            "rec.csv",
         ],
     );
 }
@@ -69,8 +86,17 @@ fn diagnose_reads_the_toml_calibration_and_history_takes_the_machine_from_it() {
     ok(
         d,
         &[
-            "diagnose", "--record", "rec.csv", "--plan", "plan/plan.json", "--calibration",
-            "cal.toml", "--machine", "mill 3", "--report", "rep",
+            "diagnose",
+            "--record",
+            "rec.csv",
+            "--plan",
+            "plan/plan.json",
+            "--calibration",
+            "cal.toml",
+            "--machine",
+            "mill 3",
+            "--report",
+            "rep",
         ],
     );
     let v: serde_json::Value =
@@ -82,7 +108,12 @@ fn diagnose_reads_the_toml_calibration_and_history_takes_the_machine_from_it() {
     refused(
         d,
         &[
-            "diagnose", "--record", "rec.csv", "--plan", "plan/plan.json", "--calibration",
+            "diagnose",
+            "--record",
+            "rec.csv",
+            "--plan",
+            "plan/plan.json",
+            "--calibration",
             "bad.toml",
         ],
         &["bad.toml:1:"],
@@ -91,7 +122,12 @@ fn diagnose_reads_the_toml_calibration_and_history_takes_the_machine_from_it() {
     let out = ok(
         d,
         &[
-            "history", "--db", "h.sqlite", "add", "--diagnosis", "rep/diagnosis.json",
+            "history",
+            "--db",
+            "h.sqlite",
+            "add",
+            "--diagnosis",
+            "rep/diagnosis.json",
         ],
     );
     assert!(out.contains("of mill 3"), "{out}");
@@ -99,7 +135,13 @@ fn diagnose_reads_the_toml_calibration_and_history_takes_the_machine_from_it() {
     refused(
         d,
         &[
-            "diagnose", "--record", "rec.csv", "--plan", "plan/plan.json", "--report", "rep",
+            "diagnose",
+            "--record",
+            "rec.csv",
+            "--plan",
+            "plan/plan.json",
+            "--report",
+            "rep",
         ],
         &["--force"],
     );
@@ -112,7 +154,13 @@ fn calibrating_from_a_machine_test_plan_says_to_plan_a_calibration_test() {
     plan_and_record(d, "");
     refused(
         d,
-        &["calibrate", "--record", "rec.csv", "--plan", "plan/plan.json"],
+        &[
+            "calibrate",
+            "--record",
+            "rec.csv",
+            "--plan",
+            "plan/plan.json",
+        ],
         &["machine-test plan", "jdbb plan --calibration-test"],
     );
 }
@@ -124,7 +172,13 @@ fn a_record_far_beyond_the_plans_feed_is_refused() {
     plan_and_record(d, "feed_override_pct = 196\n");
     refused(
         d,
-        &["diagnose", "--record", "rec.csv", "--plan", "plan/plan.json"],
+        &[
+            "diagnose",
+            "--record",
+            "rec.csv",
+            "--plan",
+            "plan/plan.json",
+        ],
         &["rec.csv", "of the plan's feed", "150 %"],
     );
     // Within a controller's override range it is diagnosed.
@@ -133,6 +187,12 @@ fn a_record_far_beyond_the_plans_feed_is_refused() {
     plan_and_record(d, "feed_override_pct = 120\n");
     ok(
         d,
-        &["diagnose", "--record", "rec.csv", "--plan", "plan/plan.json"],
+        &[
+            "diagnose",
+            "--record",
+            "rec.csv",
+            "--plan",
+            "plan/plan.json",
+        ],
     );
 }

@@ -38,8 +38,17 @@ fn plan(dir: &Path) {
     ok(
         dir,
         &[
-            "plan", "--radius", "90", "--radius", "85", "--feed", "1500", "--centre",
-            "100,50,-20", "--out", "plan",
+            "plan",
+            "--radius",
+            "90",
+            "--radius",
+            "85",
+            "--feed",
+            "1500",
+            "--centre",
+            "100,50,-20",
+            "--out",
+            "plan",
         ],
     );
 }
@@ -78,7 +87,13 @@ fn hidden_play_and_squareness_are_named_and_nothing_else() {
     ok(
         d,
         &[
-            "simulate", "--plan", "plan/plan.json", "--machine", "mill.toml", "-o", "rec.csv",
+            "simulate",
+            "--plan",
+            "plan/plan.json",
+            "--machine",
+            "mill.toml",
+            "-o",
+            "rec.csv",
         ],
     );
     let rec = fs::read_to_string(d.join("rec.csv")).unwrap();
@@ -89,7 +104,12 @@ fn hidden_play_and_squareness_are_named_and_nothing_else() {
     let json = ok(
         d,
         &[
-            "diagnose", "--record", "rec.csv", "--plan", "plan/plan.json", "--json",
+            "diagnose",
+            "--record",
+            "rec.csv",
+            "--plan",
+            "plan/plan.json",
+            "--json",
         ],
     );
     let found = named(&json);
@@ -113,13 +133,24 @@ fn a_perfect_machine_names_nothing() {
     ok(
         d,
         &[
-            "simulate", "--plan", "plan/plan.json", "--machine", "perfect.toml", "-o", "rec.csv",
+            "simulate",
+            "--plan",
+            "plan/plan.json",
+            "--machine",
+            "perfect.toml",
+            "-o",
+            "rec.csv",
         ],
     );
     let json = ok(
         d,
         &[
-            "diagnose", "--record", "rec.csv", "--plan", "plan/plan.json", "--json",
+            "diagnose",
+            "--record",
+            "rec.csv",
+            "--plan",
+            "plan/plan.json",
+            "--json",
         ],
     );
     assert_eq!(named(&json), [], "a perfect machine");
@@ -136,7 +167,13 @@ fn the_example_machine_is_printed_and_reads() {
     // Written to stdout when there is no -o, header first.
     let rec = ok(
         d,
-        &["simulate", "--plan", "plan/plan.json", "--machine", "m.toml"],
+        &[
+            "simulate",
+            "--plan",
+            "plan/plan.json",
+            "--machine",
+            "m.toml",
+        ],
     );
     assert!(rec.starts_with("# plan_id: "));
 }
@@ -147,10 +184,19 @@ fn bad_machine_files_name_file_line_and_column() {
     let d = dir.path();
     plan(d);
     let args = [
-        "simulate", "--plan", "plan/plan.json", "--machine", "m.toml", "-o", "rec.csv",
+        "simulate",
+        "--plan",
+        "plan/plan.json",
+        "--machine",
+        "m.toml",
+        "-o",
+        "rec.csv",
     ];
     for (text, want) in [
-        ("feed_override_pct = 100\n[effects]\nbacklash_w = 3\n", "m.toml:3:"),
+        (
+            "feed_override_pct = 100\n[effects]\nbacklash_w = 3\n",
+            "m.toml:3:",
+        ),
         ("\naccel_mm_s2 = \"fast\"\n", "m.toml:2:"),
         ("\n\n[instrument]\nnoise_um = -1\n", "m.toml:4:"),
         ("controler = \"grbl\"\n", "m.toml:1:1"),
@@ -171,7 +217,13 @@ fn an_existing_record_is_kept_without_force() {
     fs::write(d.join("m.toml"), INSTRUMENT).unwrap();
     fs::write(d.join("rec.csv"), "precious\n").unwrap();
     let args = [
-        "simulate", "--plan", "plan/plan.json", "--machine", "m.toml", "-o", "rec.csv",
+        "simulate",
+        "--plan",
+        "plan/plan.json",
+        "--machine",
+        "m.toml",
+        "-o",
+        "rec.csv",
     ];
     refused(d, &args, "--force");
     assert_eq!(fs::read_to_string(d.join("rec.csv")).unwrap(), "precious\n");
@@ -191,7 +243,14 @@ fn a_record_of_another_plan_is_refused_by_diagnose() {
     ok(
         d,
         &[
-            "plan", "--radius", "90", "--feed", "1500", "--centre", "100,50,-20", "--out",
+            "plan",
+            "--radius",
+            "90",
+            "--feed",
+            "1500",
+            "--centre",
+            "100,50,-20",
+            "--out",
             "other",
         ],
     );
@@ -199,13 +258,73 @@ fn a_record_of_another_plan_is_refused_by_diagnose() {
     ok(
         d,
         &[
-            "simulate", "--plan", "other/plan.json", "--machine", "m.toml", "-o", "rec.csv",
+            "simulate",
+            "--plan",
+            "other/plan.json",
+            "--machine",
+            "m.toml",
+            "-o",
+            "rec.csv",
         ],
     );
     let e = refused(
         d,
-        &["diagnose", "--record", "rec.csv", "--plan", "plan/plan.json"],
+        &[
+            "diagnose",
+            "--record",
+            "rec.csv",
+            "--plan",
+            "plan/plan.json",
+        ],
         "made for another plan",
     );
     assert!(e.contains("rec.csv") && e.contains("plan/plan.json"), "{e}");
+}
+
+#[test]
+fn a_plan_for_another_plane_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for (plane, out) in [("xy", "xy"), ("zx", "zx")] {
+        ok(
+            d,
+            &[
+                "plan",
+                "--radius",
+                "90",
+                "--feed",
+                "1500",
+                "--plane",
+                plane,
+                "--centre",
+                "100,50,-20",
+                "--out",
+                out,
+            ],
+        );
+    }
+    fs::write(
+        d.join("m.toml"),
+        format!("{INSTRUMENT}[effects]\nbacklash_x = 8\n"),
+    )
+    .unwrap();
+    ok(
+        d,
+        &[
+            "simulate",
+            "--plan",
+            "xy/plan.json",
+            "--machine",
+            "m.toml",
+            "-o",
+            "rec.csv",
+        ],
+    );
+    // The same circles in zx have the same D levels; the record says which plan it is of.
+    let e = refused(
+        d,
+        &["diagnose", "--record", "rec.csv", "--plan", "zx/plan.json"],
+        "made for another plan",
+    );
+    assert!(e.contains("wrong axes"), "{e}");
 }

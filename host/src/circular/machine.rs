@@ -25,7 +25,7 @@ name = "example mill"          # example: for the messages only
 controller = "linuxcnc"        # linuxcnc, grbl, fanuc or marlin (default: the plan's dialect);
                                # marlin draws arcs as chords of arc_segment_mm
 arc_segment_mm = 1.0           # marlin's MM_PER_ARC_SEGMENT
-feed_override_pct = 100.0      # the feed override knob, % (dwells do not follow it)
+feed_override_pct = 98.0       # example (default 100): the feed override knob, % (not dwells)
 accel_mm_s2 = 500.0            # acceleration at every start and stop, mm/s² (trapezoidal moves)
 rapid_mm_min = 5000.0          # speed of a G0, mm/min
 operator_stop_s = 5.0          # how long each M0 after the first lasts (the operator), s
@@ -35,10 +35,10 @@ operator_stop_s = 5.0          # how long each M0 after the first lasts (the ope
 
 [instrument]
 sample_rate_hz = 1000.0        # the device's sample clock, Hz
-clock_ppm = 0.0                # the device's clock runs fast by this, ppm
+clock_ppm = 37.0               # example (default 0): the device's clock runs fast by this, ppm
 start_delay_s = 3.0            # the recording starts this long before cycle start, s
 tail_s = 2.0                   # and goes on this long after the program ends, s
-noise_um = 0.0                 # Gaussian noise on D, µm (1 sigma), before the counts
+noise_um = 0.2                 # example (default 0): Gaussian noise on D, µm (1 sigma)
 lean_deg = 17.0                # the bars' lean about the ball-to-ball line, deg
 t0_us = 0                      # the device's t_us at the first sample
 seed = 1                       # seed of the noise
@@ -140,7 +140,9 @@ impl Machine {
             Error::input(path, line, col, message)
         };
         let m: MachineToml = toml::from_str(text).map_err(|e| {
-            let (line, col) = e.span().map_or((1, 0), |s| crate::table::line_col(text, s.start));
+            let (line, col) = e
+                .span()
+                .map_or((1, 0), |s| crate::table::line_col(text, s.start));
             Error::input(
                 path,
                 line,
@@ -166,21 +168,26 @@ impl Machine {
                 }
                 Some(s) => Err(at(
                     s.span(),
-                    format!("{key} = {}: give a value from {lo} to {hi} {unit}", s.get_ref()),
+                    format!(
+                        "{key} = {}: give a value from {lo} to {hi} {unit}",
+                        s.get_ref()
+                    ),
                 )),
             }
         };
         let controller = match &m.controller {
             None => None,
-            Some(s) => Some(Dialect::parse(&s.get_ref().to_ascii_lowercase()).ok_or_else(|| {
-                at(
-                    s.span(),
-                    format!(
-                        "controller = \"{}\": use linuxcnc, grbl, fanuc or marlin",
-                        s.get_ref()
-                    ),
-                )
-            })?),
+            Some(s) => Some(
+                Dialect::parse(&s.get_ref().to_ascii_lowercase()).ok_or_else(|| {
+                    at(
+                        s.span(),
+                        format!(
+                            "controller = \"{}\": use linuxcnc, grbl, fanuc or marlin",
+                            s.get_ref()
+                        ),
+                    )
+                })?,
+            ),
         };
         let mut pitch_mm = [None; 3];
         if let Some(p) = &m.pitch_mm {
@@ -204,32 +211,51 @@ impl Machine {
             if !b.get_ref().iter().all(|x| x.is_finite() && x.abs() <= 1e5) {
                 return Err(at(
                     b.span(),
-                    "table_ball_mm: three finite coordinates in mm, e.g. [100.0, 50.0, -20.0]".into(),
+                    "table_ball_mm: three finite coordinates in mm, e.g. [100.0, 50.0, -20.0]"
+                        .into(),
                 ));
             }
         }
         let ins = m.instrument.as_ref();
-        let g = |f: fn(&InstrumentToml) -> &Option<toml::Spanned<f64>>| -> Option<toml::Spanned<f64>> {
-            ins.and_then(|i| f(i).clone())
-        };
+        let g =
+            |f: fn(&InstrumentToml) -> &Option<toml::Spanned<f64>>| -> Option<toml::Spanned<f64>> {
+                ins.and_then(|i| f(i).clone())
+            };
         let calibration = match ins.and_then(|i| i.calibration.as_ref()) {
             None => Calibration::DEFAULT,
             Some(c) => {
                 let file = path
                     .parent()
                     .map_or_else(|| c.get_ref().clone(), |d| d.join(c.get_ref()));
-                crate::instrument::file::read_calibration(&file).map_err(|e| {
-                    at(
-                        c.span(),
-                        format!("instrument.calibration: {e}"),
-                    )
-                })?
+                crate::instrument::file::read_calibration(&file)
+                    .map_err(|e| at(c.span(), format!("instrument.calibration: {e}")))?
             }
         };
         let instrument = RecordingInstrument {
-            sample_rate_hz: num(&g(|i| &i.sample_rate_hz), "sample_rate_hz", 1000.0, 1.0, 100_000.0, "Hz")?,
-            clock_ppm: num(&g(|i| &i.clock_ppm), "clock_ppm", 0.0, -10_000.0, 10_000.0, "ppm")?,
-            start_delay_s: num(&g(|i| &i.start_delay_s), "start_delay_s", 3.0, 0.0, 3600.0, "s")?,
+            sample_rate_hz: num(
+                &g(|i| &i.sample_rate_hz),
+                "sample_rate_hz",
+                1000.0,
+                1.0,
+                100_000.0,
+                "Hz",
+            )?,
+            clock_ppm: num(
+                &g(|i| &i.clock_ppm),
+                "clock_ppm",
+                0.0,
+                -10_000.0,
+                10_000.0,
+                "ppm",
+            )?,
+            start_delay_s: num(
+                &g(|i| &i.start_delay_s),
+                "start_delay_s",
+                3.0,
+                0.0,
+                3600.0,
+                "s",
+            )?,
             tail_s: num(&g(|i| &i.tail_s), "tail_s", 2.0, 0.0, 3600.0, "s")?,
             noise_um: num(&g(|i| &i.noise_um), "noise_um", 0.0, 0.0, 1000.0, "µm")?,
             lean_rad: num(&g(|i| &i.lean_deg), "lean_deg", 17.0, -90.0, 90.0, "deg")?.to_radians(),
@@ -239,33 +265,42 @@ impl Machine {
         };
         let mut effects = vec![];
         for (name, value) in m.effects.iter().flatten() {
-            let v = match value.get_ref() {
-                toml::Value::Integer(i) => i.to_string(),
-                toml::Value::Float(f) => f.to_string(),
-                toml::Value::String(s) => s.clone(),
-                toml::Value::Array(a) => a
-                    .iter()
-                    .map(|x| match x {
-                        toml::Value::Integer(i) => Some(i.to_string()),
-                        toml::Value::Float(f) => Some(f.to_string()),
-                        _ => None,
-                    })
-                    .collect::<Option<Vec<_>>>()
-                    .map(|v| v.join(","))
-                    .ok_or_else(|| {
-                        at(value.span(), format!("effects.{name}: an array of numbers"))
-                    })?,
-                _ => {
-                    return Err(at(
+            let v =
+                match value.get_ref() {
+                    toml::Value::Integer(i) => i.to_string(),
+                    toml::Value::Float(f) => f.to_string(),
+                    toml::Value::String(s) => s.clone(),
+                    toml::Value::Array(a) => a
+                        .iter()
+                        .map(|x| match x {
+                            toml::Value::Integer(i) => Some(i.to_string()),
+                            toml::Value::Float(f) => Some(f.to_string()),
+                            _ => None,
+                        })
+                        .collect::<Option<Vec<_>>>()
+                        .map(|v| v.join(","))
+                        .ok_or_else(|| {
+                            at(value.span(), format!("effects.{name}: an array of numbers"))
+                        })?,
+                    _ => return Err(at(
                         value.span(),
-                        format!("effects.{name}: a number, an array of numbers or \"value@phase_deg\""),
-                    ))
-                }
-            };
+                        format!(
+                            "effects.{name}: a number, an array of numbers or \"value@phase_deg\""
+                        ),
+                    )),
+                };
             let ev = parse_effect(&format!("{name}={v}")).map_err(|e| {
                 let msg = e.to_string();
-                let msg = msg.strip_prefix("--effect").map_or(msg.as_str(), str::trim_start);
-                at(value.span(), format!("effects.{name}: {}", msg.trim_start_matches(':').trim_start()))
+                let msg = msg
+                    .strip_prefix("--effect")
+                    .map_or(msg.as_str(), str::trim_start);
+                at(
+                    value.span(),
+                    format!(
+                        "effects.{name}: {}",
+                        msg.trim_start_matches(':').trim_start()
+                    ),
+                )
             })?;
             effects.push(ev);
         }
@@ -273,9 +308,30 @@ impl Machine {
             name: m.name,
             controller,
             arc_segment_mm: num(&m.arc_segment_mm, "arc_segment_mm", 1.0, 0.001, 100.0, "mm")?,
-            feed_override_pct: num(&m.feed_override_pct, "feed_override_pct", 100.0, 1.0, 300.0, "%")?,
-            accel_mm_s2: num(&m.accel_mm_s2, "accel_mm_s2", 500.0, 1.0, 100_000.0, "mm/s²")?,
-            rapid_mm_min: num(&m.rapid_mm_min, "rapid_mm_min", 5000.0, 1.0, 200_000.0, "mm/min")?,
+            feed_override_pct: num(
+                &m.feed_override_pct,
+                "feed_override_pct",
+                100.0,
+                1.0,
+                300.0,
+                "%",
+            )?,
+            accel_mm_s2: num(
+                &m.accel_mm_s2,
+                "accel_mm_s2",
+                500.0,
+                1.0,
+                100_000.0,
+                "mm/s²",
+            )?,
+            rapid_mm_min: num(
+                &m.rapid_mm_min,
+                "rapid_mm_min",
+                5000.0,
+                1.0,
+                200_000.0,
+                "mm/min",
+            )?,
             operator_stop_s: num(&m.operator_stop_s, "operator_stop_s", 5.0, 0.0, 3600.0, "s")?,
             table_ball_mm: m.table_ball_mm.map(|b| b.into_inner()),
             pitch_mm,
@@ -293,7 +349,8 @@ mod tests {
     fn the_example_reads_with_its_values() {
         let m = Machine::parse(FsPath::new("example.toml"), EXAMPLE).unwrap();
         assert_eq!(m.controller, Some(Dialect::Linuxcnc));
-        assert_eq!(m.feed_override_pct, 100.0);
+        assert_eq!(m.feed_override_pct, 98.0);
+        assert_eq!(m.instrument.clock_ppm, 37.0);
         assert_eq!(m.instrument.sample_rate_hz, 1000.0);
         let names: Vec<String> = m.effects.iter().map(|e| e.effect.name()).collect();
         assert_eq!(names, ["backlash_x", "squareness_xy"]);
@@ -303,14 +360,23 @@ mod tests {
     #[test]
     fn bad_values_name_line_and_column() {
         let text = "feed_override_pct = 100.0\n[effects]\nbacklash_q = 3\n";
-        let e = Machine::parse(FsPath::new("m.toml"), text).unwrap_err().to_string();
+        let e = Machine::parse(FsPath::new("m.toml"), text)
+            .unwrap_err()
+            .to_string();
         assert!(e.starts_with("m.toml:3:"), "{e}");
         assert!(e.contains("unknown effect `backlash_q`"), "{e}");
         let text = "\n\naccel_mm_s2 = -5\n";
-        let e = Machine::parse(FsPath::new("m.toml"), text).unwrap_err().to_string();
+        let e = Machine::parse(FsPath::new("m.toml"), text)
+            .unwrap_err()
+            .to_string();
         assert!(e.starts_with("m.toml:3:"), "{e}");
         let text = "feed_overide_pct = 100\n";
-        let e = Machine::parse(FsPath::new("m.toml"), text).unwrap_err().to_string();
-        assert!(e.contains("m.toml:1:1") && e.contains("feed_overide_pct"), "{e}");
+        let e = Machine::parse(FsPath::new("m.toml"), text)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("m.toml:1:1") && e.contains("feed_overide_pct"),
+            "{e}"
+        );
     }
 }

@@ -131,12 +131,19 @@ impl Tracker {
         let next = self.circle.map_or(0, |(k, _)| k + 1);
         if let Some(k) = (next..self.circles.len())
             .find(|&k| (d_mm - self.circles[k].0).abs() < 0.5 * LEVEL_TOLERANCE_MM)
-            .filter(|&k| k == next || self.circle.is_none_or(|(c, _)| (d_mm - self.circles[c].0).abs() > LEVEL_TOLERANCE_MM))
+            .filter(|&k| {
+                k == next
+                    || self
+                        .circle
+                        .is_none_or(|(c, _)| (d_mm - self.circles[c].0).abs() > LEVEL_TOLERANCE_MM)
+            })
         {
             self.circle = Some((k, t_s));
         }
         let at_end = (d_mm - self.end_level_mm).abs() < MOVE_MM;
-        let last_seen = self.circle.is_some_and(|(k, _)| k + 1 == self.circles.len());
+        let last_seen = self
+            .circle
+            .is_some_and(|(k, _)| k + 1 == self.circles.len());
         if at_end && last_seen && t_s - start >= self.nominal_s - END_STILL_S {
             self.still_since.get_or_insert(t_s);
         } else {
@@ -164,7 +171,9 @@ impl Tracker {
     pub fn status(&self) -> String {
         match (self.cycle_start_s, self.circle) {
             (None, _) => "waiting for cycle start".into(),
-            (Some(_), None) => "feeding in to circle 1".to_string() + &format!("/{}", self.circles.len()),
+            (Some(_), None) => {
+                "feeding in to circle 1".to_string() + &format!("/{}", self.circles.len())
+            }
             (Some(_), Some((k, since))) => {
                 let pct = if self.circles[k].1 > 0.0 {
                     (100.0 * (self.last.0 - since) / self.circles[k].1).min(100.0)
@@ -202,7 +211,10 @@ mod tests {
         let m = Machine::parse(std::path::Path::new("m.toml"), machine).unwrap();
         let (s, truth) = record(plan, &m).unwrap();
         let t0 = s[0].t_us as f64;
-        let v = s.iter().map(|x| ((x.t_us as f64 - t0) * 1e-6, x.d_mm)).collect();
+        let v = s
+            .iter()
+            .map(|x| ((x.t_us as f64 - t0) * 1e-6, x.d_mm))
+            .collect();
         (v, (truth.cycle_start_t_us - t0) * 1e-6, truth.program_s)
     }
 
@@ -233,7 +245,11 @@ mod tests {
         assert_eq!(circles_seen, ["circle 1/2", "circle 2/2"]);
         // Ended after the program (at 90 %: longer than nominal) plus the still time, not before.
         let end = ended_at.unwrap();
-        assert!(end > start + program && end < start + program + END_STILL_S + 1.0, "{end} {}", start + program);
+        assert!(
+            end > start + program && end < start + program + END_STILL_S + 1.0,
+            "{end} {}",
+            start + program
+        );
     }
 
     #[test]

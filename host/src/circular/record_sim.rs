@@ -134,7 +134,8 @@ impl Timeline {
                     };
                     let mut segments = vec![(i, 0.0, seg.length_mm())];
                     let mut length = seg.length_mm();
-                    while i + 1 < plan.segments.len() && blends(&plan.segments[i], &plan.segments[i + 1])
+                    while i + 1 < plan.segments.len()
+                        && blends(&plan.segments[i], &plan.segments[i + 1])
                     {
                         i += 1;
                         let l = plan.segments[i].length_mm();
@@ -244,7 +245,9 @@ pub fn record(plan: &Plan, machine: &Machine) -> Result<(Vec<Sample>, Truth)> {
     let mut effects = machine.effects.clone();
     if let Some(ball) = machine.table_ball_mm {
         // The table ball at centre + c: a set-up offset c (µm), added to one given.
-        let c: Vec<f64> = (0..3).map(|k| 1e3 * (ball[k] - plan.centre_mm[k])).collect();
+        let c: Vec<f64> = (0..3)
+            .map(|k| 1e3 * (ball[k] - plan.centre_mm[k]))
+            .collect();
         match effects.iter_mut().find(|e| e.effect == Effect::SetupOffset) {
             Some(e) => e.params.iter_mut().zip(&c).for_each(|(p, c)| *p += c),
             None => effects.push(EffectValue {
@@ -255,9 +258,8 @@ pub fn record(plan: &Plan, machine: &Machine) -> Result<(Vec<Sample>, Truth)> {
     }
     let d_true = distances_mm(&path, &effects)?;
     let mut rng = rand::rngs::StdRng::seed_from_u64(ins.seed);
-    let normal = Normal::new(0.0, ins.noise_um * 1e-3).map_err(|e| {
-        Error::Usage(format!("noise_um {}: {e}", ins.noise_um))
-    })?;
+    let normal = Normal::new(0.0, ins.noise_um * 1e-3)
+        .map_err(|e| Error::Usage(format!("noise_um {}: {e}", ins.noise_um)))?;
     let kernel = Kernel::new(&ins.calibration);
     let mut samples = Vec::with_capacity(n);
     for (k, d) in d_true.iter().enumerate() {
@@ -266,7 +268,8 @@ pub fn record(plan: &Plan, machine: &Machine) -> Result<(Vec<Sample>, Truth)> {
         } else {
             *d
         };
-        let Some((enc1, enc2)) = geometry::counts_for_distance(&ins.calibration, d_ins, ins.lean_rad)
+        let Some((enc1, enc2)) =
+            geometry::counts_for_distance(&ins.calibration, d_ins, ins.lean_rad)
         else {
             return Err(Error::Usage(format!(
                 "at {:.3} s of the recording D is {d_ins:.3} mm, out of the instrument's reach (L1 {} mm, L2 {} mm): the machine's errors or the table ball position are too large for this plan",
@@ -349,7 +352,11 @@ mod tests {
                 })
                 .sum();
             let expect = moving + dwell;
-            assert!((tl.end_s() - expect).abs() < 1e-9, "{} {expect}", tl.end_s());
+            assert!(
+                (tl.end_s() - expect).abs() < 1e-9,
+                "{} {expect}",
+                tl.end_s()
+            );
             // Lines, and the four runs of blended arcs (ccw lead-in..overshoot, then cw): the
             // move to the start, feed-in, two runs, feed-out.
             assert_eq!(moves, 5.0);
@@ -401,7 +408,10 @@ mod tests {
             .iter()
             .filter(|s| (s.d_mm - 90.0).abs() < 1e-3)
             .count();
-        assert!(on_circle as f64 > 0.8 * truth.program_s * 200.0 * 0.9, "{on_circle}");
+        assert!(
+            on_circle as f64 > 0.8 * truth.program_s * 200.0 * 0.9,
+            "{on_circle}"
+        );
         assert!((truth.feed_factor - 1.0 / 1.00005).abs() < 1e-12);
         assert!((truth.cycle_start_t_us - (1000.0 + 3e6 * 1.00005)).abs() < 1e-6);
     }

@@ -127,7 +127,9 @@ impl Record {
             t0_us: 0.0,
             t_s: vec![],
             d_mm: vec![],
-            plan_id: t.header_comment(super::plan::PLAN_ID_KEY).map(str::to_string),
+            plan_id: t
+                .header_comment(super::plan::PLAN_ID_KEY)
+                .map(str::to_string),
             lines: vec![],
         };
         let mut prev: Option<f64> = None;

@@ -131,7 +131,7 @@ fn check_plan_id(rec: &Record, plan: &Plan, plan_file: &std::path::Path) -> Resu
         Some(id) if *id != plan.id() => Err(Error::Input {
             location: rec.path.display().to_string(),
             message: format!(
-                "this record was made for another plan (plan_id {id}), not for {} (plan_id {}); give the plan.json the record was made with",
+                "this record was made for another plan (plan_id {id}), not for {} (plan_id {}): another plane, circle, feed or centre would make the diagnosis name the wrong axes. Give the plan.json the record was made with",
                 plan_file.display(),
                 plan.id()
             ),

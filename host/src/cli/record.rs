@@ -8,14 +8,14 @@ use std::time::Instant;
 
 use super::output::{emit, note};
 use super::stream_args::StreamArgs;
+use crate::circular::plan::{Plan, PLAN_ID_KEY};
+use crate::circular::progress::Tracker;
 use crate::link::record::{
     check_output, create_partial, finish_output, header, partial_path, record_watched, summary,
     CsvOut, End,
 };
-use crate::circular::progress::Tracker;
-use crate::link::stream::{SeqSample, Stats};
-use crate::circular::plan::{Plan, PLAN_ID_KEY};
 use crate::link::stream::{describe_info, interrupt_flag, Stream};
+use crate::link::stream::{SeqSample, Stats};
 use crate::{Error, Result};
 
 /// Arguments of `jdbb record`.

@@ -72,7 +72,11 @@ pub struct SimulateArgs {
 }
 
 /// `jdbb simulate --plan --machine`: the record of the plan's program run on the machine.
-fn run_plan(args: &SimulateArgs, plan_file: &std::path::Path, machine_file: &std::path::Path) -> Result<()> {
+fn run_plan(
+    args: &SimulateArgs,
+    plan_file: &std::path::Path,
+    machine_file: &std::path::Path,
+) -> Result<()> {
     let plan = Plan::read(plan_file)?;
     let machine = Machine::read(machine_file)?;
     let (samples, truth) = record(&plan, &machine)?;

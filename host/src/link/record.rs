@@ -798,7 +798,9 @@ mod tests {
         assert_eq!(partial, dir.path().join("rec.csv.partial"));
         drop(create_partial(&partial, CSV_HEADER).unwrap());
         // A second recorder may not take over the work file.
-        let e = create_partial(&partial, CSV_HEADER).unwrap_err().to_string();
+        let e = create_partial(&partial, CSV_HEADER)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("did not finish"), "{e}");
         finish_output(&partial, &out, false).unwrap();
         assert!(!partial.exists());
