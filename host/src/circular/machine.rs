@@ -265,30 +265,31 @@ impl Machine {
         };
         let mut effects = vec![];
         for (name, value) in m.effects.iter().flatten() {
-            let v =
-                match value.get_ref() {
-                    toml::Value::Integer(i) => i.to_string(),
-                    toml::Value::Float(f) => f.to_string(),
-                    toml::Value::String(s) => s.clone(),
-                    toml::Value::Array(a) => a
-                        .iter()
-                        .map(|x| match x {
-                            toml::Value::Integer(i) => Some(i.to_string()),
-                            toml::Value::Float(f) => Some(f.to_string()),
-                            _ => None,
-                        })
-                        .collect::<Option<Vec<_>>>()
-                        .map(|v| v.join(","))
-                        .ok_or_else(|| {
-                            at(value.span(), format!("effects.{name}: an array of numbers"))
-                        })?,
-                    _ => return Err(at(
+            let v = match value.get_ref() {
+                toml::Value::Integer(i) => i.to_string(),
+                toml::Value::Float(f) => f.to_string(),
+                toml::Value::String(s) => s.clone(),
+                toml::Value::Array(a) => a
+                    .iter()
+                    .map(|x| match x {
+                        toml::Value::Integer(i) => Some(i.to_string()),
+                        toml::Value::Float(f) => Some(f.to_string()),
+                        _ => None,
+                    })
+                    .collect::<Option<Vec<_>>>()
+                    .map(|v| v.join(","))
+                    .ok_or_else(|| {
+                        at(value.span(), format!("effects.{name}: an array of numbers"))
+                    })?,
+                _ => {
+                    return Err(at(
                         value.span(),
                         format!(
                             "effects.{name}: a number, an array of numbers or \"value@phase_deg\""
                         ),
-                    )),
-                };
+                    ))
+                }
+            };
             let ev = parse_effect(&format!("{name}={v}")).map_err(|e| {
                 let msg = e.to_string();
                 let msg = msg

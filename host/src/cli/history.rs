@@ -71,10 +71,12 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             let machine = match (machine, doc.machine.as_deref()) {
                 (Some(m), _) => m.clone(),
                 (None, Some(named)) => named.to_string(),
-                (None, None) => return Err(crate::Error::Usage(format!(
+                (None, None) => {
+                    return Err(crate::Error::Usage(format!(
                     "{} names no machine: give --machine NAME (or diagnose with --machine NAME)",
                     diagnosis.display()
-                ))),
+                )))
+                }
             };
             let machine = &machine;
             if let Some(named) = doc.machine.as_deref().filter(|m| *m != machine.trim()) {
