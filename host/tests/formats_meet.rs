@@ -196,3 +196,52 @@ fn a_record_far_beyond_the_plans_feed_is_refused() {
         ],
     );
 }
+
+#[test]
+fn option_values_are_case_insensitive() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // The same test written in capitals and in lower case is the same file.
+    let upper = ok(
+        d,
+        &[
+            "simulate",
+            "--radius",
+            "40",
+            "--feed",
+            "3000",
+            "--rate",
+            "50",
+            "--plane",
+            "YZ",
+            "--effect",
+            "Backlash_Y=4",
+            "--effect",
+            "cyclic_Y=1@30",
+            "--pitch",
+            "Y=10",
+        ],
+    );
+    let lower = ok(
+        d,
+        &[
+            "simulate",
+            "--radius",
+            "40",
+            "--feed",
+            "3000",
+            "--rate",
+            "50",
+            "--plane",
+            "yz",
+            "--effect",
+            "backlash_y=4",
+            "--effect",
+            "cyclic_y=1@30",
+            "--pitch",
+            "y=10",
+        ],
+    );
+    assert_eq!(upper, lower);
+    assert!(upper.lines().count() > 100);
+}

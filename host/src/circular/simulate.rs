@@ -32,7 +32,7 @@ pub fn parse_effect(s: &str) -> Result<EffectValue> {
             "--effect `{s}`: expected name=value, e.g. scale_x=20 or cyclic_x=3@45"
         ))
     })?;
-    let effect = Effect::parse(name.trim()).ok_or_else(|| {
+    let effect = Effect::parse(&name.trim().to_ascii_lowercase()).ok_or_else(|| {
         let names: Vec<String> = Effect::all().iter().map(|e| e.name()).collect();
         Error::Usage(format!(
             "--effect: unknown effect `{name}`; known: {}",
