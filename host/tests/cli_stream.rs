@@ -837,7 +837,7 @@ fn record_with_a_plan_shows_progress_and_stops_after_the_program() {
     let out = dir.path().join("rec.csv");
     let (plan, samples, start, program) = planned_run(
         dir.path(),
-        "[instrument]\nsample_rate_hz = 100\nnoise_um = 0.3\ntail_s = 8\n",
+        "[instrument]\nsample_rate_hz = 100\nnoise_um = 0.3\ntail_s = 10\n",
     );
     let mut pty = Pty::new();
     let child = spawn(&[
@@ -873,12 +873,12 @@ fn record_with_a_plan_shows_progress_and_stops_after_the_program() {
     let mut lines = text.lines();
     assert!(lines.next().unwrap().starts_with("# plan_id: "));
     assert_eq!(lines.next(), Some("seq,t_us,enc1,enc2,d_mm"));
-    // It stopped after the program's end, within the 2 s D must stand still at the end level (the
+    // It stopped after the program's end, within the 3 s D must stand still at the end level (the
     // last dwell counts) and a read's worth of samples, long before the samples' end.
     let n = lines.count() as f64;
     let end_s = n / 100.0;
     assert!(
-        end_s > start + program && end_s < start + program + 3.0,
+        end_s > start + program && end_s < start + program + 4.0,
         "{end_s} {}",
         start + program
     );

@@ -328,3 +328,61 @@ fn a_plan_for_another_plane_is_refused() {
     );
     assert!(e.contains("wrong axes"), "{e}");
 }
+
+#[test]
+fn the_machine_files_calibration_makes_the_counts() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    plan(d);
+    let mut cal = jdbb_core::calib::Calibration::DEFAULT;
+    cal.enc1.zero_count += 1000;
+    fs::create_dir(d.join("ins")).unwrap();
+    fs::write(
+        d.join("ins/cal.toml"),
+        jdbb::instrument::file::calibration_toml(&cal, &[]),
+    )
+    .unwrap();
+    // The calibration's path is relative to the machine file.
+    fs::write(d.join("ins/nominal.toml"), INSTRUMENT).unwrap();
+    fs::write(
+        d.join("ins/own.toml"),
+        format!("{INSTRUMENT}calibration = \"cal.toml\"\n"),
+    )
+    .unwrap();
+    let rows = |machine: &str| -> Vec<(i64, f64)> {
+        let text = ok(
+            d,
+            &["simulate", "--plan", "plan/plan.json", "--machine", machine],
+        );
+        text.lines()
+            .skip(2)
+            .map(|l| {
+                let f: Vec<&str> = l.split(',').collect();
+                (f[2].parse().unwrap(), f[4].parse().unwrap())
+            })
+            .collect()
+    };
+    let (nominal, own) = (rows("ins/nominal.toml"), rows("ins/own.toml"));
+    assert_eq!(nominal.len(), own.len());
+    for (a, b) in nominal.iter().zip(&own).step_by(97) {
+        // Encoder 1 reads 1000 counts more for the same angle; the device's D is the same.
+        assert_eq!(b.0 - a.0, 1000 * cal.enc1.direction.sign());
+        assert!((a.1 - b.1).abs() < 2e-6, "{a:?} {b:?}");
+    }
+    fs::write(
+        d.join("ins/bad.toml"),
+        "[instrument]\ncalibration = \"nope.toml\"\n",
+    )
+    .unwrap();
+    refused(
+        d,
+        &[
+            "simulate",
+            "--plan",
+            "plan/plan.json",
+            "--machine",
+            "ins/bad.toml",
+        ],
+        "nope.toml",
+    );
+}

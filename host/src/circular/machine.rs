@@ -91,8 +91,13 @@ pub struct RecordingInstrument {
     pub lean_rad: f64,
     pub t0_us: u64,
     pub seed: u64,
-    /// The calibration in force (counts are made with it and D is computed with it).
+    /// The calibration in force (counts are made with it and D is computed with it): the
+    /// nominal J-DBB unless the caller reads `calibration_file` into it.
     pub calibration: Calibration,
+    /// `instrument.calibration` of the file, relative to the machine file's directory: a
+    /// calibration TOML for the caller to read (`crate::instrument::file`, which this module may
+    /// not use: it uses this one).
+    pub calibration_file: Option<PathBuf>,
 }
 
 #[derive(Deserialize)]
@@ -221,16 +226,10 @@ impl Machine {
             |f: fn(&InstrumentToml) -> &Option<toml::Spanned<f64>>| -> Option<toml::Spanned<f64>> {
                 ins.and_then(|i| f(i).clone())
             };
-        let calibration = match ins.and_then(|i| i.calibration.as_ref()) {
-            None => Calibration::DEFAULT,
-            Some(c) => {
-                let file = path
-                    .parent()
-                    .map_or_else(|| c.get_ref().clone(), |d| d.join(c.get_ref()));
-                crate::instrument::file::read_calibration(&file)
-                    .map_err(|e| at(c.span(), format!("instrument.calibration: {e}")))?
-            }
-        };
+        let calibration_file = ins.and_then(|i| i.calibration.as_ref()).map(|c| {
+            path.parent()
+                .map_or_else(|| c.get_ref().clone(), |d| d.join(c.get_ref()))
+        });
         let instrument = RecordingInstrument {
             sample_rate_hz: num(
                 &g(|i| &i.sample_rate_hz),
@@ -261,7 +260,8 @@ impl Machine {
             lean_rad: num(&g(|i| &i.lean_deg), "lean_deg", 17.0, -90.0, 90.0, "deg")?.to_radians(),
             t0_us: ins.and_then(|i| i.t0_us).unwrap_or(0),
             seed: ins.and_then(|i| i.seed).unwrap_or(1),
-            calibration,
+            calibration: Calibration::DEFAULT,
+            calibration_file,
         };
         let mut effects = vec![];
         for (name, value) in m.effects.iter().flatten() {

@@ -1,7 +1,7 @@
 //! Where a recording stands against its plan while it is made (`jdbb record --plan`): a cheap
 //! tracker of D against the plan's levels, sample by sample, not the synchronisation.
 //!
-//! - **Cycle start**: D leaves the start level (the start point's D) by more than
+//! - **Cycle start**: D leaves the level it had when the record began by more than
 //!   [`MOVE_MM`]. If the record's first sample is not at the start level (within
 //!   [`super::sync::LEVEL_TOLERANCE_MM`]), cycle start was missed: the program ran before the
 //!   record began, and the record cannot be synchronised with the plan (said after [`FIRST_S`],
@@ -10,8 +10,8 @@
 //!   (within [`super::sync::LEVEL_TOLERANCE_MM`]); the arc's share is the time on that level over
 //!   the circle's arcs at the programmed feed (an estimate: the override changes it).
 //! - **End**: the program has ended when at least its duration at the programmed feed has passed
-//!   since cycle start, the last circle was seen, and D has stood at the end point's level for
-//!   [`END_STILL_S`].
+//!   since cycle start, the last circle was seen, and D has stood still (within [`MOVE_MM`]) at
+//!   the end point's level (within [`super::sync::LEVEL_TOLERANCE_MM`]) for [`END_STILL_S`].
 use super::machine::Machine;
 use super::plan::{dist, Plan, Segment};
 use super::record_sim::Timeline;
@@ -22,7 +22,7 @@ pub const MOVE_MM: f64 = 0.02;
 /// The record's first this many seconds show whether cycle start was missed.
 pub const FIRST_S: f64 = 0.5;
 /// D standing at the end level this long (s) after the program's duration ends the record.
-pub const END_STILL_S: f64 = 2.0;
+pub const END_STILL_S: f64 = 3.0;
 
 /// The tracker (module docs).
 #[derive(Debug, Clone)]
@@ -42,7 +42,8 @@ pub struct Tracker {
     pub cycle_start_s: Option<f64>,
     /// Circle being run (index) and when D reached its level.
     circle: Option<(usize, f64)>,
-    still_since: Option<f64>,
+    /// Since when (s) D has stood at the end level, and where (mm).
+    still_since: Option<(f64, f64)>,
     last: (f64, f64),
 }
 
@@ -122,7 +123,8 @@ impl Tracker {
                 });
             }
         }
-        if self.cycle_start_s.is_none() && (d_mm - self.start_level_mm).abs() > MOVE_MM {
+        // From where D stood when the record began: set-up offsets move the levels by µm.
+        if self.cycle_start_s.is_none() && (d_mm - self.first_d_mm).abs() > MOVE_MM {
             self.cycle_start_s = Some(t_s);
         }
         let Some(start) = self.cycle_start_s else {
@@ -140,12 +142,15 @@ impl Tracker {
         {
             self.circle = Some((k, t_s));
         }
-        let at_end = (d_mm - self.end_level_mm).abs() < MOVE_MM;
+        let at_end = (d_mm - self.end_level_mm).abs() < LEVEL_TOLERANCE_MM;
         let last_seen = self
             .circle
             .is_some_and(|(k, _)| k + 1 == self.circles.len());
-        if at_end && last_seen && t_s - start >= self.nominal_s - END_STILL_S {
-            self.still_since.get_or_insert(t_s);
+        let still = self
+            .still_since
+            .is_none_or(|(_, d0)| (d_mm - d0).abs() < MOVE_MM);
+        if at_end && still && last_seen && t_s - start >= self.nominal_s - END_STILL_S {
+            self.still_since.get_or_insert((t_s, d_mm));
         } else {
             self.still_since = None;
         }
@@ -159,7 +164,7 @@ impl Tracker {
     /// Whether the program has ended (module docs).
     pub fn ended(&self) -> bool {
         match (self.cycle_start_s, self.still_since) {
-            (Some(start), Some(still)) => {
+            (Some(start), Some((still, _))) => {
                 self.last.0 - still >= END_STILL_S && self.last.0 - start >= self.nominal_s
             }
             _ => false,
@@ -223,7 +228,7 @@ mod tests {
         let plan = plan();
         let (v, start, program) = samples(
             &plan,
-            "feed_override_pct = 90\n[instrument]\nsample_rate_hz = 200\nnoise_um = 0.5\ntail_s = 30\nstart_delay_s = 4\n",
+            "feed_override_pct = 90\ntable_ball_mm = [100.03, 49.98, -20.0]\n[instrument]\nsample_rate_hz = 200\nnoise_um = 0.5\ntail_s = 30\nstart_delay_s = 4\n",
         );
         let mut tr = Tracker::new(&plan);
         let mut ended_at = None;

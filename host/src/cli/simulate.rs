@@ -78,7 +78,10 @@ fn run_plan(
     machine_file: &std::path::Path,
 ) -> Result<()> {
     let plan = Plan::read(plan_file)?;
-    let machine = Machine::read(machine_file)?;
+    let mut machine = Machine::read(machine_file)?;
+    if let Some(cal) = &machine.instrument.calibration_file {
+        machine.instrument.calibration = crate::instrument::file::read_calibration(cal)?;
+    }
     let (samples, truth) = record(&plan, &machine)?;
     let mut text = header(&[(PLAN_ID_KEY, plan.id())]).into_bytes();
     let seq: Vec<SeqSample> = samples
