@@ -386,3 +386,43 @@ fn the_machine_files_calibration_makes_the_counts() {
         "nope.toml",
     );
 }
+
+#[test]
+fn a_record_begun_after_cycle_start_is_said_to_be_late() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    plan(d);
+    fs::write(d.join("m.toml"), INSTRUMENT).unwrap();
+    ok(
+        d,
+        &[
+            "simulate",
+            "--plan",
+            "plan/plan.json",
+            "--machine",
+            "m.toml",
+            "-o",
+            "rec.csv",
+        ],
+    );
+    // The same run, the record started 10 s after cycle start (4.2 s into the record).
+    let text = fs::read_to_string(d.join("rec.csv")).unwrap();
+    let mut lines: Vec<&str> = text.lines().collect();
+    lines.drain(2..2 + (14.2 * 250.0) as usize);
+    fs::write(d.join("late.csv"), lines.join("\n") + "\n").unwrap();
+    let e = refused(
+        d,
+        &[
+            "diagnose",
+            "--record",
+            "late.csv",
+            "--plan",
+            "plan/plan.json",
+        ],
+        "cycle start was missed",
+    );
+    assert!(
+        e.contains("late.csv") && e.contains("start `jdbb record --plan` first"),
+        "{e}"
+    );
+}

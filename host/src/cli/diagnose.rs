@@ -124,6 +124,27 @@ fn add_run_facts(
     )))
 }
 
+/// A synchronisation that failed on a record begun after cycle start says so first (the program
+/// was already running when the record began), with what the synchronisation found.
+fn late_start(plan: &Plan, rec: &Record, e: Error) -> Error {
+    let mut tracker = crate::circular::progress::Tracker::new(plan);
+    for (t, d) in rec.t_s.iter().zip(&rec.d_mm) {
+        tracker.push(*t, *d);
+        if *t > 2.0 * crate::circular::progress::FIRST_S {
+            break;
+        }
+    }
+    match tracker.missed_start {
+        Some(m) => Error::Input {
+            location: rec.path.display().to_string(),
+            message: format!(
+                "{m}: the record began after the program started, so it cannot be lined up with the plan. Record again: start `jdbb record --plan` first, then press cycle start ({e})"
+            ),
+        },
+        None => e,
+    }
+}
+
 /// Refuse a record made for another plan (its `# plan_id:` line names another id). A record
 /// without the line (made before plan ids, or by hand) is taken as it is.
 fn check_plan_id(rec: &Record, plan: &Plan, plan_file: &std::path::Path) -> Result<()> {
@@ -157,7 +178,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             let plan = Plan::read(plan_file)?;
             let rec = Record::read(record)?;
             check_plan_id(&rec, &plan, plan_file)?;
-            let sync = synchronise(&plan, &rec)?;
+            let sync = synchronise(&plan, &rec).map_err(|e| late_start(&plan, &rec, e))?;
             check_feed(&sync, &rec)?;
             check_holes(&rec, &sync)?;
             let data = data_path(&plan, &rec, &sync, pitch)?;
