@@ -81,19 +81,54 @@ pub const FEED_RANGE: (f64, f64) = (0.05, 3.0);
 /// share of the plan's feed is not of this plan's program (or the program's F words were edited).
 pub const MAX_OVERRIDE_PERCENT: f64 = 150.0;
 
-/// Refuse a synchronisation whose feed on the arcs is beyond [`MAX_OVERRIDE_PERCENT`] of the
-/// plan's: the machine did not run this plan's program as written.
-pub fn check_feed(sync: &Sync, rec: &Record) -> Result<()> {
-    if sync.feed_percent > MAX_OVERRIDE_PERCENT {
-        return Err(Error::Input {
+/// The least feed (% of the programmed) the arcs of the synchronised circles ran at, on the
+/// record's clock, from times alone: each circle's arcs (length S) and dwells (D) took the time
+/// T between its feed-in's end and its feed-out's start, so they ran at least at S / (T − D)
+/// (acceleration only adds time). The mean over the circles; None without a circle. Unlike the
+/// fitted speed, this does not depend on a feed-in that cruises.
+pub fn least_feed_percent(plan: &Plan, sync: &Sync) -> Option<f64> {
+    let mut v = vec![];
+    for c in &sync.circles {
+        let seg_of = |role: LineRole| {
+            plan.segments.iter().position(|s| {
+                matches!(s, Segment::Line { role: r, circle, .. } if *r == role && *circle == c.circle)
+            })
+        };
+        let (Some(a), Some(b)) = (seg_of(LineRole::FeedIn), seg_of(LineRole::FeedOut)) else {
+            continue;
+        };
+        let (mut length, mut dwell) = (0.0, 0.0);
+        for s in plan.segments.get(a + 1..b).unwrap_or_default() {
+            match s {
+                Segment::Arc { .. } => length += s.length_mm(),
+                Segment::Dwell { seconds } => dwell += seconds,
+                _ => {}
+            }
+        }
+        let moving_s = c.feed_out.profile.t0_s - c.feed_in.profile.end_s() - dwell;
+        if moving_s > 0.0 && length > 0.0 {
+            v.push(length / moving_s);
+        }
+    }
+    (!v.is_empty()).then(|| {
+        100.0 * v.iter().sum::<f64>() / v.len() as f64 / (sync.programmed_feed_mm_min / 60.0)
+    })
+}
+
+/// Refuse a record whose arcs ran faster than [`MAX_OVERRIDE_PERCENT`] of the plan's feed, by
+/// [`least_feed_percent`] (a bound that holds where the fitted feed is uncertain): the machine
+/// did not run this plan's program as written.
+pub fn check_feed(plan: &Plan, sync: &Sync, rec: &Record) -> Result<()> {
+    match least_feed_percent(plan, sync) {
+        Some(pct) if pct > MAX_OVERRIDE_PERCENT => Err(Error::Input {
             location: rec.path.display().to_string(),
             message: format!(
-                "the arcs ran at {:.0} % of the plan's feed {} mm/min, more than a feed override allows ({MAX_OVERRIDE_PERCENT:.0} %): the machine ran another program, or its F words were edited. Record the plan's own program at an override of at most {MAX_OVERRIDE_PERCENT:.0} %, or give the plan.json of the program that ran",
-                sync.feed_percent, sync.programmed_feed_mm_min
+                "the arcs ran at {pct:.0} % of the plan's feed {} mm/min or faster, more than a feed override allows ({MAX_OVERRIDE_PERCENT:.0} %): the machine ran another program, or its F words were edited. Record the plan's own program at an override of at most {MAX_OVERRIDE_PERCENT:.0} %, or give the plan.json of the program that ran",
+                sync.programmed_feed_mm_min
             ),
-        });
+        }),
+        _ => Ok(()),
     }
-    Ok(())
 }
 
 /// A recording: time (s after its first sample) and D (mm).

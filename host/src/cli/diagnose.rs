@@ -179,7 +179,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             let rec = Record::read(record)?;
             check_plan_id(&rec, &plan, plan_file)?;
             let sync = synchronise(&plan, &rec).map_err(|e| late_start(&plan, &rec, e))?;
-            check_feed(&sync, &rec)?;
+            check_feed(&plan, &sync, &rec)?;
             check_holes(&rec, &sync)?;
             let data = data_path(&plan, &rec, &sync, pitch)?;
             synced = Some((plan_file, plan, sync));
