@@ -6,11 +6,11 @@
 //!   [`super::sync::LEVEL_TOLERANCE_MM`]), cycle start was missed: the program ran before the
 //!   record began, and the record cannot be synchronised with the plan (said after [`FIRST_S`],
 //!   with whether D was moving then).
-//! - **Circle and arc**: the circle is the next one of the plan, in order, whose level D reaches
-//!   (within [`super::sync::LEVEL_TOLERANCE_MM`]); the arc's share is the time on that level over
+//! - **Circle and arc**: once D has left the circle being run, the next circle is the first
+//!   later one of the plan whose level D reaches (within [`super::sync::LEVEL_TOLERANCE_MM`]); the arc's share is the time on that level over
 //!   the circle's arcs at the programmed feed (an estimate: the override changes it).
 //! - **End**: the program has ended when at least its duration at the programmed feed has passed
-//!   since cycle start, the last circle was seen, and D has stood still (within [`MOVE_MM`]) at
+//!   since cycle start, the last circle was run and left, and D has stood still (within [`MOVE_MM`]) at
 //!   the end point's level (within [`super::sync::LEVEL_TOLERANCE_MM`]) for [`END_STILL_S`].
 use super::machine::Machine;
 use super::plan::{dist, Plan, Segment};
@@ -42,6 +42,8 @@ pub struct Tracker {
     pub cycle_start_s: Option<f64>,
     /// Circle being run (index) and when D reached its level.
     circle: Option<(usize, f64)>,
+    /// Whether D has left the circle being run (its feed-out).
+    left: bool,
     /// Since when (s) D has stood at the end level, and where (mm).
     still_since: Option<(f64, f64)>,
     last: (f64, f64),
@@ -91,6 +93,7 @@ impl Tracker {
             missed_start: None,
             cycle_start_s: None,
             circle: None,
+            left: false,
             still_since: None,
             last: (0.0, 0.0),
         }
@@ -130,22 +133,28 @@ impl Tracker {
         let Some(start) = self.cycle_start_s else {
             return;
         };
-        let next = self.circle.map_or(0, |(k, _)| k + 1);
-        if let Some(k) = (next..self.circles.len())
-            .find(|&k| (d_mm - self.circles[k].0).abs() < 0.5 * LEVEL_TOLERANCE_MM)
-            .filter(|&k| {
-                k == next
-                    || self
-                        .circle
-                        .is_none_or(|(c, _)| (d_mm - self.circles[c].0).abs() > LEVEL_TOLERANCE_MM)
-            })
-        {
-            self.circle = Some((k, t_s));
+        // The circle being run is left when D leaves its level; only then is the next entered:
+        // the first later circle whose level D reaches (consecutive circles of one sphere share
+        // a level).
+        if let Some((c, _)) = self.circle {
+            if (d_mm - self.circles[c].0).abs() > LEVEL_TOLERANCE_MM {
+                self.left = true;
+            }
+        }
+        if self.circle.is_none() || self.left {
+            let next = self.circle.map_or(0, |(k, _)| k + 1);
+            if let Some(k) = (next..self.circles.len())
+                .find(|&k| (d_mm - self.circles[k].0).abs() < 0.5 * LEVEL_TOLERANCE_MM)
+            {
+                self.circle = Some((k, t_s));
+                self.left = false;
+            }
         }
         let at_end = (d_mm - self.end_level_mm).abs() < LEVEL_TOLERANCE_MM;
-        let last_seen = self
-            .circle
-            .is_some_and(|(k, _)| k + 1 == self.circles.len());
+        let last_seen = self.left
+            && self
+                .circle
+                .is_some_and(|(k, _)| k + 1 == self.circles.len());
         let still = self
             .still_since
             .is_none_or(|(_, d0)| (d_mm - d0).abs() < MOVE_MM);
@@ -275,5 +284,62 @@ mod tests {
         }
         assert!(tr.missed_start.is_none());
         assert_eq!(tr.status(), "waiting for cycle start");
+    }
+
+    #[test]
+    fn a_calibration_test_is_followed_circle_by_circle_to_its_end() {
+        // Spheres of three circles each at one D: equal levels one after another.
+        let spec = PlanSpec {
+            purpose: crate::circular::plan::Purpose::CalibrationTest,
+            circles: crate::circular::plan::build::calibration_circles(&[85.0, 95.0]),
+            ..PlanSpec::machine_test(
+                &[90.0],
+                &[0.0],
+                Plane::Xy,
+                3000.0,
+                [100.0, 50.0, -20.0],
+                Dialect::Linuxcnc,
+            )
+        };
+        let plan = make_plan(&spec, &Calibration::DEFAULT).unwrap();
+        assert_eq!(plan.circles.len(), 6);
+        // At 80 % the run lasts well beyond its nominal duration: no stop before its end.
+        let (v, start, program) = samples(
+            &plan,
+            "feed_override_pct = 80\n[instrument]\nsample_rate_hz = 50\nnoise_um = 0.3\ntail_s = 20\n",
+        );
+        let mut tr = Tracker::new(&plan);
+        let mut seen: Vec<String> = vec![];
+        let mut entered = vec![];
+        let mut ended_at = None;
+        for &(t, d) in &v {
+            tr.push(t, d);
+            let s = tr.status();
+            if let Some(c) = s.strip_prefix("circle ").and_then(|r| r.split(',').next()) {
+                if seen.last().map(String::as_str) != Some(c) {
+                    seen.push(c.to_string());
+                    entered.push(t);
+                }
+            }
+            if ended_at.is_none() && tr.ended() {
+                ended_at = Some(t);
+            }
+        }
+        assert_eq!(seen, ["1/6", "2/6", "3/6", "4/6", "5/6", "6/6"]);
+        // Each circle is entered after the one before has run its arcs (at least their time at
+        // the programmed feed), not as soon as D shows the same level.
+        for (k, w) in entered.windows(2).enumerate() {
+            assert!(
+                w[1] - w[0] > tr.circles[k].1,
+                "circle {}: {entered:?}",
+                k + 2
+            );
+        }
+        let end = ended_at.unwrap();
+        assert!(
+            end > start + program && end < start + program + END_STILL_S + 1.0,
+            "{end} {}",
+            start + program
+        );
     }
 }
