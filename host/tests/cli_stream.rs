@@ -260,6 +260,7 @@ fn a_port_in_use_says_so_not_dialout() {
     ]);
     assert!(!o.status.success());
     let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{e}");
     assert!(e.contains("in use by another program"), "{e}");
     assert!(!e.contains("dialout") && !e.contains("panicked"), "{e}");
     assert!(!out.exists());
