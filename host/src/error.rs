@@ -6,7 +6,7 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
     /// A serial port could not be opened.
-    #[error("cannot open serial port {port}: {source}. Check the name with `jdbb devices`, that the device is plugged in, and that you may read it (group dialout)")]
+    #[error("cannot open serial port {port}: {source}. {}", port_hint(source))]
     PortOpen {
         port: String,
         #[source]
@@ -130,6 +130,8 @@ impl Error {
                 source: rusqlite::Error::SqliteFailure(e, _),
                 ..
             } if e.code == rusqlite::ErrorCode::NotADatabase => 2,
+            // A port another program holds: the user's to free, like bad input.
+            Error::PortOpen { source, .. } if port_busy(source) => 2,
             _ => 1,
         }
     }
@@ -151,6 +153,27 @@ impl Error {
             location,
             message: message.into(),
         }
+    }
+}
+
+/// Whether a port would not open because another program holds it (EBUSY, or the exclusive lock
+/// serial ports take).
+fn port_busy(e: &serialport::Error) -> bool {
+    let d = e.description.to_lowercase();
+    d.contains("busy") || d.contains("in use") || d.contains("lock")
+}
+
+/// What to do about a port that would not open: a port in use is another program's (the
+/// exclusive lock of a serial port), a refused one is the user's permissions, anything else the
+/// name or the cable.
+fn port_hint(e: &serialport::Error) -> &'static str {
+    let d = e.description.to_lowercase();
+    if port_busy(e) {
+        "The port is in use by another program (another jdbb, a serial terminal, a slicer or ModemManager): close it, then try again"
+    } else if d.contains("permission") || d.contains("access is denied") {
+        "You may not open it: add yourself to the group that owns it (dialout on Debian and Ubuntu, uucp on Arch) and log in again"
+    } else {
+        "Check the name with `jdbb devices` and that the device is plugged in"
     }
 }
 

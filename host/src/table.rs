@@ -59,6 +59,9 @@ pub struct Table {
     fields: Vec<Range<usize>>,
     /// 1-based character column of each field's start.
     columns: Vec<usize>,
+    /// The comment lines before the header, without `#` and trimmed (see
+    /// [`Table::header_comment`]).
+    comments: Vec<String>,
 }
 
 impl Table {
@@ -74,6 +77,16 @@ impl Table {
     pub fn open_with(path: &Path, limit: Limit) -> Result<Table> {
         let file = crate::fsio::open_input(path, limit)?;
         Table::from_reader(path, Box::new(BufReader::with_capacity(1 << 16, file)))
+    }
+
+    /// The value of a `# key: value` comment line before the header (the first such line), if
+    /// any: how a file says what it belongs to (a record's `plan_id`).
+    pub fn header_comment(&self, key: &str) -> Option<&str> {
+        self.comments.iter().find_map(|c| {
+            c.strip_prefix(key)
+                .and_then(|r| r.trim_start().strip_prefix(':'))
+                .map(str::trim)
+        })
     }
 
     /// A table from text in memory; `path` names it in errors.
@@ -97,6 +110,7 @@ impl Table {
             line: String::with_capacity(256),
             fields: vec![],
             columns: vec![],
+            comments: vec![],
         };
         if !t.advance()? {
             return Err(Error::input(
@@ -256,6 +270,10 @@ impl Table {
             };
             let trimmed = text.trim();
             if trimmed.is_empty() || trimmed.starts_with('#') {
+                if self.header_line == 0 && self.comments.len() < 64 {
+                    self.comments
+                        .push(trimmed[trimmed.len().min(1)..].trim().to_string());
+                }
                 continue;
             }
             self.line.clear();

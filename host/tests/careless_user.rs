@@ -664,6 +664,20 @@ fn every_input_read_from_an_endless_file_stops_at_its_limit() {
             "plan", "--radius", "90", "--feed", "1000", "--centre", "0,0,0", "--out", "p",
         ],
     );
+    // `calibrate --record --plan` takes a calibration-test plan only (issue 17).
+    ok_in(
+        d,
+        &[
+            "plan",
+            "--calibration-test",
+            "--feed",
+            "1000",
+            "--centre",
+            "0,0,0",
+            "--out",
+            "cp",
+        ],
+    );
     fs::copy(data("rrsps_parameters_table2_3.csv"), d.join("p.csv")).unwrap();
     let z = "/dev/zero";
     let cases: Vec<Vec<&str>> = vec![
@@ -694,7 +708,7 @@ fn every_input_read_from_an_endless_file_stops_at_its_limit() {
         ],
         vec!["calibrate", "--samples", z],
         vec!["calibrate", "--samples", "cal.csv", "--nominal", z],
-        vec!["calibrate", "--record", z, "--plan", "p/plan.json"],
+        vec!["calibrate", "--record", z, "--plan", "cp/plan.json"],
         vec![
             "recompute",
             "--record",

@@ -306,6 +306,29 @@ fn no_such_port_is_a_clear_error() {
 }
 
 #[test]
+fn a_port_in_use_says_so_not_dialout() {
+    let pty = Pty::new();
+    // Another program holds the port (serialport opens it exclusively, as a terminal would).
+    let held = serialport::new(&pty.slave_path, 115_200).open().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.csv");
+    let o = jdbb(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{e}");
+    assert!(e.contains("in use by another program"), "{e}");
+    assert!(!e.contains("dialout") && !e.contains("panicked"), "{e}");
+    assert!(!out.exists());
+    drop(held);
+}
+
+#[test]
 fn port_that_is_not_a_device_is_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("x.csv");
@@ -866,4 +889,147 @@ fn record_no_start_only_listens_and_keeps_the_runs_numbers() {
         "a listener must not drive the device: {sent:?}"
     );
     check_csv(&out, &(48..80).collect::<Vec<_>>());
+}
+
+/// Frames of the samples, BATCH_LEN to a batch, numbered from 0.
+fn frames_of(samples: &[Sample]) -> Vec<u8> {
+    let mut out = Vec::new();
+    for (k, chunk) in samples.chunks(BATCH_LEN).enumerate() {
+        let mut v = heapless::Vec::new();
+        for s in chunk {
+            v.push(*s).unwrap();
+        }
+        out.extend(encode(&DeviceMsg::Batch(SampleBatch {
+            seq: (k * BATCH_LEN) as u32,
+            dropped: 0,
+            samples: v,
+        })));
+    }
+    out
+}
+
+/// A plan made by `jdbb plan` in `dir/plan`, and its program run on a machine (`jdbb simulate
+/// --plan`'s model) as the device's samples; the truth's cycle start (s after the first sample)
+/// and program duration (s).
+fn planned_run(dir: &Path, machine: &str) -> (String, Vec<Sample>, f64, f64) {
+    let o = jdbb(&[
+        "plan",
+        "--radius",
+        "90",
+        "--feed",
+        "2000",
+        "--centre",
+        "100,50,-20",
+        "--out",
+        dir.join("plan").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let plan_file = dir.join("plan/plan.json");
+    let plan = jdbb::circular::plan::Plan::read(&plan_file).unwrap();
+    let m = jdbb::circular::machine::Machine::parse(Path::new("m.toml"), machine).unwrap();
+    let (samples, truth) = jdbb::circular::record_sim::record(&plan, &m).unwrap();
+    let t0 = samples[0].t_us as f64;
+    (
+        plan_file.to_str().unwrap().to_string(),
+        samples,
+        (truth.cycle_start_t_us - t0) * 1e-6,
+        truth.program_s,
+    )
+}
+
+#[test]
+fn record_with_a_plan_shows_progress_and_stops_after_the_program() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rec.csv");
+    let (plan, samples, start, program) = planned_run(
+        dir.path(),
+        "[instrument]\nsample_rate_hz = 100\nnoise_um = 0.3\ntail_s = 10\n",
+    );
+    let mut pty = Pty::new();
+    let child = spawn(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+        "--plan",
+        &plan,
+        "--seconds",
+        "120",
+    ]);
+    pty.expect_command(Command::Start, Duration::from_secs(10));
+    // The device streams the whole run (and more) as fast as the pty takes it; jdbb stops by
+    // itself after the program's end, whatever is still coming.
+    let mut master = pty.master.try_clone().unwrap();
+    let bytes = frames_of(&samples);
+    std::thread::spawn(move || {
+        let _ = master.write_all(&bytes);
+    });
+    let o = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    let err = stderr(&o);
+    assert!(o.status.success(), "{stdout}{err}");
+    assert!(stdout.contains("the plan's program ended"), "{stdout}");
+    assert!(
+        err.contains("samples, D 87.") && err.contains("lost 0, waiting for cycle start"),
+        "a progress line: {err}"
+    );
+    assert!(!err.contains("cycle start was missed"), "{err}");
+    let text = std::fs::read_to_string(&out).unwrap();
+    let mut lines = text.lines();
+    assert!(lines.next().unwrap().starts_with("# plan_id: "));
+    assert_eq!(lines.next(), Some("seq,t_us,enc1,enc2,d_mm"));
+    // It stopped after the program's end, within the 3 s D must stand still at the end level (the
+    // last dwell counts) and a read's worth of samples, long before the samples' end.
+    let n = lines.count() as f64;
+    let end_s = n / 100.0;
+    assert!(
+        end_s > start + program && end_s < start + program + 4.0,
+        "{end_s} {}",
+        start + program
+    );
+    // And the record is the plan's: diagnose takes it.
+    let o = jdbb(&[
+        "diagnose",
+        "--record",
+        out.to_str().unwrap(),
+        "--plan",
+        &plan,
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+#[test]
+fn record_with_a_plan_says_when_cycle_start_was_missed() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rec.csv");
+    let (plan, samples, start, _) = planned_run(dir.path(), "[instrument]\nsample_rate_hz = 100\n");
+    // The operator pressed cycle start 10 s before starting the record.
+    let late: Vec<Sample> = samples
+        .iter()
+        .skip(((start + 10.0) * 100.0) as usize)
+        .take(300)
+        .copied()
+        .collect();
+    let mut pty = Pty::new();
+    let child = spawn(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+        "--plan",
+        &plan,
+        "--seconds",
+        "3",
+    ]);
+    pty.expect_command(Command::Start, Duration::from_secs(10));
+    pty.send(&frames_of(&late));
+    let o = child.wait_with_output().unwrap();
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("cycle start was missed") && err.contains("start `jdbb record --plan` first"),
+        "{err}"
+    );
 }

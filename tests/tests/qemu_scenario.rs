@@ -7,17 +7,15 @@
 //!    encoders' counts: a scenario file (`jdbb_core::scenario`);
 //! 3. the QEMU build of the firmware plays the scenario as its encoders (read over semihosting,
 //!    as `scripts/qemu-run.sh --scenario` starts it), computes D on chip and streams over USART2;
-//! 4. `jdbb record --rate 5000` records the run until the operator's Ctrl-C (SIGINT);
+//! 4. `jdbb record --rate 5000 --plan plan.json` records the run, showing its progress, and
+//!    stops by itself after the program's end (issue 17);
 //! 5. `jdbb diagnose --record --plan --json` must name the backlash and the squareness, each
 //!    within 5 % or 3σ, and no other machine effect.
 //!
 //! The record itself must be the scenario, exactly: at least 100 000 samples at 5 kHz, `seq` from
 //! 0 without a gap, `t_us` = 200 µs × `seq`, nothing lost or dropped, every count the scenario's,
 //! every D the host reference's within the on-chip budget.
-use std::io::{Read, Seek, SeekFrom};
-use std::path::Path;
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
 
 use jdbb_core::geometry;
 use jdbb_core::Calibration;
@@ -28,18 +26,6 @@ const CENTRE: &str = "100,50,-20";
 const RATE_HZ: u32 = 5_000;
 const BACKLASH_X_UM: f64 = 6.0;
 const SQUARENESS_XY_UM_PER_M: f64 = 20.0;
-
-/// The `seq` of the last whole line of a growing record, if any.
-fn last_seq(file: &Path) -> Option<u64> {
-    let mut f = std::fs::File::open(file).ok()?;
-    let len = f.metadata().ok()?.len();
-    let from = len.saturating_sub(256);
-    f.seek(SeekFrom::Start(from)).ok()?;
-    let mut tail = String::new();
-    f.read_to_string(&mut tail).ok()?;
-    let whole = &tail[..tail.rfind('\n')?];
-    whole.rsplit('\n').next()?.split(',').next()?.parse().ok()
-}
 
 #[test]
 fn plan_scenario_qemu_record_diagnose_names_the_hidden_effects() {
@@ -96,36 +82,21 @@ fn plan_scenario_qemu_record_diagnose_names_the_hidden_effects() {
     // 3. The firmware plays it.
     let (_qemu, pty) = Qemu::start_with_scenario(&elf, &scenario);
 
-    // 4. Record until the scenario has played out, then Ctrl-C.
+    // 4. Record with the plan: it stops by itself after the program's end (the scenario then
+    // holds the counters, so D stands at the end level).
     let rec = dir.path().join("rec.csv");
-    let partial = dir.path().join("rec.csv.partial");
-    let mut recorder = Command::new(jdbb_bin())
+    let recorder = Command::new(jdbb_bin())
         .args(["record", "--rate", &RATE_HZ.to_string(), "--port"])
         .arg(&pty)
         .arg("--out")
         .arg(&rec)
+        .arg("--plan")
+        .arg(plan_dir.join("plan.json"))
+        .args(["--seconds", "400"])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let t0 = Instant::now();
-    let timeout = Duration::from_secs(400);
-    while last_seq(&partial).is_none_or(|s| s < n + 1_000) {
-        assert!(
-            t0.elapsed() < timeout,
-            "the record did not reach {n} samples in {timeout:?}"
-        );
-        assert!(
-            recorder.try_wait().unwrap().is_none(),
-            "jdbb record ended early"
-        );
-        std::thread::sleep(Duration::from_millis(200));
-    }
-    let kill = Command::new("kill")
-        .args(["-INT", &recorder.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(kill.success());
     let done = recorder.wait_with_output().unwrap();
     let summary = format!(
         "{}{}",
@@ -134,6 +105,11 @@ fn plan_scenario_qemu_record_diagnose_names_the_hidden_effects() {
     );
     println!("{summary}");
     assert!(done.status.success(), "jdbb record: {summary}");
+    assert!(
+        summary.contains("the plan's program ended") && summary.contains("circle 1/1, arcs"),
+        "no automatic stop or progress line: {summary}"
+    );
+    assert!(!summary.contains("cycle start was missed"), "{summary}");
     for clean in ["lost 0 (device dropped 0)", "corrupt frames 0", "resets 0"] {
         assert!(summary.contains(clean), "not '{clean}': {summary}");
     }
@@ -143,6 +119,7 @@ fn plan_scenario_qemu_record_diagnose_names_the_hidden_effects() {
     let cal = Calibration::DEFAULT;
     let text = std::fs::read_to_string(&rec).unwrap();
     let mut lines = text.lines();
+    assert!(lines.next().is_some_and(|l| l.starts_with("# plan_id: ")));
     assert_eq!(lines.next(), Some("seq,t_us,enc1,enc2,d_mm"));
     // QEMU's chip ID is all zero: the serial the device reported, right after the header.
     assert_eq!(

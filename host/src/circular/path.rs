@@ -78,7 +78,7 @@ pub fn parse_pitch(s: &str) -> Result<[Option<f64>; 3]> {
                 "--pitch: `{part}` should look like x=10 (axis=pitch in mm)"
             ))
         })?;
-        let axis = match k.trim() {
+        let axis = match k.trim().to_ascii_lowercase().as_str() {
             "x" => 0,
             "y" => 1,
             "z" => 2,

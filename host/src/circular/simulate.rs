@@ -32,7 +32,7 @@ pub fn parse_effect(s: &str) -> Result<EffectValue> {
             "--effect `{s}`: expected name=value, e.g. scale_x=20 or cyclic_x=3@45"
         ))
     })?;
-    let effect = Effect::parse(name.trim()).ok_or_else(|| {
+    let effect = Effect::parse(&name.trim().to_ascii_lowercase()).ok_or_else(|| {
         let names: Vec<String> = Effect::all().iter().map(|e| e.name()).collect();
         Error::Usage(format!(
             "--effect: unknown effect `{name}`; known: {}",
@@ -357,7 +357,7 @@ pub fn write_csv(out: &mut dyn Write, path: &Path, d_mm: &[f64]) -> std::io::Res
 
 /// Parse `xy`, `yz`, `zx` into (i, j, normal).
 pub fn parse_plane(s: &str) -> Result<(usize, usize, usize)> {
-    match s {
+    match s.to_ascii_lowercase().as_str() {
         "xy" => Ok((0, 1, 2)),
         "yz" => Ok((1, 2, 0)),
         "zx" => Ok((2, 0, 1)),

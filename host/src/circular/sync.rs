@@ -77,6 +77,60 @@ pub const REVERSAL_GUARD_S: f64 = 1e-3;
 /// plan: the record belongs to another program or the run was disturbed.
 pub const FEED_RANGE: (f64, f64) = (0.05, 3.0);
 
+/// The largest feed override a controller allows (%): a record whose arcs ran faster than this
+/// share of the plan's feed is not of this plan's program (or the program's F words were edited).
+pub const MAX_OVERRIDE_PERCENT: f64 = 150.0;
+
+/// The least feed (% of the programmed) the arcs of the synchronised circles ran at, on the
+/// record's clock, from times alone: each circle's arcs (length S) and dwells (D) took the time
+/// T between its feed-in's end and its feed-out's start, so they ran at least at S / (T − D)
+/// (acceleration only adds time). The mean over the circles; None without a circle. Unlike the
+/// fitted speed, this does not depend on a feed-in that cruises.
+pub fn least_feed_percent(plan: &Plan, sync: &Sync) -> Option<f64> {
+    let mut v = vec![];
+    for c in &sync.circles {
+        let seg_of = |role: LineRole| {
+            plan.segments.iter().position(|s| {
+                matches!(s, Segment::Line { role: r, circle, .. } if *r == role && *circle == c.circle)
+            })
+        };
+        let (Some(a), Some(b)) = (seg_of(LineRole::FeedIn), seg_of(LineRole::FeedOut)) else {
+            continue;
+        };
+        let (mut length, mut dwell) = (0.0, 0.0);
+        for s in plan.segments.get(a + 1..b).unwrap_or_default() {
+            match s {
+                Segment::Arc { .. } => length += s.length_mm(),
+                Segment::Dwell { seconds } => dwell += seconds,
+                _ => {}
+            }
+        }
+        let moving_s = c.feed_out.profile.t0_s - c.feed_in.profile.end_s() - dwell;
+        if moving_s > 0.0 && length > 0.0 {
+            v.push(length / moving_s);
+        }
+    }
+    (!v.is_empty()).then(|| {
+        100.0 * v.iter().sum::<f64>() / v.len() as f64 / (sync.programmed_feed_mm_min / 60.0)
+    })
+}
+
+/// Refuse a record whose arcs ran faster than [`MAX_OVERRIDE_PERCENT`] of the plan's feed, by
+/// [`least_feed_percent`] (a bound that holds where the fitted feed is uncertain): the machine
+/// did not run this plan's program as written.
+pub fn check_feed(plan: &Plan, sync: &Sync, rec: &Record) -> Result<()> {
+    match least_feed_percent(plan, sync) {
+        Some(pct) if pct > MAX_OVERRIDE_PERCENT => Err(Error::Input {
+            location: rec.path.display().to_string(),
+            message: format!(
+                "the arcs ran at {pct:.0} % of the plan's feed {} mm/min or faster, more than a feed override allows ({MAX_OVERRIDE_PERCENT:.0} %): the machine ran another program, or its F words were edited. Record the plan's own program at an override of at most {MAX_OVERRIDE_PERCENT:.0} %, or give the plan.json of the program that ran",
+                sync.programmed_feed_mm_min
+            ),
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// A recording: time (s after its first sample) and D (mm).
 #[derive(Debug, Clone)]
 pub struct Record {
@@ -85,6 +139,8 @@ pub struct Record {
     pub t0_us: f64,
     pub t_s: Vec<f64>,
     pub d_mm: Vec<f64>,
+    /// The plan the record was made for (its `# plan_id:` line), if it says.
+    pub plan_id: Option<String>,
     /// Line number of each sample in the file (errors name it).
     lines: Vec<u32>,
 }
@@ -106,6 +162,9 @@ impl Record {
             t0_us: 0.0,
             t_s: vec![],
             d_mm: vec![],
+            plan_id: t
+                .header_comment(super::plan::PLAN_ID_KEY)
+                .map(str::to_string),
             lines: vec![],
         };
         let mut prev: Option<f64> = None;
@@ -152,6 +211,7 @@ impl Record {
             t0_us: 0.0,
             t_s,
             d_mm,
+            plan_id: None,
             lines,
         }
     }

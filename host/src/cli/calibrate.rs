@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use jdbb_core::calib::Calibration;
 
 use super::output::{emit, json_text, print};
-use crate::circular::plan::Plan;
+use crate::circular::plan::{Plan, Purpose};
 use crate::instrument::file::{calibration_toml, read_calibration, same_file};
 use crate::instrument::fit::{calibrate, Options};
 use crate::instrument::report::{summary, to_json};
@@ -82,7 +82,17 @@ pub fn run(args: &CalibrateArgs) -> Result<()> {
         ..Options::default()
     };
     let cal = match (&args.record, &args.plan) {
-        (Some(rec), Some(plan)) => calibrate_run(&Plan::read(plan)?, rec, &nominal, &opts)?,
+        (Some(rec), Some(plan_file)) => {
+            let plan = Plan::read(plan_file)?;
+            if plan.purpose != Purpose::CalibrationTest {
+                return Err(Error::Usage(format!(
+                    "{} is a {} plan: its circles at one ball distance cannot calibrate the instrument, which needs spheres at several distances. Make a calibration test with `jdbb plan --calibration-test ...`, run and record it, then calibrate with that record and plan",
+                    plan_file.display(),
+                    plan.purpose.name()
+                )));
+            }
+            calibrate_run(&plan, rec, &nominal, &opts)?
+        }
         _ => {
             let samples = read_samples(input)?;
             samples.check_against(&nominal)?;

@@ -10,7 +10,7 @@ use crate::circular::model::parse_pitch;
 use crate::circular::plan::Plan;
 use crate::circular::plot::write_report;
 use crate::circular::report::{plan_json, summary, sync_json, sync_summary, to_json};
-use crate::circular::sync::{data_path, synchronise, Record};
+use crate::circular::sync::{check_feed, data_path, synchronise, Record};
 use crate::fsio::{check_dir_destination, write_dir};
 use crate::{Error, Result};
 
@@ -61,8 +61,8 @@ pub struct DiagnoseArgs {
     /// Date of the test, YYYY-MM-DD or RFC 3339 (default: now), for the report and the history.
     #[arg(long, value_parser = crate::dates::parse_date)]
     pub date: Option<String>,
-    /// The instrument calibration in force (JSON: l1_mm, l2_mm, enc1 and enc2 with
-    /// counts_per_rev, zero_count, direction), for the report and the history.
+    /// The instrument calibration in force (the TOML `jdbb calibrate -o` writes; JSON with
+    /// l1_mm, l2_mm, enc1 and enc2 is read too), for the report and the history.
     #[arg(long, value_name = "FILE")]
     pub calibration: Option<PathBuf>,
     /// Who ran the test, for the report (ISO 230-4).
@@ -141,15 +141,20 @@ fn conditions(args: &DiagnoseArgs) -> Result<serde_json::Value> {
     Ok(json)
 }
 
-/// The calibration file of `--calibration` as JSON, checked against jdbb-core's Calibration.
+/// The calibration file of `--calibration` (TOML as `jdbb calibrate -o` writes it, or JSON),
+/// checked against jdbb-core's Calibration, as a JSON value for the diagnosis.
 fn read_calibration(file: &std::path::Path) -> Result<serde_json::Value> {
     let text = crate::table::read_text(file)?;
+    if !text.trim_start().starts_with('{') {
+        let cal = crate::instrument::file::parse_calibration(file, &text)?;
+        return Ok(serde_json::to_value(cal).expect("a calibration is plain data"));
+    }
     let cal: jdbb_core::calib::Calibration = serde_json::from_str(&text).map_err(|e| {
         Error::input(
             file,
             e.line(),
             e.column(),
-            format!("not an instrument calibration ({e}); expected JSON with l1_mm, l2_mm, enc1 and enc2 ({{counts_per_rev, zero_count, direction: Positive|Negative}})"),
+            format!("not an instrument calibration ({e}); expected the TOML `jdbb calibrate -o` writes, or JSON with l1_mm, l2_mm, enc1 and enc2 ({{counts_per_rev, zero_count, direction: Positive|Negative}})"),
         )
     })?;
     cal.validate().map_err(|e| Error::Input {
@@ -193,6 +198,43 @@ fn add_run_facts(
     )))
 }
 
+/// A synchronisation that failed on a record begun after cycle start says so first (the program
+/// was already running when the record began), with what the synchronisation found.
+fn late_start(plan: &Plan, rec: &Record, e: Error) -> Error {
+    let mut tracker = crate::circular::progress::Tracker::new(plan);
+    for (t, d) in rec.t_s.iter().zip(&rec.d_mm) {
+        tracker.push(*t, *d);
+        if *t > 2.0 * crate::circular::progress::FIRST_S {
+            break;
+        }
+    }
+    match tracker.missed_start {
+        Some(m) => Error::Input {
+            location: rec.path.display().to_string(),
+            message: format!(
+                "{m}: the record began after the program started, so it cannot be lined up with the plan. Record again: start `jdbb record --plan` first, then press cycle start ({e})"
+            ),
+        },
+        None => e,
+    }
+}
+
+/// Refuse a record made for another plan (its `# plan_id:` line names another id). A record
+/// without the line (made before plan ids, or by hand) is taken as it is.
+fn check_plan_id(rec: &Record, plan: &Plan, plan_file: &std::path::Path) -> Result<()> {
+    match &rec.plan_id {
+        Some(id) if *id != plan.id() => Err(Error::Input {
+            location: rec.path.display().to_string(),
+            message: format!(
+                "this record was made for another plan (plan_id {id}), not for {} (plan_id {}): another plane, circle, feed or centre would make the diagnosis name the wrong axes. Give the plan.json the record was made with",
+                plan_file.display(),
+                plan.id()
+            ),
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// Run `jdbb diagnose`.
 pub fn run(args: &DiagnoseArgs) -> Result<()> {
     if let Some(dir) = &args.report {
@@ -210,7 +252,9 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         (None, Some(record), None, Some(plan_file)) => {
             let plan = Plan::read(plan_file)?;
             let rec = Record::read(record)?;
-            let sync = synchronise(&plan, &rec)?;
+            check_plan_id(&rec, &plan, plan_file)?;
+            let sync = synchronise(&plan, &rec).map_err(|e| late_start(&plan, &rec, e))?;
+            check_feed(&plan, &sync, &rec)?;
             check_holes(&rec, &sync)?;
             let data = data_path(&plan, &rec, &sync, pitch)?;
             synced = Some((plan_file, plan, sync));

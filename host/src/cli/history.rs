@@ -24,8 +24,9 @@ pub struct HistoryArgs {
 pub enum HistoryCommand {
     /// File a diagnosis (diagnosis.json of `jdbb diagnose --report DIR`) under a machine.
     Add {
+        /// The machine (default: the one the diagnosis names, `jdbb diagnose --machine`).
         #[arg(long)]
-        machine: String,
+        machine: Option<String>,
         #[arg(long, value_name = "DIAG.json")]
         diagnosis: PathBuf,
         /// Date of the test (YYYY-MM-DD or RFC 3339), if not the one in the file.
@@ -93,6 +94,17 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             date,
         } => {
             let (doc, text) = DiagnosisDoc::read(diagnosis)?;
+            let machine = match (machine, doc.machine.as_deref()) {
+                (Some(m), _) => m.clone(),
+                (None, Some(named)) => named.to_string(),
+                (None, None) => {
+                    return Err(crate::Error::Usage(format!(
+                    "{} names no machine: give --machine NAME (or diagnose with --machine NAME)",
+                    diagnosis.display()
+                )))
+                }
+            };
+            let machine = &machine;
             if let Some(named) = doc.machine.as_deref().filter(|m| *m != machine.trim()) {
                 return Err(crate::Error::Usage(format!(
                     "{} is of machine `{named}`, not `{machine}`: give --machine {named}, or diagnose again with --machine {machine}",

@@ -111,6 +111,6 @@ pub fn run(args: &LiveArgs) -> Result<()> {
     ))?;
     match end {
         End::Lost(e) | End::NotStarted(e) | End::Write(e) => Err(e),
-        End::Restarted(_) | End::Time | End::Interrupted => Ok(()),
+        End::Restarted(_) | End::Time | End::ProgramEnded | End::Interrupted => Ok(()),
     }
 }

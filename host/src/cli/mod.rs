@@ -57,7 +57,8 @@ pub enum Command {
     /// Write the program a ballbar test runs (G-code for linuxcnc, grbl, fanuc or marlin) and
     /// its plan.json; print where to put the table ball and mount the instrument.
     Plan(plan::PlanArgs),
-    /// Simulate a circular test (ccw then cw circles) on a machine with chosen errors → CSV.
+    /// Simulate a circular test (ccw then cw circles) on a machine with chosen errors → CSV; or,
+    /// with --plan and --machine, the record of a plan's program on a machine.
     Simulate(simulate::SimulateArgs),
     /// Diagnose a circular test: which machine errors, how large, how sure; polar plot report.
     Diagnose(diagnose::DiagnoseArgs),

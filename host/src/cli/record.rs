@@ -8,11 +8,14 @@ use std::time::Instant;
 
 use super::output::{emit, note};
 use super::stream_args::StreamArgs;
+use crate::circular::plan::{Plan, PLAN_ID_KEY};
+use crate::circular::progress::Tracker;
 use crate::link::record::{
-    check_output, create_partial, finish_output, partial_path, record_to, summary, CsvOut, End,
-    CSV_HEADER,
+    check_output, create_partial, finish_output, header, partial_path, record_watched, summary,
+    CsvOut, End,
 };
 use crate::link::stream::{describe_info, interrupt_flag, Stream};
+use crate::link::stream::{SeqSample, Stats};
 use crate::{Error, Result};
 
 /// Arguments of `jdbb record`.
@@ -27,16 +30,80 @@ pub struct RecordArgs {
     /// Replace --out if it exists (a regular file only; never a link or a device).
     #[arg(long)]
     pub force: bool,
+    /// The plan.json of the program the machine runs: its id goes into the record (`# plan_id:`
+    /// line), so `jdbb diagnose --record --plan` can tell a record of another plan; a progress
+    /// line shows the circle being run; a missed cycle start is said at once; and the record
+    /// stops by itself after the program's end.
+    #[arg(long, value_name = "PLAN_JSON")]
+    pub plan: Option<PathBuf>,
+}
+
+/// What `jdbb record --plan` shows while it records: a progress line every
+/// [`PROGRESS_EVERY`], a message when cycle start was missed, and the end of the program.
+struct Watch {
+    tracker: Tracker,
+    last_line: Option<Instant>,
+    missed_told: bool,
+    stop_at_end: bool,
+}
+
+/// How often the progress line is printed.
+const PROGRESS_EVERY: std::time::Duration = std::time::Duration::from_secs(2);
+
+impl Watch {
+    fn new(plan: &Plan, listen_only: bool) -> Watch {
+        Watch {
+            tracker: Tracker::new(plan),
+            last_line: None,
+            missed_told: false,
+            // Listening to a run someone else started: the program may be anywhere.
+            stop_at_end: !listen_only,
+        }
+    }
+
+    /// Take the samples of one read; true when the program has ended.
+    fn see(&mut self, samples: &[SeqSample], stats: &Stats) -> bool {
+        for s in samples {
+            self.tracker
+                .push(s.sample.t_us as f64 * 1e-6, s.sample.d_mm);
+        }
+        if let (Some(m), false) = (&self.tracker.missed_start, self.missed_told) {
+            self.missed_told = true;
+            note(&format!(
+                "warning: {m}. This record cannot be synchronised with the plan: stop (Ctrl-C), run the machine back to the plan's start point, start `jdbb record --plan` first, then press cycle start"
+            ));
+        }
+        let now = Instant::now();
+        if self.last_line.is_none_or(|t| now - t >= PROGRESS_EVERY) {
+            self.last_line = Some(now);
+            if let (Some(last), Some(first)) = (samples.last(), self.tracker.first_t_s()) {
+                note(&format!(
+                    "t {:.1} s, {} samples, D {:.4} mm, lost {}, {}",
+                    last.sample.t_us as f64 * 1e-6 - first,
+                    stats.samples,
+                    last.sample.d_mm,
+                    stats.lost,
+                    self.tracker.status()
+                ));
+            }
+        }
+        self.stop_at_end && self.tracker.ended()
+    }
 }
 
 /// Run `jdbb record`.
 pub fn run(args: &RecordArgs) -> Result<()> {
     args.stream.validate()?;
     check_output(&args.out, args.force)?;
+    let plan = args.plan.as_deref().map(Plan::read).transpose()?;
+    let head = header(&match &plan {
+        Some(p) => vec![(PLAN_ID_KEY, p.id())],
+        None => vec![],
+    });
     // The port first: a mistyped port leaves no file behind and touches none.
     let mut stream = Stream::open(&args.stream.port)?;
     let partial = partial_path(&args.out);
-    let file = create_partial(&partial)?;
+    let file = create_partial(&partial, &head)?;
     let interrupted = interrupt_flag();
     if let Err(e) = args.stream.start(&mut stream) {
         // Nothing recorded: remove the work file this run created (it holds the header only).
@@ -54,14 +121,16 @@ pub fn run(args: &RecordArgs) -> Result<()> {
         }
     ));
     let t0 = Instant::now();
-    let mut out = CsvOut::new(file, CSV_HEADER.len() as u64);
-    let end = record_to(
+    let mut out = CsvOut::new(file, head.len() as u64);
+    let mut watch = plan.as_ref().map(|p| Watch::new(p, args.stream.no_start));
+    let end = record_watched(
         &mut stream,
         &mut out,
         &args.out,
         args.stream.deadline(t0),
         &interrupted,
         &mut |info| note(&format!("device: {}", describe_info(info))),
+        &mut |samples, stats| watch.as_mut().is_some_and(|w| w.see(samples, stats)),
     );
     let seconds = t0.elapsed().as_secs_f64();
     args.stream.stop(&mut stream);
@@ -101,7 +170,7 @@ pub fn run(args: &RecordArgs) -> Result<()> {
             restart,
             path: args.out.clone(),
         }),
-        End::Time | End::Interrupted => None,
+        End::Time | End::ProgramEnded | End::Interrupted => None,
     };
     match (failed, placed) {
         (Some(e), Err(p)) => {

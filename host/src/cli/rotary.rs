@@ -14,7 +14,7 @@ use crate::{Error, Result};
 #[derive(Debug, clap::Args)]
 pub struct RotaryArgs {
     /// Which axis the table measures.
-    #[arg(long, value_enum)]
+    #[arg(long, value_enum, ignore_case = true)]
     pub axis: Axis,
     /// Runs table: `angle_deg,dl1_radial_mm,...` (e.g. dbb_c_turntable_table1.csv).
     #[arg(long, value_name = "FILE")]
@@ -33,7 +33,7 @@ pub struct RotaryArgs {
     pub h3_mm: Option<f64>,
     /// Sense of rotation of the data relative to eq. (6): `auto` picks, for C, the sense in which
     /// one centre offset explains the once-per-revolution terms of all runs.
-    #[arg(long, value_enum, default_value_t = Sense::Auto)]
+    #[arg(long, value_enum, ignore_case = true, default_value_t = Sense::Auto)]
     pub sense: Sense,
     /// Remove each run's mean and once-per-revolution term (set-up: bar zero and centring) before
     /// identifying, as the paper's few-µm results imply was done (meant for full-turn C data).

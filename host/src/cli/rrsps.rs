@@ -46,7 +46,7 @@ pub struct SynthesizeArgs {
     /// Synthesis method: `saddle` (eq. 18-23: min-max of the ball-cup angles over the motion
     /// subject to g1-g13, table ball chosen) or `dead-point` (only the first level: the spindle
     /// ball for the table ball given in --params).
-    #[arg(long, value_enum, default_value_t = SynthMethod::Saddle)]
+    #[arg(long, value_enum, ignore_case = true, default_value_t = SynthMethod::Saddle)]
     pub method: SynthMethod,
     /// Bar length d (mm). Required by dead-point; for saddle it replaces the series (g13).
     #[arg(long = "d", value_name = "MM", value_parser = super::args::finite)]
@@ -208,7 +208,7 @@ pub struct SimulateArgs {
     #[arg(long, default_value_t = 1800, value_parser = parse_points)]
     pub points: usize,
     /// Branches to run (plus, minus, or both one after the other).
-    #[arg(long, value_enum, default_value_t = BranchChoice::Both)]
+    #[arg(long, value_enum, ignore_case = true, default_value_t = BranchChoice::Both)]
     pub branch: BranchChoice,
     /// Standard deviation of Gaussian noise added to d (µm).
     #[arg(long, default_value_t = 0.0, value_parser = super::args::finite)]
@@ -264,7 +264,7 @@ pub struct IdentifyArgs {
     #[arg(long)]
     pub case: Option<String>,
     /// Fitting criterion.
-    #[arg(long, value_enum, default_value_t = Method::Minimax)]
+    #[arg(long, value_enum, ignore_case = true, default_value_t = Method::Minimax)]
     pub method: Method,
     /// Machine-readable output.
     #[arg(long)]

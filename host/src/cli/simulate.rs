@@ -1,20 +1,36 @@
 //! `jdbb simulate`: a circular test on a machine with chosen errors, written as the
-//! `t_s,x_mm,y_mm,z_mm,d_mm` CSV that `jdbb diagnose` reads.
+//! `t_s,x_mm,y_mm,z_mm,d_mm` CSV that `jdbb diagnose --samples` reads; or, with `--plan` and
+//! `--machine`, a plan's program run on a machine described in a TOML file and recorded as `jdbb
+//! record` records it ([`crate::circular::record_sim`]), for `jdbb diagnose --record --plan`.
 use std::io::Write;
 use std::path::PathBuf;
 
-use super::output::stdout_result;
+use super::output::{note, print, stdout_result};
+use crate::circular::machine::{Machine, EXAMPLE};
 use crate::circular::model::{parse_pitch, Path};
+use crate::circular::plan::{Plan, PLAN_ID_KEY};
+use crate::circular::record_sim::record;
 use crate::circular::simulate::{
     distances_mm, measure, nominal_path, parse_effect, parse_plane, write_csv, EffectValue,
     PathSpec,
 };
 use crate::fsio::{check_destination, Staged};
+use crate::link::record::{header, write_csv_lines};
+use crate::link::stream::SeqSample;
 use crate::{Error, Result};
 
 /// Arguments of `jdbb simulate`.
 #[derive(Debug, clap::Args)]
 pub struct SimulateArgs {
+    /// Run this plan's program (the plan.json `jdbb plan` wrote) on the --machine and write what
+    /// `jdbb record` would record (`seq,t_us,enc1,enc2,d_mm`), for `jdbb diagnose --record
+    /// --plan`. The path options below are then not used.
+    #[arg(long, value_name = "PLAN_JSON", requires = "machine", conflicts_with_all = ["radii_mm", "heights_mm", "plane", "feed", "rate", "effects", "pitch", "sigma_um", "resolution_um", "seed"])]
+    pub plan: Option<PathBuf>,
+    /// The machine of --plan: a TOML file (feed override, acceleration, controller, errors by
+    /// the diagnosis's names, the instrument). Without a file: print a commented example.
+    #[arg(long, value_name = "MACHINE_TOML", num_args = 0..=1)]
+    pub machine: Option<Option<PathBuf>>,
     /// Circle radius in mm (repeat for several radii: the J-DBB's bar length is free).
     #[arg(long = "radius", default_value = "50", value_parser = super::args::positive)]
     pub radii_mm: Vec<f64>,
@@ -46,7 +62,8 @@ pub struct SimulateArgs {
     /// Seed of the noise.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Output CSV (stdout if absent); written whole or not at all.
+    /// Output CSV (stdout if absent); written whole or not at all. Never replaces a file without
+    /// --force.
     #[arg(long, short)]
     pub out: Option<PathBuf>,
     /// Replace --out if it exists (a regular file only; never a link or a device).
@@ -54,11 +71,64 @@ pub struct SimulateArgs {
     pub force: bool,
 }
 
+/// `jdbb simulate --plan --machine`: the record of the plan's program run on the machine.
+fn run_plan(
+    args: &SimulateArgs,
+    plan_file: &std::path::Path,
+    machine_file: &std::path::Path,
+) -> Result<()> {
+    let plan = Plan::read(plan_file)?;
+    let mut machine = Machine::read(machine_file)?;
+    if let Some(cal) = &machine.instrument.calibration_file {
+        machine.instrument.calibration = crate::instrument::file::read_calibration(cal)?;
+    }
+    let (samples, truth) = record(&plan, &machine)?;
+    let mut text = header(&[(PLAN_ID_KEY, plan.id())]).into_bytes();
+    let seq: Vec<SeqSample> = samples
+        .iter()
+        .enumerate()
+        .map(|(k, s)| SeqSample {
+            seq: k as u64,
+            sample: *s,
+        })
+        .collect();
+    write_csv_lines(&mut text, &seq);
+    match &args.out {
+        Some(file) => {
+            crate::fsio::write_file(file, &text, args.force)?;
+            let rate = machine.instrument.sample_rate_hz;
+            note(&format!(
+                "wrote {}: {} samples at {rate} Hz ({:.1} s) of plan {} on {}; truth: cycle start at t_us {:.0}, program {:.1} s, feed factor {:.6}",
+                file.display(),
+                samples.len(),
+                samples.len() as f64 / rate,
+                plan.id(),
+                machine.name.as_deref().unwrap_or("the machine"),
+                truth.cycle_start_t_us,
+                truth.program_s,
+                truth.feed_factor
+            ));
+            Ok(())
+        }
+        None => super::output::write_stdout(&text),
+    }
+}
+
 /// Run `jdbb simulate`.
 pub fn run(args: &SimulateArgs) -> Result<()> {
     if let Some(file) = &args.out {
         // Before the work: a destination that will be refused is refused at once.
         check_destination(file, args.force)?;
+    }
+    match (&args.plan, &args.machine) {
+        (_, Some(None)) => return print(EXAMPLE),
+        (Some(plan), Some(Some(machine))) => return run_plan(args, plan, machine),
+        (None, Some(Some(_))) => {
+            return Err(Error::Usage(
+                "--machine FILE runs a plan: give --plan plan.json too (or --machine alone for an example file)".into(),
+            ))
+        }
+        _ => {}
     }
     let spec = PathSpec {
         radii_mm: args.radii_mm.clone(),

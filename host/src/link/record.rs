@@ -42,6 +42,17 @@ use crate::{Error, Result};
 /// First line of every recording.
 pub const CSV_HEADER: &str = "seq,t_us,enc1,enc2,d_mm\n";
 
+/// The text a record starts with: a `# key: value` comment line per entry of `comments` (e.g. the
+/// plan's id, which readers find with `Table::header_comment`), then [`CSV_HEADER`].
+pub fn header(comments: &[(&str, String)]) -> String {
+    let mut s = String::new();
+    for (k, v) in comments {
+        s.push_str(&format!("# {k}: {v}\n"));
+    }
+    s.push_str(CSV_HEADER);
+    s
+}
+
 /// Append one CSV line per sample to `out`: `seq,t_us,enc1,enc2,d_mm`, D with 7 decimals
 /// (0.1 nm; the on-chip D is good to ~10 nm).
 pub fn write_csv_lines(out: &mut Vec<u8>, samples: &[SeqSample]) {
@@ -190,6 +201,8 @@ impl SampleCheck {
 pub enum End {
     /// `--seconds` elapsed.
     Time,
+    /// The plan's program ended (`jdbb record --plan`).
+    ProgramEnded,
     /// Ctrl-C, SIGTERM or SIGHUP.
     Interrupted,
     /// The source ended (EOF) or failed (unplugged): the error to report.
@@ -208,6 +221,7 @@ impl End {
     pub fn describe(&self) -> String {
         match self {
             End::Time => "time limit reached".into(),
+            End::ProgramEnded => "the plan's program ended".into(),
             End::Interrupted => "interrupted".into(),
             End::Lost(e) => format!("device lost: {e}"),
             End::Restarted(r) => format!("stopped: {r}"),
@@ -253,8 +267,8 @@ pub fn check_output(out: &Path, force: bool) -> Result<()> {
 }
 
 /// Create the work file `partial` (it must not exist: never an existing file, never through a
-/// link) and write the header.
-pub fn create_partial(partial: &Path) -> Result<File> {
+/// link) and write `header` (see [`header`]).
+pub fn create_partial(partial: &Path, header: &str) -> Result<File> {
     let mut file = OpenOptions::new()
         .write(true)
         .create_new(true)
@@ -272,7 +286,7 @@ pub fn create_partial(partial: &Path) -> Result<File> {
                 }
             }
         })?;
-    file.write_all(CSV_HEADER.as_bytes())
+    file.write_all(header.as_bytes())
         .map_err(|source| Error::File {
             action: "cannot write",
             path: partial.to_path_buf(),
@@ -402,6 +416,29 @@ pub fn record_to<P: Read + Write, W: Write + Truncate>(
     interrupted: &AtomicBool,
     on_info: &mut dyn FnMut(&DeviceInfo),
 ) -> End {
+    record_watched(
+        stream,
+        out,
+        path,
+        deadline,
+        interrupted,
+        on_info,
+        &mut |_, _| false,
+    )
+}
+
+/// [`record_to`], with `watch` shown the samples of every read once they are in the file (with
+/// the stream's counts so far); it returns true to end the record ([`End::ProgramEnded`]: `jdbb
+/// record --plan` stops after the program's end).
+pub fn record_watched<P: Read + Write, W: Write + Truncate>(
+    stream: &mut Stream<P>,
+    out: &mut CsvOut<W>,
+    path: &Path,
+    deadline: Option<Instant>,
+    interrupted: &AtomicBool,
+    on_info: &mut dyn FnMut(&DeviceInfo),
+    watch: &mut dyn FnMut(&[SeqSample], &Stats) -> bool,
+) -> End {
     stream.set_one_run(true);
     let mut lines = Vec::with_capacity(1 << 16);
     let mut batch = Vec::new();
@@ -439,13 +476,17 @@ pub fn record_to<P: Read + Write, W: Write + Truncate>(
         }
         let written = out.append(&lines, &batch);
         lines.clear();
-        batch.clear();
         if let Err(source) = written {
             return End::Write(Error::RecordWrite {
                 path: path.to_path_buf(),
                 position: position(out.lines, out.last.as_ref()),
                 source,
             });
+        }
+        let ended = !batch.is_empty() && watch(&batch, stream.stats());
+        batch.clear();
+        if ended {
+            return End::ProgramEnded;
         }
         if let Some(r) = stream.run_ended() {
             return End::Restarted(*r);
@@ -567,7 +608,7 @@ mod tests {
     fn unwritable_output_is_a_clear_error() {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("no/such/dir/x.csv");
-        let e = create_partial(&partial_path(&out)).unwrap_err();
+        let e = create_partial(&partial_path(&out), CSV_HEADER).unwrap_err();
         assert!(e.to_string().contains("cannot create"), "{e}");
     }
 
@@ -779,15 +820,17 @@ mod tests {
         let out = dir.path().join("rec.csv");
         let partial = partial_path(&out);
         assert_eq!(partial, dir.path().join("rec.csv.partial"));
-        drop(create_partial(&partial).unwrap());
+        drop(create_partial(&partial, CSV_HEADER).unwrap());
         // A second recorder may not take over the work file.
-        let e = create_partial(&partial).unwrap_err().to_string();
+        let e = create_partial(&partial, CSV_HEADER)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("did not finish"), "{e}");
         finish_output(&partial, &out, false).unwrap();
         assert!(!partial.exists());
         assert_eq!(std::fs::read_to_string(&out).unwrap(), CSV_HEADER);
         // Without --force, a file that appeared meanwhile is left alone.
-        drop(create_partial(&partial).unwrap());
+        drop(create_partial(&partial, CSV_HEADER).unwrap());
         std::fs::write(&out, "theirs\n").unwrap();
         let e = finish_output(&partial, &out, false)
             .unwrap_err()

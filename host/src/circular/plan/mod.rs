@@ -201,7 +201,7 @@ impl Plane {
     pub fn parse(s: &str) -> Option<Plane> {
         [Plane::Xy, Plane::Yz, Plane::Zx]
             .into_iter()
-            .find(|p| p.name() == s)
+            .find(|p| p.name().eq_ignore_ascii_case(s.trim()))
     }
 }
 
@@ -240,7 +240,9 @@ impl Dialect {
 
     /// The dialect called `name`.
     pub fn parse(name: &str) -> Option<Dialect> {
-        Dialect::ALL.into_iter().find(|d| d.name() == name)
+        Dialect::ALL
+            .into_iter()
+            .find(|d| d.name().eq_ignore_ascii_case(name.trim()))
     }
 
     /// The program's file name beside plan.json: `ballbar.ngc` (LinuxCNC), `ballbar.nc` (grbl),
@@ -564,6 +566,10 @@ pub fn line_d_range(c: &[f64; 3], a: &[f64; 3], b: &[f64; 3]) -> (f64, f64) {
     (dist(c, &closest), da.max(db))
 }
 
+/// The key of the comment line `# plan_id: …` before a record's header: the [`Plan::id`] of the
+/// plan the record was made for.
+pub const PLAN_ID_KEY: &str = "plan_id";
+
 /// A test's program as data: plan.json (see the module docs). An unknown key is an error naming
 /// it (a misspelled key is not a value silently left out).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -880,6 +886,20 @@ impl Plan {
             }
         }
         (lo, hi)
+    }
+
+    /// The plan's id: 16 hex digits of a hash (FNV-1a, 64 bit) of its content, so that a record
+    /// made for it (`jdbb record --plan`, `jdbb simulate --plan`; the record's `# plan_id:`
+    /// line, [`PLAN_ID_KEY`]) can be told from one of another plan. The same plan read back from
+    /// its plan.json has the same id.
+    pub fn id(&self) -> String {
+        let bytes = serde_json::to_vec(self).expect("a plan is plain data");
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        for b in bytes {
+            h ^= u64::from(b);
+            h = h.wrapping_mul(0x0100_0000_01b3);
+        }
+        format!("{h:016x}")
     }
 
     /// Estimated run time (s) at the programmed feeds, without acceleration, the first rapid or
