@@ -637,7 +637,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     let mut pass = 0;
     let mut weak: Vec<WeakOnArc> = vec![];
     let mut previous: Option<Design> = None;
-    let (design, candidates, sel) = loop {
+    let (design, group_cands, sel) = loop {
         confounded = confounded_before.clone();
         weak.clear();
         let cands: Vec<Candidate> = effects
@@ -720,27 +720,57 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         }
 
         // 5. Linear forward selection on the Gram; a spike's trial decay times are one family.
-        let families: Vec<String> = {
-            let mut f: Vec<String> = candidates
+        // Where the radii separate the isotropic scale, the plane's two scales are also offered
+        // together (one group, two parameters): an isotropic scale moves each circle's radius
+        // by s·R and neither axis's column alone shows that (each adds a 2θ term the data do
+        // not hold), so one at a time the search would explain it with a drift and plays. The
+        // two alone and the pair are one family: x, y or both.
+        let group_cands: Vec<Vec<usize>> = {
+            let scales: Vec<usize> = candidates
                 .iter()
-                .map(|&c| family_key(&design.cands[c]))
+                .copied()
+                .filter(|&c| matches!(design.cands[c].effect, Effect::Scale(_)))
                 .collect();
-            f.dedup();
+            let mut g: Vec<Vec<usize>> = candidates.iter().map(|&c| vec![c]).collect();
+            if scales.len() == 2 {
+                g.push(scales);
+            }
+            g
+        };
+        let joint_scales = group_cands.len() > candidates.len();
+        let key_of = |cs: &[usize]| -> String {
+            let cand = &design.cands[cs[0]];
+            if joint_scales && matches!(cand.effect, Effect::Scale(_)) {
+                "scale".into()
+            } else {
+                family_key(cand)
+            }
+        };
+        let families: Vec<String> = {
+            let mut f: Vec<String> = vec![];
+            for cs in &group_cands {
+                let key = key_of(cs);
+                if !f.contains(&key) {
+                    f.push(key);
+                }
+            }
             f
         };
-        let groups: Vec<Group> = candidates
+        let groups: Vec<Group> = group_cands
             .iter()
-            .map(|&c| {
-                let cand = design.cands[c];
-                let cols = design.cols_of(c);
-                let key = family_key(&cand);
+            .map(|cs| {
+                let cols: Vec<usize> = cs.iter().flat_map(|&c| design.cols_of(c)).collect();
+                let key = key_of(cs);
                 Group {
                     peak: cols.iter().map(|&i| design.peak[i]).collect(),
                     // A spike's decay time costs a parameter although the search holds it.
-                    cost: match cand.effect {
-                        Effect::BacklashEnds(_) => 1,
-                        e => e.n_params(),
-                    },
+                    cost: cs
+                        .iter()
+                        .map(|&c| match design.cands[c].effect {
+                            Effect::BacklashEnds(_) => 1,
+                            e => e.n_params(),
+                        })
+                        .sum(),
                     cols,
                     family: families.iter().position(|f| *f == key).unwrap_or(0),
                 }
@@ -758,17 +788,18 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         pass += 1;
         let mut found = gaps_um;
         for st in &sel.steps {
-            let c = candidates[st.group];
-            if let Effect::Backlash(a) = design.cands[c].effect {
-                let col = design.offsets[c];
-                if let Some(k) = sel.current.iter().position(|&x| x == col) {
-                    found[a.index()] = sel.coef[k].max(0.0);
+            for &c in &group_cands[st.group] {
+                if let Effect::Backlash(a) = design.cands[c].effect {
+                    let col = design.offsets[c];
+                    if let Some(k) = sel.current.iter().position(|&x| x == col) {
+                        found[a.index()] = sel.coef[k].max(0.0);
+                    }
                 }
             }
         }
         let close = (0..3).all(|k| (found[k] - gaps_um[k]).abs() <= 0.05 * found[k] + 0.02);
         if close || pass == 3 {
-            break (design, candidates, sel);
+            break (design, group_cands, sel);
         }
         gaps_um = found;
         previous = Some(design);
@@ -776,7 +807,13 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     let below_floor: Vec<(String, f64)> = sel
         .below_floor
         .iter()
-        .map(|&(g, bound)| (family_key(&design.cands[candidates[g]]), bound))
+        .map(|&(g, bound)| {
+            let names: Vec<String> = group_cands[g]
+                .iter()
+                .map(|&c| family_key(&design.cands[c]))
+                .collect();
+            (names.join("+"), bound)
+        })
         .collect();
     let setup_rms = (sel.base_ssr / m as f64).sqrt();
     let current = &sel.current;
@@ -802,43 +839,44 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         let mut chosen: Vec<Chosen> = vec![];
         for &k in &kept {
             let st = &sel.steps[k];
-            let c = candidates[st.group];
-            let cand = design.cands[c];
-            let coef: Vec<f64> = design.cols_of(c).into_iter().map(coef_of).collect();
-            let start = cand.start(&coef);
-            let held_lag = matches!(cand.effect, Effect::ServoMismatch(_)) && st.cols.len() < 2;
-            let twin = backlash_axis(cand.effect).and_then(|a| {
-                chosen
-                    .iter()
-                    .position(|ch| backlash_axis(ch.effect) == Some(a))
-            });
-            match twin {
-                Some(i) => {
-                    let ch = &mut chosen[i];
-                    // One is the uniform gap b, the other the ends' difference d = pos − neg.
-                    let (b, d) = if let Effect::Backlash(_) = ch.effect {
-                        (ch.start[0], start[0] - start[1])
-                    } else {
-                        (start[0], ch.start[0] - ch.start[1])
-                    };
-                    if let Some(a) = backlash_axis(cand.effect) {
-                        ch.effect = Effect::BacklashEnds(a);
+            for &c in &group_cands[st.group] {
+                let cand = design.cands[c];
+                let coef: Vec<f64> = design.cols_of(c).into_iter().map(coef_of).collect();
+                let start = cand.start(&coef);
+                let held_lag = matches!(cand.effect, Effect::ServoMismatch(_)) && st.cols.len() < 2;
+                let twin = backlash_axis(cand.effect).and_then(|a| {
+                    chosen
+                        .iter()
+                        .position(|ch| backlash_axis(ch.effect) == Some(a))
+                });
+                match twin {
+                    Some(i) => {
+                        let ch = &mut chosen[i];
+                        // One is the uniform gap b, the other the ends' difference d = pos − neg.
+                        let (b, d) = if let Effect::Backlash(_) = ch.effect {
+                            (ch.start[0], start[0] - start[1])
+                        } else {
+                            (start[0], ch.start[0] - ch.start[1])
+                        };
+                        if let Some(a) = backlash_axis(cand.effect) {
+                            ch.effect = Effect::BacklashEnds(a);
+                        }
+                        ch.start = vec![b + 0.5 * d, b - 0.5 * d];
+                        ch.steps.push(k);
+                        ch.rms_after = st.rms_after;
+                        ch.rms_ratio *= st.rms_ratio;
+                        ch.delta_bic += st.delta_bic;
                     }
-                    ch.start = vec![b + 0.5 * d, b - 0.5 * d];
-                    ch.steps.push(k);
-                    ch.rms_after = st.rms_after;
-                    ch.rms_ratio *= st.rms_ratio;
-                    ch.delta_bic += st.delta_bic;
+                    None => chosen.push(Chosen {
+                        effect: cand.effect,
+                        start,
+                        held_lag,
+                        steps: vec![k],
+                        rms_after: st.rms_after,
+                        rms_ratio: st.rms_ratio,
+                        delta_bic: st.delta_bic,
+                    }),
                 }
-                None => chosen.push(Chosen {
-                    effect: cand.effect,
-                    start,
-                    held_lag,
-                    steps: vec![k],
-                    rms_after: st.rms_after,
-                    rms_ratio: st.rms_ratio,
-                    delta_bic: st.delta_bic,
-                }),
             }
         }
         let mut final_effects = setup.to_vec();
@@ -976,11 +1014,13 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     };
     let final_rms_um = (final_ssr / m as f64).sqrt();
     let candidates_tried: Vec<String> = {
-        let mut names: Vec<String> = candidates
-            .iter()
-            .map(|&c| design.cands[c].effect.name())
-            .collect();
-        names.dedup();
+        let mut names: Vec<String> = vec![];
+        for &c in group_cands.iter().flatten() {
+            let name = design.cands[c].effect.name();
+            if !names.contains(&name) {
+                names.push(name);
+            }
+        }
         names
     };
 
