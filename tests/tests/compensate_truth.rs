@@ -244,3 +244,85 @@ fn the_skew_settings_cancel_a_leaning_slide() {
     let cancels = 1e6 * xy;
     assert_unbiased("M852 I (µm/m)", cancels, sigma, s_um_per_m, 0.3, &context);
 }
+
+/// Play: X's nut has 8 µm of clearance (the carriage stands still for the first 8 µm of the
+/// motor's travel after each reversal). Each controller's backlash compensation adds its
+/// setting B to the motor's travel at a reversal, so what is left is b − B: LinuxCNC's
+/// `BACKLASH`, grblHAL's `$160` and Marlin's `M425 X` (all mm) must each be +b within 1 % + 3σ.
+/// A sign flipped (the axis reads as running ahead) gives −b and doubles the play; Klipper has no
+/// backlash compensation and must say so rather than emit anything for it.
+#[test]
+fn the_backlash_settings_take_up_the_play() {
+    let p = make_plan(&[90.0]);
+    let play_um = 8.0;
+    let errors = MachineErrors {
+        backlash_um: [play_um, 0.0, 0.0],
+        ..MachineErrors::default()
+    };
+    let (diag, doc) = diagnosed(&p, errors, 44, [None; 3]);
+    assert_eq!(
+        machine_names(&diag),
+        vec!["backlash_x"],
+        "{}",
+        summary(&diag)
+    );
+    let sigma = diag
+        .effects
+        .iter()
+        .find(|f| f.effect.name() == "backlash_x")
+        .unwrap()
+        .sigma
+        .unwrap();
+    let context = summary(&diag);
+    let setting_mm = |controller: Controller, prefix: &str| -> f64 {
+        let plan = compensate_for(&doc, controller);
+        plan.blocks
+            .iter()
+            .flat_map(|b| &b.lines)
+            .find_map(|l| {
+                let l = l.trim();
+                let rest = l.strip_prefix(prefix)?;
+                // Marlin: `M425 F1 X0.008`: the X word.
+                let word = rest
+                    .split_whitespace()
+                    .find_map(|w| w.strip_prefix('X'))
+                    .unwrap_or(rest);
+                word.trim().parse::<f64>().ok()
+            })
+            .unwrap_or_else(|| panic!("no `{prefix}` line:\n{}", compensate::render(&plan, None)))
+    };
+    for (controller, prefix) in [
+        (Controller::LinuxCnc, "BACKLASH = "),
+        (Controller::GrblHal, "$160="),
+        (Controller::Marlin, "M425 "),
+    ] {
+        let b = 1e3 * setting_mm(controller, prefix);
+        // Left after compensation: play − B.
+        assert_unbiased(
+            &format!("{controller:?} backlash setting (µm)"),
+            b,
+            sigma,
+            play_um,
+            0.05,
+            &context,
+        );
+    }
+    let klipper = compensate_for(&doc, Controller::Klipper);
+    assert!(
+        klipper
+            .cannot
+            .iter()
+            .any(|c| c.effect.starts_with("backlash_x")),
+        "{}",
+        compensate::render(&klipper, None)
+    );
+    assert!(
+        klipper
+            .blocks
+            .iter()
+            .flat_map(|b| &b.lines)
+            .all(|l| !l.contains("0.00")),
+        "{}",
+        compensate::render(&klipper, None)
+    );
+}
