@@ -324,3 +324,23 @@ fn reversal_spikes_and_drift() {
     let d = diagnose_record(&p, &record(&p, PlanDialect::Linuxcnc, errors, 9), [None; 3]);
     assert_only(&d, "drift", 0.8);
 }
+
+#[test]
+fn a_cyclic_error_on_the_feed_ins_axis_does_not_bend_the_timeline() {
+    // Issue 20: the plan's default start at 0° feeds in along x, so a 1.92 µm, 10 mm-pitch
+    // cyclic error on x is printed on the 2 mm feed-in's ruler. Timed with that ruler alone the
+    // feed came out 100.098 % for 100.000 % and the stretched timeline as an invented scale2 and
+    // squareness. The feed must be right to 0.01 % and the cyclic error named alone.
+    let p = make_plan(&[90.0], PlanDialect::Linuxcnc);
+    for (seed, phase) in [(9, 0.0), (4, 1.3), (13, 2.6)] {
+        let mut errors = MachineErrors::default();
+        errors.cyclic[0] = Cyclic {
+            amplitude_um: 1.92,
+            pitch_mm: 10.0,
+            phase_rad: phase,
+        };
+        let rec = record(&p, PlanDialect::Linuxcnc, errors, seed);
+        let d = diagnose_record_feed(&p, &rec, [Some(10.0), Some(10.0), None], 0.01);
+        assert_only(&d, "cyclic_x", 1.92);
+    }
+}
