@@ -9,9 +9,10 @@ mod planned;
 
 use planned::{machine_names, read_back};
 
-use jdbb::circular::diagnose::{diagnose, Diagnosis, Options};
+use jdbb::circular::diagnose::{Diagnosis, Options};
 use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
-use jdbb::circular::sync::{data_path, synchronise};
+use jdbb::circular::planned::diagnose_planned;
+use jdbb::circular::sync::synchronise;
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     Axis, Cyclic, Dialect, MachineErrors, Recording, ReversalSpike, SimConfig, Simulation,
@@ -88,7 +89,9 @@ fn diagnose_record_feed(
     feed_tol_pct: f64,
 ) -> Diagnosis {
     let r = read_back(rec);
-    let sync = synchronise(plan, &r).unwrap();
+    let first = synchronise(plan, &r).unwrap();
+    let done = diagnose_planned(plan, &r, first, pitch, &Options::default()).unwrap();
+    let sync = &done.sync;
     // The feed the machine ran, on the record's clock, within `feed_tol_pct` of the truth;
     // the cycle start within 10 ms.
     let t = &rec.truth;
@@ -104,8 +107,7 @@ fn diagnose_record_feed(
         "cycle start {start_us} µs vs {} µs",
         t.cycle_start_us
     );
-    let (path, d) = data_path(plan, &r, &sync, pitch).unwrap();
-    diagnose(&path, &d, &Options::default()).unwrap()
+    done.diagnosis
 }
 
 /// Exactly `name` was found, with `value` within 5 % or 3σ of `truth`.

@@ -14,11 +14,12 @@
 //!   [`document`] reads that JSON back (the input contract of compensation and history);
 //!   [`html`] is the report a person reads (`report.html`).
 //! - [`plan`]: the program a test runs (plan.json and G-code for four controller dialects);
-//!   [`sync`]: a recording lined up with its plan from D alone.
+//!   [`sync`]: a recording lined up with its plan from D alone; [`planned`]: its diagnosis, the
+//!   ramps read again through the errors it finds.
 //!
 //! May use: [`crate::numerics`], [`crate::table`], `jdbb_core::machine` (and, for [`plan`],
 //! `jdbb_core::{calib, geometry}`). Dependencies inside point one way: model ← simulate, input,
-//! runs, zone ← diagnose ← report, plot, html; words ← report, html; plan ← sync; document stands alone (it reads
+//! runs, zone ← diagnose ← report, plot, html; words ← report, html; plan ← sync ← planned (with diagnose); document stands alone (it reads
 //! files, not diagnoses).
 pub mod diagnose;
 pub mod document;
@@ -27,6 +28,7 @@ pub mod input;
 pub mod model;
 pub mod path;
 pub mod plan;
+pub mod planned;
 pub mod plot;
 pub mod report;
 pub mod runs;
