@@ -95,7 +95,8 @@ fn diagnose_record_feed(
     // The feed the machine ran, on the record's clock, within `feed_tol_pct` of the truth;
     // the cycle start within 10 ms.
     let t = &rec.truth;
-    let feed = 100.0 * t.feed_factor * (1.0 + 1e-6 * t.clock_ppm);
+    // The device clock runs (1 + ppm·10⁻⁶) times true time: on it the feed is slower by that.
+    let feed = 100.0 * t.feed_factor / (1.0 + 1e-6 * t.clock_ppm);
     assert!(
         (sync.feed_percent - feed).abs() < feed_tol_pct,
         "feed {} % vs {feed} %",

@@ -10,8 +10,10 @@ mod planned;
 
 use planned::{machine_names, read_back};
 
+use jdbb::circular::diagnose::{diagnose, Options};
 use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
-use jdbb::circular::sync::{synchronise, FeedSource, Sync};
+use jdbb::circular::planned::diagnose_planned;
+use jdbb::circular::sync::{data_path, synchronise, FeedSource, Sync};
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     Cyclic, Dialect, MachineErrors, Recording, ReversalSpike, SimConfig, Simulation,
@@ -19,7 +21,7 @@ use jdbb_tests::gmachine::{
 
 /// Truth of the feed factor on the record's clock.
 fn true_factor(rec: &Recording) -> f64 {
-    rec.truth.feed_factor * (1.0 + 1e-6 * rec.truth.clock_ppm)
+    rec.truth.feed_factor / (1.0 + 1e-6 * rec.truth.clock_ppm)
 }
 
 /// One machine for the bias table: 1000 mm/min unless `feed`, 1 kHz, override 98 %, clock
@@ -41,6 +43,19 @@ impl Bench {
             clock_ppm: 37.0,
             errors,
         }
+    }
+
+    /// The pitches the user gives `--pitch`: the cyclic errors', 10 mm where there is none.
+    fn pitch(&self) -> [Option<f64>; 3] {
+        let c = &self.errors.cyclic;
+        let p = |k: usize| {
+            Some(if c[k].pitch_mm > 0.0 {
+                c[k].pitch_mm
+            } else {
+                10.0
+            })
+        };
+        [p(0), p(1), None]
     }
 
     fn run(&self, seed: u64) -> (Plan, Recording) {
@@ -158,22 +173,36 @@ fn feed_bias_table() {
         phase_rad: 0.0,
     };
     let mut b = Bench::new(e);
-    b.radii = vec![90.0, 75.0];
-    cases.push(("cyclic x 1.92 µm, 10 mm; R 90 and 75 mm", b));
-    println!("| case | ramp (before) | arc durations | arc data | combined (after) |");
-    println!("|---|---|---|---|---|");
+    b.radii = vec![90.0, 84.0];
+    cases.push(("cyclic x 1.92 µm, 10 mm; R 90 and 84 mm", b));
+    println!(
+        "| case | ramp (before) | arc durations | after | passes | named before | named after |"
+    );
+    println!("|---|---|---|---|---|---|---|");
     for (seed, (name, b)) in cases.iter().enumerate() {
         let (p, rec) = b.run(seed as u64 + 1);
-        let s = synchronise(&p, &read_back(&rec)).unwrap();
+        let r = read_back(&rec);
+        let s = synchronise(&p, &r).unwrap();
         let truth = true_factor(&rec);
+        let pitch = b.pitch();
+        let (path, d) = data_path(&p, &r, &s, pitch).unwrap();
+        let before = diagnose(&path, &d, &Options::default()).unwrap();
+        let ramp = s
+            .feed_facts
+            .iter()
+            .filter(|f| f.source == FeedSource::Ramp)
+            .map(|f| ppm(f.factor, truth))
+            .collect::<Vec<_>>()
+            .join(", ");
+        let done = diagnose_planned(&p, &r, s.clone(), pitch, &Options::default()).unwrap();
         println!(
-            "| {name} | {} | {} | {} | {} ± {:.0} |",
-            fact(&s, FeedSource::Ramp, truth),
+            "| {name} | {ramp} | {} | {} ± {:.0} | {} | {} | {} |",
             fact(&s, FeedSource::ArcDurations, truth),
-            fact(&s, FeedSource::ArcData, truth),
-            ppm(s.feed_percent / 100.0, truth),
-            1e4 * s.feed_sigma_percent / truth
+            ppm(done.sync.feed_percent / 100.0, truth),
+            1e4 * done.sync.feed_sigma_percent / truth,
+            done.passes,
+            machine_names(&before).join(" "),
+            machine_names(&done.diagnosis).join(" "),
         );
-        let _ = machine_names;
     }
 }

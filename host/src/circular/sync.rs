@@ -2002,6 +2002,87 @@ mod tests {
     }
 
     #[test]
+    fn a_ruler_with_the_machines_errors_on_it_is_read_true_through_them() {
+        // A feed-in along x from 88 to 90 mm (relative to the table ball) at 16 mm/s on an axis
+        // with a 2 µm, 10 mm-pitch cyclic error: D carries δ_x = A·sin(2π·x/P + φ), which
+        // stretches the 2 mm ruler by up to 2πA/P = 1.3·10⁻³. Read through that error, the
+        // speed is true again.
+        let prof = Profile {
+            t0_s: 0.5,
+            length_mm: 2.0,
+            speed_mm_s: 16.0,
+            accel_mm_s2: 500.0,
+        };
+        let (amp_mm, pitch_mm, phase) = (2e-3, 10.0, 0.4);
+        let cyclic = |x: f64| amp_mm * (std::f64::consts::TAU * x / pitch_mm + phase).sin();
+        let t: Vec<f64> = (0..1500).map(|i| i as f64 * 1e-3).collect();
+        let d: Vec<f64> = t
+            .iter()
+            .map(|&ti| {
+                let x = 88.0 + prof.s_at(ti);
+                x + cyclic(x)
+            })
+            .collect();
+        let rec = Record::from_samples(FsPath::new("r.csv"), t, d);
+        let cross = crossing(&rec, 0, 89.0, 1.0).unwrap();
+        let error = |p: &[[f64; 3]]| p.iter().map(|q| cyclic(q[0])).collect::<Vec<_>>();
+        let ruler = Ruler { error_mm: &error };
+        let fit = |r: Option<&Ruler>| {
+            fit_ramp(
+                &rec,
+                cross,
+                [88.0, 0.0, 0.0],
+                [90.0, 0.0, 0.0],
+                88.0,
+                90.0,
+                16.0,
+                0.25,
+                0.25,
+                r,
+            )
+            .unwrap()
+            .profile
+            .speed_mm_s
+                / 16.0
+                - 1.0
+        };
+        let (bent, true_read) = (fit(None), fit(Some(&ruler)));
+        assert!(
+            bent.abs() > 3e-4,
+            "the cyclic error bends the ruler: {bent}"
+        );
+        assert!(true_read.abs() < 1e-5, "read through it: {true_read}");
+    }
+
+    #[test]
+    fn facts_combine_by_their_errors_and_a_disagreement_is_said() {
+        let fact = |source, factor, sigma| FeedFact {
+            source,
+            circle: Some(0),
+            factor,
+            sigma,
+        };
+        // Two facts that agree: the weighted mean, the smaller σ wins.
+        let f = combine(&[
+            fact(FeedSource::Ramp, 1.0002, 2e-4),
+            fact(FeedSource::ArcDurations, 1.0000, 5e-5),
+        ])
+        .unwrap();
+        assert!((f.factor - (1.0002 * 25.0 + 1.0 * 400.0) / 425.0).abs() < 1e-9);
+        assert!(f.note.is_none());
+        // A ruler 10⁻³ off at σ 10⁻⁴ against arc durations at 5·10⁻⁵: said, and σ scaled up.
+        let f = combine(&[
+            fact(FeedSource::Ramp, 1.001, 1e-4),
+            fact(FeedSource::ArcDurations, 1.0000, 5e-5),
+        ])
+        .unwrap();
+        let note = f.note.unwrap();
+        assert!(note.contains("ramp of circle 1 says 100.100"), "{note}");
+        assert!(f.sigma > 3e-4, "{}", f.sigma);
+        assert!(combine(&[]).is_none());
+    }
+
+    #[test]
     fn a_ramp_fit_recovers_start_speed_and_acceleration() {
         // A feed-in of 2 mm from R 88 to 90 mm (xy, radial along x) at 16.667 mm/s, a = 500,
         // sampled at 1 kHz with 0.3 µm noise, dwells either side.
@@ -2035,6 +2116,7 @@ mod tests {
             1000.0 / 60.0,
             0.25,
             0.25,
+            None,
         )
         .unwrap();
         assert!((r.profile.t0_s - prof.t0_s).abs() < 2e-4, "{:?}", r.profile);
