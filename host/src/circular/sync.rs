@@ -1202,10 +1202,12 @@ impl Found {
     }
 
     /// An acceleration on the arcs a machine whose lines accelerate at `accel_mm_s2` can have
-    /// (1/10 … 10 times the lines': a controller shares its budget on an arc between the
-    /// tangential and the centripetal part, and may set arcs apart).
+    /// (1/25 … 10 times the lines': a controller shares its budget on an arc between the
+    /// tangential and the centripetal part — LinuxCNC keeps half for the tangent — and takes
+    /// the smaller of the plane's two axes, while the ramps measure the feed-in's axis alone,
+    /// which may accelerate several times faster).
     fn plausible(&self, a: f64) -> bool {
-        (0.1 * self.accel_mm_s2..=10.0 * self.accel_mm_s2).contains(&a)
+        (0.04 * self.accel_mm_s2..=10.0 * self.accel_mm_s2).contains(&a)
     }
 }
 
@@ -1242,6 +1244,11 @@ pub struct FeedFact {
     /// Its standard error, including a bound on what the machine's errors can do to it.
     pub sigma: f64,
 }
+
+/// How far the machine's errors can bend a ramp that cruised (relative): a cyclic error of 5 µm
+/// over a 3 mm pitch, 2πA/P = 10⁻². Where its speed leaves the arcs no plausible acceleration,
+/// the arcs' speed is searched in their data within this of it ([`arc_motion`]).
+pub const RULER_WINDOW: f64 = 0.01;
 
 /// What the machine's position errors along a ramp's axis that no diagnosis names may change
 /// over the ramp's cruise (µm): a ramp's speed is read through D along a ruler as long as its
@@ -1460,31 +1467,61 @@ fn combine_plain(facts: &[FeedFact]) -> Option<(f64, f64)> {
 /// data arcs' times by up to a millisecond or two by the end of a run; that is the timing's
 /// standard error, which the diagnosis adds to what depends on it (a reversal spike's height).
 ///
-/// Where the feed gives this circle no acceleration within 1/10 … 10 of the lines' (its arcs
-/// ran at another speed), its speed is searched in its data over ±20 % ([`speed_from_data`]),
-/// its standard error taken as that minimum's distance from the speed the lines' acceleration
-/// gives (at least 10⁻⁴).
+/// Where the feed gives this circle no acceleration within 1/25 … 10 of the lines' (its arcs
+/// ran at another speed, or its ramp's ruler is bent), its speed is searched in its data
+/// ([`speed_from_data`]): within [`RULER_WINDOW`] of a ramp that cruised, else over ±20 %; its
+/// standard error is that minimum's distance from where the search started (at least 10⁻⁴).
 fn arc_motion(plan: &Plan, rec: &Record, f: &Found, feed: Option<&Feed>) -> ArcTiming {
     let v_accel = solve_speed(&f.lengths, f.accel_mm_s2, f.avail_s);
     let given = feed
         .map(|fd| (fd.factor * f.programmed_mm_s, fd.sigma * f.programmed_mm_s))
         .filter(|(v, _)| f.accel_for(*v).is_some_and(|a| f.plausible(a)));
-    let (v, sigma_v) = match given {
-        Some(x) => x,
-        None => match speed_from_data(
+    let search = |v0: f64, window: f64| {
+        speed_from_data(
             plan,
             rec,
             &f.items,
             &f.lengths,
             f.t0_s,
             f.avail_s,
-            v_accel,
-            0.2,
+            v0,
+            window,
             TIMING_SAMPLES,
-        ) {
-            Some((v, _)) => (v, (1e-4 * v).max((v - v_accel).abs())),
-            None => (v_accel, 1e-3 * v_accel),
-        },
+        )
+        .map(|(v, _)| (v, (1e-4 * v).max((v - v0).abs())))
+    };
+    // A ramp that cruised is off by no more than what the machine's errors bend its ruler by
+    // ([`RULER_WINDOW`]): the plausible speed nearest to it, if that is within the window (the
+    // arcs' time rules the ramp's own speed out, so the truth lies on the plausible side), else a
+    // search in the data within the window. Else around the lines' speed if the arcs could have
+    // run at it with a plausible acceleration, else around the speed at which the runs,
+    // accelerating as the lines do, fill the arcs' time.
+    let l = f.lines;
+    let nearest = || {
+        let (lo, hi) = (
+            solve_speed(&f.lengths, 10.0 * f.accel_mm_s2, f.avail_s),
+            solve_speed(&f.lengths, 0.04 * f.accel_mm_s2, f.avail_s),
+        );
+        let v = l.speed_mm_s.clamp(lo, hi.max(lo));
+        ((v / l.speed_mm_s - 1.0).abs() <= RULER_WINDOW && f.accel_for(v).is_some())
+            .then(|| (v, (1e-4 * v).max((v - l.speed_mm_s).abs())))
+    };
+    let (v, sigma_v) = match given {
+        Some(x) => x,
+        None => l
+            .sigma_mm_s
+            .is_finite()
+            .then(|| nearest().or_else(|| search(l.speed_mm_s, RULER_WINDOW)))
+            .flatten()
+            .or_else(|| {
+                let v0 = if f.accel_for(l.speed_mm_s).is_some_and(|a| f.plausible(a)) {
+                    l.speed_mm_s
+                } else {
+                    v_accel
+                };
+                search(v0, 0.2)
+            })
+            .unwrap_or((v_accel, 1e-3 * v_accel)),
     };
     let Some(a) = f.accel_for(v) else {
         return ArcTiming {
@@ -1606,8 +1643,11 @@ fn speed_from_data(
             .then(|| n_runs as f64 * v / spare)
             .filter(|a| a.is_finite() && *a > 0.0)
     };
-    let a0 = accel_for(v0)?;
-    let (_, data0) = timeline(plan, rec, items, t0, v0, a0);
+    // The samples: on the data arcs of a timeline within the window that the arcs' time allows.
+    let (vs, a0) = [v0, v0 * (1.0 + 0.5 * window), v0 * (1.0 + window)]
+        .into_iter()
+        .find_map(|v| accel_for(v).map(|a| (v, a)))?;
+    let (_, data0) = timeline(plan, rec, items, t0, vs, a0);
     let idx = timing_samples(rec, &data0, max_samples);
     if idx.len() < 64 {
         return None;
