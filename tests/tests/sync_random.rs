@@ -44,16 +44,32 @@ const SEEDS: [u64; 52] = [
 ];
 
 /// Seeds that once failed, kept as fixed cases (with what they showed).
-const FIXED_SEEDS: [u64; 0] = [];
+const FIXED_SEEDS: [u64; 1] = [
+    // The narrow search around a cruising feed-in whose ruler a 3.2 µm cyclic error on x bent by
+    // −1.7·10⁻³ (which left the arcs no acceleration) found nothing, and the wide one 4 % off:
+    // now the plausible speed nearest the ramp's is taken.
+    268601194,
+];
+
+/// Seeds of [`explore_seeds`] that fail for reasons outside the timeline (the feed is right
+/// within its σ in each), kept for the diagnosis's owners; run by [`seeds_known_to_fail`].
+/// - 1023, 1024, 1037: a bow of z towards y on a 220° arc in yz is named `scale2_y`, and the
+///   confounded pair stated is `straightness_y_z, scale2_z`, not this one: a silent pick.
+/// - 1033: lost motion per end of z (and a dead band of y) on a 220° arc in yz: backlash_z
+///   8.42 ± 0.02 µm for a mean of the ends of 9.85 µm.
+const KNOWN_FAILING: [u64; 4] = [1023, 1024, 1037, 1033];
 
 /// Most samples a record of a case holds: the rate drawn is lowered to keep under it.
 const MAX_SAMPLES: f64 = 90_000.0;
 
-/// What a diagnosis must name: the effect's name and its value.
+/// What a diagnosis must name: the effect's name and its value; or, where one circle cannot tell
+/// it from a twin (a bow and the second-order scale of the axis it bows in: x² = R² − y² on a
+/// circle), the twin, with the two said to be confounded.
 #[derive(Debug, Clone, PartialEq)]
 struct Expect {
     name: String,
     value: f64,
+    twin: Option<String>,
 }
 
 /// The geometry of a case, which the effects' draws need.
@@ -112,6 +128,7 @@ const EFFECTS: [(&str, Draw); 10] = [
         Some(Expect {
             name: format!("backlash_{}", LETTERS[k]),
             value: b,
+            twin: None,
         })
     }),
     ("backlash ends", |rng, g, e, _| {
@@ -135,6 +152,7 @@ const EFFECTS: [(&str, Draw); 10] = [
         Some(Expect {
             name: format!("backlash_{}", LETTERS[k]),
             value: 0.5 * (neg + pos),
+            twin: None,
         })
     }),
     ("bow", |rng, g, e, _| {
@@ -151,6 +169,7 @@ const EFFECTS: [(&str, Draw); 10] = [
         Some(Expect {
             name: format!("straightness_{}_{}", LETTERS[i], LETTERS[j]),
             value: -sag,
+            twin: (!g.two_radii).then(|| format!("scale2_{}", LETTERS[j])),
         })
     }),
     ("lateral play", |rng, g, e, _| {
@@ -167,6 +186,7 @@ const EFFECTS: [(&str, Draw); 10] = [
         Some(Expect {
             name: format!("lateral_play_{}_{}", LETTERS[i], LETTERS[j]),
             value: l,
+            twin: None,
         })
     }),
     ("scale", |rng, g, e, _| {
@@ -180,11 +200,13 @@ const EFFECTS: [(&str, Draw); 10] = [
             Expect {
                 name: format!("scale_{}", LETTERS[k]),
                 value: a,
+                twin: None,
             }
         } else {
             Expect {
                 name: format!("scale_mismatch_{}", g.pair),
                 value: if k == g.axes[0] { a } else { -a },
+                twin: None,
             }
         })
     }),
@@ -198,6 +220,7 @@ const EFFECTS: [(&str, Draw); 10] = [
         Some(Expect {
             name: format!("squareness_{}", g.pair),
             value: s,
+            twin: None,
         })
     }),
     ("cyclic", |rng, g, e, pitch| {
@@ -213,6 +236,7 @@ const EFFECTS: [(&str, Draw); 10] = [
         Some(Expect {
             name: format!("cyclic_{}", LETTERS[k]),
             value: a,
+            twin: None,
         })
     }),
     ("servo delay", |rng, g, e, _| {
@@ -226,6 +250,7 @@ const EFFECTS: [(&str, Draw); 10] = [
         Some(Expect {
             name: "servo_mismatch_xy".into(),
             value: diff,
+            twin: None,
         })
     }),
     ("reversal spike", |rng, g, e, _| {
@@ -243,6 +268,7 @@ const EFFECTS: [(&str, Draw); 10] = [
         Some(Expect {
             name: format!("reversal_spike_{}", LETTERS[k]),
             value: h,
+            twin: None,
         })
     }),
     ("drift", |rng, g, e, _| {
@@ -254,6 +280,7 @@ const EFFECTS: [(&str, Draw); 10] = [
         Some(Expect {
             name: "drift".into(),
             value: d,
+            twin: None,
         })
     }),
 ];
@@ -489,7 +516,24 @@ fn check(seed: u64) -> Result<(), String> {
     }
     let mut named = machine_names(d);
     named.sort();
-    let mut want: Vec<String> = c.expect.iter().map(|x| x.name.clone()).collect();
+    // A twin named in the effect's place, with the pair said to be confounded, stands for it.
+    fn stated<'a>(
+        x: &'a Expect,
+        named: &[String],
+        d: &jdbb::circular::diagnose::Diagnosis,
+    ) -> Option<&'a String> {
+        x.twin.as_ref().filter(|t| {
+            named.contains(t)
+                && d.confounded
+                    .iter()
+                    .any(|g| g.contains(t) && g.contains(&x.name))
+        })
+    }
+    let mut want: Vec<String> = c
+        .expect
+        .iter()
+        .map(|x| stated(x, &named, d).unwrap_or(&x.name).clone())
+        .collect();
     want.sort();
     if named != want {
         return Err(fail(format!(
@@ -498,7 +542,7 @@ fn check(seed: u64) -> Result<(), String> {
             summary(d)
         )));
     }
-    for x in &c.expect {
+    for x in c.expect.iter().filter(|x| stated(x, &named, d).is_none()) {
         let f = d
             .effects
             .iter()
@@ -555,6 +599,12 @@ fn random_cases_fourth_quarter() {
 #[test]
 fn seeds_that_once_failed() {
     run_cases(&FIXED_SEEDS);
+}
+
+#[test]
+#[ignore = "fails: the diagnosis on 220° arcs in yz (see KNOWN_FAILING)"]
+fn seeds_known_to_fail() {
+    run_cases(&KNOWN_FAILING);
 }
 
 /// The cases drawn (`-- --ignored --nocapture list_cases`): what each seed runs.
@@ -762,4 +812,15 @@ fn feed_bias_table() {
             machine_names(&done.diagnosis).join(" "),
         );
     }
+}
+
+/// Cases beyond the fixed ones, to look for failing seeds (`JDBB_FIRST_SEED=… JDBB_COUNT=…
+/// cargo test … -- --ignored explore_seeds`); a failing seed goes to [`FIXED_SEEDS`].
+#[test]
+#[ignore = "explores seeds JDBB_FIRST_SEED.. (JDBB_COUNT of them)"]
+fn explore_seeds() {
+    let var = |k: &str, d: u64| std::env::var(k).map_or(d, |v| v.parse().unwrap());
+    let first = var("JDBB_FIRST_SEED", 1);
+    let seeds: Vec<u64> = (first..first + var("JDBB_COUNT", 20)).collect();
+    run_cases(&seeds);
 }
