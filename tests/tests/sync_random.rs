@@ -635,6 +635,7 @@ fn true_factor(rec: &Recording) -> f64 {
 /// +37 ppm, acceleration 500/600/300 mm/s².
 struct Bench {
     radii: Vec<f64>,
+    centre: [f64; 3],
     feed_mm_min: f64,
     override_pct: f64,
     clock_ppm: f64,
@@ -645,6 +646,7 @@ impl Bench {
     fn new(errors: MachineErrors) -> Bench {
         Bench {
             radii: vec![90.0],
+            centre: [103.7, 52.9, -20.0],
             feed_mm_min: 1000.0,
             override_pct: 98.0,
             clock_ppm: 37.0,
@@ -666,7 +668,7 @@ impl Bench {
     }
 
     fn run(&self, seed: u64) -> (Plan, Recording) {
-        let centre = [103.7, 52.9, -20.0];
+        let centre = self.centre;
         let spec = PlanSpec::machine_test(
             &self.radii,
             &[0.0],
@@ -730,6 +732,9 @@ fn feed_bias_table() {
         "cyclic x 1.92 µm, 10 mm (feed-in axis)",
         Bench::new(e.clone()),
     ));
+    let mut b = Bench::new(e.clone());
+    b.centre = [100.0, 50.0, -20.0];
+    cases.push(("the same, ball on a whole pitch (the issue's case)", b));
     e.cyclic[0].phase_rad = 1.6;
     cases.push(("cyclic x 1.92 µm, 10 mm, phase 1.6", Bench::new(e)));
     let mut e = MachineErrors::default();
@@ -758,8 +763,10 @@ fn feed_bias_table() {
         tau_ms: 25.0,
     };
     cases.push(("reversal spike x 6 µm, 25 ms", Bench::new(e)));
-    let mut e = MachineErrors::default();
-    e.servo_delay_ms = [3.0, 4.2, 0.0];
+    let e = MachineErrors {
+        servo_delay_ms: [3.0, 4.2, 0.0],
+        ..MachineErrors::default()
+    };
     cases.push(("servo delay x 3.0 ms, y 4.2 ms", Bench::new(e)));
     let mut b = Bench::new(MachineErrors::default());
     b.override_pct = 95.0;
@@ -783,7 +790,7 @@ fn feed_bias_table() {
     b.radii = vec![90.0, 84.0];
     cases.push(("cyclic x 1.92 µm, 10 mm; R 90 and 84 mm", b));
     println!(
-        "| case | ramp (before) | arc durations | after | passes | named before | named after |"
+        "| case | feed-in (before) | arc durations | after | passes | named, first pass | named after |"
     );
     println!("|---|---|---|---|---|---|---|");
     for (seed, (name, b)) in cases.iter().enumerate() {
@@ -794,11 +801,22 @@ fn feed_bias_table() {
         let pitch = b.pitch();
         let (path, d) = data_path(&p, &r, &s, pitch).unwrap();
         let before = diagnose(&path, &d, &Options::default()).unwrap();
+        // The feed-ins' speeds, the estimator before issue 20 (ruled out: no fact).
         let ramp = s
-            .feed_facts
+            .circles
             .iter()
-            .filter(|f| f.source == FeedSource::Ramp)
-            .map(|f| ppm(f.factor, truth))
+            .map(|c| {
+                let v = c.feed_in.profile.speed_mm_s / (b.feed_mm_min / 60.0);
+                let used = s
+                    .feed_facts
+                    .iter()
+                    .any(|f| f.source == FeedSource::Ramp && f.circle == Some(c.circle));
+                format!(
+                    "{}{}",
+                    ppm(v, truth),
+                    if used { "" } else { " (ruled out)" }
+                )
+            })
             .collect::<Vec<_>>()
             .join(", ");
         let done = diagnose_planned(&p, &r, s.clone(), pitch, &Options::default()).unwrap();
