@@ -256,7 +256,7 @@ fn cannot_carry(f: &Found, period_s: f64) -> Option<String> {
 }
 
 /// A parameter that gives an effect's size is determined when its σ is below this fraction of
-/// it ([`cannot_carry`]; the 2σ rule on the value is the same bound).
+/// it (`cannot_carry`; the 2σ rule on the value is the same bound).
 pub const POORLY_DETERMINED: f64 = 0.5;
 
 /// A search column: which candidate, which of its search parameters.

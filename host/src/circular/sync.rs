@@ -20,9 +20,15 @@
 //!    s(t) along its line (normalised to the plateaus next to it, which takes out set-up and
 //!    instrument offsets); a trapezoidal speed profile — accelerate at a, cruise at v, decelerate
 //!    at a — is fitted to it by least squares ([`Profile`]): start, speed and acceleration.
-//! 3. **Time the arcs.** The arcs run at the lines' feed, which the feed-in's cruise measures to
-//!    a few parts in 10⁵ at 1 kHz (the feed-out only where the feed-in cannot: the reversal
-//!    before it biases it). Between the feed-in's end and the feed-out's start the machine runs
+//! 3. **Time the arcs.** The arcs run at the lines' feed. Every timing fact the record holds
+//!    estimates it, each with a bound on what the machine's errors can do to it
+//!    ([`FeedFact`], `feed_facts`, `combine`; docs/synchronisation.md): the feed-in's cruise (the
+//!    feed-out only where the feed-in cannot: the reversal before it biases it), a ruler of
+//!    about 2 mm with the errors of its axis printed on it (a cyclic error stretches it by
+//!    10⁻³; [`Ruler`] reads it through the errors a diagnosis found, `super::planned`), and the
+//!    arcs' durations of circles of different lengths at one feed, solved together for the
+//!    speed and the arcs' acceleration. Facts that disagree beyond their bounds are said
+//!    ([`Sync::feed_note`]). Between the feed-in's end and the feed-out's start the machine runs
 //!    the circle's arcs: runs of tangent arcs of one sense, each from rest to rest (the corner
 //!    after the feed-in, the reversal, the corner before the feed-out), and the plan's dwells. With
 //!    that speed v, the time the runs took fixes the acceleration at their ends:
@@ -1247,7 +1253,7 @@ pub struct FeedFact {
 
 /// How far the machine's errors can bend a ramp that cruised (relative): a cyclic error of 5 µm
 /// over a 3 mm pitch, 2πA/P = 10⁻². Where its speed leaves the arcs no plausible acceleration,
-/// the arcs' speed is searched in their data within this of it ([`arc_motion`]).
+/// the arcs' speed is searched in their data within this of it (`arc_motion`).
 pub const RULER_WINDOW: f64 = 0.01;
 
 /// What the machine's position errors along a ramp's axis that no diagnosis names may change
