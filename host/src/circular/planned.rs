@@ -19,7 +19,7 @@ use super::sync::{data_path, synchronise_with, Record, Ruler, Sync};
 use crate::Result;
 
 /// Most diagnoses of one record (the first and the re-reads of the ramps).
-pub const MAX_PASSES: usize = 3;
+pub const MAX_PASSES: usize = 4;
 
 /// A planned test's synchronisation, the data the diagnosis took and the diagnosis.
 #[derive(Debug, Clone)]

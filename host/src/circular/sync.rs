@@ -1263,6 +1263,12 @@ pub const RULER_WINDOW: f64 = 0.01;
 /// few mm stretches a 2 mm feed-in by 10⁻³) are taken off the ruler ([`Ruler`]) before.
 pub const RULER_ERROR_UM: f64 = 0.25;
 
+/// The least relative bound on a ramp's ruler, whatever its length: errors that grow with the
+/// travel (a scale error no diagnosis names, or one it names as a twin that agrees with it on
+/// the circle and not along the radial ramp, e.g. a second-order scale for a bow) change over a
+/// ruler in proportion to its length; 100 µm/m.
+pub const RULER_SLOPE_BOUND: f64 = 1e-4;
+
 /// How far the machine's errors may move the times at which a circle's ramps end and start
 /// apart between circles (µm of path, over the speed): a backlash, a spike or a cyclic error
 /// seen at another radius.
@@ -1278,7 +1284,8 @@ fn feed_facts(rec: &Record, found: &[Found]) -> Vec<FeedFact> {
     for f in found {
         let l = f.lines;
         if l.sigma_mm_s.is_finite() && f.accel_for(l.speed_mm_s).is_some_and(|a| f.plausible(a)) {
-            let ruler = l.speed_mm_s * 1e-3 * RULER_ERROR_UM / l.cruise_mm.max(1e-3);
+            let ruler = l.speed_mm_s
+                * (1e-3 * RULER_ERROR_UM / l.cruise_mm.max(1e-3)).hypot(RULER_SLOPE_BOUND);
             facts.push(FeedFact {
                 source: FeedSource::Ramp,
                 circle: Some(f.circle),
