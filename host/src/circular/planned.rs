@@ -58,12 +58,20 @@ pub fn diagnose_planned(
         let ruler = Ruler {
             error_mm: &error_mm,
         };
-        let next = synchronise_with(plan, rec, Some(&ruler))?;
+        // A reading that fails (the corrected ramps not found, the data not diagnosed) leaves
+        // the last good one: the ruler is a refinement, never a reason to lose the test.
+        let Ok(next) = synchronise_with(plan, rec, Some(&ruler)) else {
+            break;
+        };
         if (next.feed_percent / out.sync.feed_percent - 1.0).abs() < 1e-6 {
             break;
         }
-        let (path, d_mm) = data_path(plan, rec, &next, pitch_mm)?;
-        let diagnosis = diagnose(&path, &d_mm, opts)?;
+        let Ok((path, d_mm)) = data_path(plan, rec, &next, pitch_mm) else {
+            break;
+        };
+        let Ok(diagnosis) = diagnose(&path, &d_mm, opts) else {
+            break;
+        };
         out = Planned {
             sync: next,
             path,
