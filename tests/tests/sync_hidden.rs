@@ -12,6 +12,7 @@ use planned::{assert_unbiased, machine_names, read_back};
 
 use jdbb::circular::diagnose::{diagnose, Diagnosis, Options};
 use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
+use jdbb::circular::planned::diagnose_planned;
 use jdbb::circular::sync::{data_path, synchronise, Record, MAX_DATA_SAMPLES};
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
@@ -89,11 +90,14 @@ fn diagnose_record_feed(
     feed_tol_pct: f64,
 ) -> Diagnosis {
     let r = read_back(rec);
-    let sync = synchronise(plan, &r).unwrap();
+    let first = synchronise(plan, &r).unwrap();
+    let done = diagnose_planned(plan, &r, first, pitch, &Options::default()).unwrap();
+    let sync = &done.sync;
     // The feed the machine ran, on the record's clock, within `feed_tol_pct` of the truth;
     // the cycle start within 10 ms.
     let t = &rec.truth;
-    let feed = 100.0 * t.feed_factor * (1.0 + 1e-6 * t.clock_ppm);
+    // The device clock runs (1 + ppm·10⁻⁶) times true time: on it the feed is slower by that.
+    let feed = 100.0 * t.feed_factor / (1.0 + 1e-6 * t.clock_ppm);
     assert!(
         (sync.feed_percent - feed).abs() < feed_tol_pct,
         "feed {} % vs {feed} %",
@@ -105,8 +109,7 @@ fn diagnose_record_feed(
         "cycle start {start_us} µs vs {} µs",
         t.cycle_start_us
     );
-    let (path, d) = data_path(plan, &r, &sync, pitch).unwrap();
-    diagnose(&path, &d, &Options::default()).unwrap()
+    done.diagnosis
 }
 
 /// Exactly `name` was found, its value `truth` without bias (1 % + 3σ, σ under 10 %).
@@ -353,4 +356,24 @@ fn a_record_above_two_million_data_samples_is_binned_and_diagnosed() {
     );
     let diag = diagnose(&path, &d, &Options::default()).unwrap();
     assert_only(&diag, "backlash_x", 6.0);
+}
+
+#[test]
+fn a_cyclic_error_on_the_feed_ins_axis_does_not_bend_the_timeline() {
+    // Issue 20: the plan's default start at 0° feeds in along x, so a 1.92 µm, 10 mm-pitch
+    // cyclic error on x is printed on the 2 mm feed-in's ruler. Timed with that ruler alone the
+    // feed came out 100.098 % for 100.000 % and the stretched timeline as an invented scale2 and
+    // squareness. The feed must be right to 0.01 % and the cyclic error named alone.
+    let p = make_plan(&[90.0], PlanDialect::Linuxcnc);
+    for (seed, phase) in [(9, 0.0), (4, 1.3), (13, 2.6)] {
+        let mut errors = MachineErrors::default();
+        errors.cyclic[0] = Cyclic {
+            amplitude_um: 1.92,
+            pitch_mm: 10.0,
+            phase_rad: phase,
+        };
+        let rec = record(&p, PlanDialect::Linuxcnc, errors, seed);
+        let d = diagnose_record_feed(&p, &rec, [Some(10.0), Some(10.0), None], 0.01);
+        assert_only(&d, "cyclic_x", 1.92);
+    }
 }

@@ -14,15 +14,17 @@
 //!   [`document`] reads that JSON back (the input contract of compensation and history);
 //!   [`html`] is the report a person reads (`report.html`).
 //! - [`plan`]: the program a test runs (plan.json and G-code for four controller dialects);
-//!   [`sync`]: a recording lined up with its plan from D alone.
+//!   [`sync`]: a recording lined up with its plan from D alone; [`planned`]: its diagnosis, the
+//!   ramps read again through the errors it finds.
 //! - [`machine`] (the machine TOML) and [`record_sim`]: a plan's program run on a machine and
 //!   recorded as `jdbb record` records it; [`progress`]: where a recording stands against its
 //!   plan while it is made.
 //!
 //! May use: [`crate::numerics`], [`crate::table`], `jdbb_core::machine` (and, for [`plan`],
 //! `jdbb_core::{calib, geometry}`). Dependencies inside point one way: model ← simulate, input,
-//! runs, zone ← diagnose ← report, plot, html; words ← report, html; plan ← sync; simulate, plan,
-//! sync ← machine, record_sim ← progress; document stands alone (it reads files, not diagnoses).
+//! runs, zone ← diagnose ← report, plot, html; words ← report, html; plan ← sync ← planned (with
+//! diagnose); simulate, plan, sync ← machine, record_sim ← progress; document stands alone (it
+//! reads files, not diagnoses).
 pub mod diagnose;
 pub mod document;
 pub mod html;
@@ -31,6 +33,7 @@ pub mod machine;
 pub mod model;
 pub mod path;
 pub mod plan;
+pub mod planned;
 pub mod plot;
 pub mod progress;
 pub mod record_sim;

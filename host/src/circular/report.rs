@@ -565,6 +565,9 @@ pub fn sync_summary(plan: &Plan, s: &Sync) -> String {
         },
         s.accel_mm_s2
     );
+    if let Some(note) = &s.feed_note {
+        let _ = writeln!(out, "timing: {note}");
+    }
     let _ = writeln!(
         out,
         "clock scale {}",
@@ -622,6 +625,14 @@ pub fn sync_json(plan: &Plan, s: &Sync) -> serde_json::Value {
         "programmed_feed_mm_min": s.programmed_feed_mm_min,
         "feed_percent": s.feed_percent,
         "feed_spread_percent": s.feed_spread_percent,
+        "feed_sigma_percent": s.feed_sigma_percent,
+        "feed_facts": s.feed_facts.iter().map(|f| json!({
+            "source": f.source.name(),
+            "circle": f.circle,
+            "feed_percent": 100.0 * f.factor,
+            "sigma_percent": 100.0 * f.sigma,
+        })).collect::<Vec<_>>(),
+        "feed_note": s.feed_note,
         "clock_scale": s.clock_scale,
         "accel_mm_s2": s.accel_mm_s2,
         "data_samples": s.data_samples(),

@@ -20,9 +20,15 @@
 //!    s(t) along its line (normalised to the plateaus next to it, which takes out set-up and
 //!    instrument offsets); a trapezoidal speed profile — accelerate at a, cruise at v, decelerate
 //!    at a — is fitted to it by least squares ([`Profile`]): start, speed and acceleration.
-//! 3. **Time the arcs.** The arcs run at the lines' feed, which the feed-in's cruise measures to
-//!    a few parts in 10⁵ at 1 kHz (the feed-out only where the feed-in cannot: the reversal
-//!    before it biases it). Between the feed-in's end and the feed-out's start the machine runs
+//! 3. **Time the arcs.** The arcs run at the lines' feed. Every timing fact the record holds
+//!    estimates it, each with a bound on what the machine's errors can do to it
+//!    ([`FeedFact`], `feed_facts`, `combine`; docs/synchronisation.md): the feed-in's cruise (the
+//!    feed-out only where the feed-in cannot: the reversal before it biases it), a ruler of
+//!    about 2 mm with the errors of its axis printed on it (a cyclic error stretches it by
+//!    10⁻³; [`Ruler`] reads it through the errors a diagnosis found, `super::planned`), and the
+//!    arcs' durations of circles of different lengths at one feed, solved together for the
+//!    speed and the arcs' acceleration. Facts that disagree beyond their bounds are said
+//!    ([`Sync::feed_note`]). Between the feed-in's end and the feed-out's start the machine runs
 //!    the circle's arcs: runs of tangent arcs of one sense, each from rest to rest (the corner
 //!    after the feed-in, the reversal, the corner before the feed-out), and the plan's dwells. With
 //!    that speed v, the time the runs took fixes the acceleration at their ends:
@@ -363,6 +369,8 @@ pub struct CircleSync {
     pub feed_out: Ramp,
     /// Speed on the arcs (mm/s on the record's clock).
     pub speed_mm_s: f64,
+    /// Its standard error (mm/s).
+    pub speed_sigma_mm_s: f64,
     /// Acceleration at the arcs' starts and stops (mm/s²): the ramps' unless the data say
     /// otherwise (see the module docs).
     pub arc_accel_mm_s2: f64,
@@ -389,6 +397,14 @@ pub struct Sync {
     /// deviation, %; 0 with one circle).
     pub feed_percent: f64,
     pub feed_spread_percent: f64,
+    /// Standard error of the feed (%): what the timing facts leave, each weighed by what the
+    /// machine's errors can do to it (see [`FeedFact`]).
+    pub feed_sigma_percent: f64,
+    /// Every estimate of the feed the record gave, before they were combined.
+    pub feed_facts: Vec<FeedFact>,
+    /// Where the facts disagree beyond their standard errors: which, by how much, and which were
+    /// used (for the user; None when they agree).
+    pub feed_note: Option<String>,
     /// Measured dwell over programmed dwell, where two circles give one (dwell times do not
     /// follow the feed override: this is the controller's and the instrument's clocks).
     pub clock_scale: Option<f64>,
@@ -549,6 +565,7 @@ fn fit_ramp(
     feed_mm_s: f64,
     before_s: f64,
     after_s: f64,
+    ruler: Option<&Ruler>,
 ) -> Option<Ramp> {
     let len = dist(&from, &to);
     let tol = LEVEL_TOLERANCE_MM.min(0.25 * (d_to - d_from).abs());
@@ -611,10 +628,7 @@ fn fit_ramp(
     ];
     let bb = e[0] * from[0] + e[1] * from[1] + e[2] * from[2];
     let cc = from[0] * from[0] + from[1] * from[1] + from[2] * from[2];
-    let mut t = Vec::with_capacity(j - i);
-    let mut s = Vec::with_capacity(j - i);
-    for k in i..j {
-        let dn = d_from + (rec.d_mm[k] - d0);
+    let along = |dn: f64| {
         let disc = (bb * bb - cc + dn * dn).max(0.0).sqrt();
         let r1 = -bb + disc;
         let r2 = -bb - disc;
@@ -623,8 +637,30 @@ fn fit_ramp(
         } else {
             r2
         };
-        t.push(rec.t_s[k]);
-        s.push(pick.clamp(-0.1 * len, 1.1 * len));
+        pick.clamp(-0.1 * len, 1.1 * len)
+    };
+    let t: Vec<f64> = rec.t_s[i..j].to_vec();
+    let mut s: Vec<f64> = rec.d_mm[i..j]
+        .iter()
+        .map(|&d| along(d_from + (d - d0)))
+        .collect();
+    // D is read through the machine's errors at each point of the line, as far as the diagnosis
+    // knows them: take them off, relative to the line's start where the plateau `d0` was taken.
+    if let Some(r) = ruler {
+        let at = |x: f64| {
+            [
+                from[0] + x.clamp(0.0, len) * e[0],
+                from[1] + x.clamp(0.0, len) * e[1],
+                from[2] + x.clamp(0.0, len) * e[2],
+            ]
+        };
+        let mut points: Vec<[f64; 3]> = s.iter().map(|&x| at(x)).collect();
+        points.push(from);
+        let err = (r.error_mm)(&points);
+        let err0 = err[err.len() - 1];
+        for (k, x) in s.iter_mut().enumerate() {
+            *x = along(d_from + (rec.d_mm[i + k] - d0) - (err[k] - err0));
+        }
     }
     // Start: the speed through the midpoint (slope over ±5 ms) and the acceleration that reaches
     // it between leaving D_from and the midpoint.
@@ -700,6 +736,19 @@ fn crossing(rec: &Record, from: usize, mid: f64, dir: f64) -> Option<usize> {
 
 /// Synchronise `rec` with `plan` (module docs).
 pub fn synchronise(plan: &Plan, rec: &Record) -> Result<Sync> {
+    synchronise_with(plan, rec, None)
+}
+
+/// What the machine's errors do to D at a point of the plan's lines, as a diagnosis of the
+/// same record found them: the ramps are read through it ([`synchronise_with`]).
+pub struct Ruler<'a> {
+    /// D's error (mm) at each of the positions (relative to the table ball, mm).
+    pub error_mm: &'a dyn Fn(&[[f64; 3]]) -> Vec<f64>,
+}
+
+/// [`synchronise`], with the ramps read through `ruler` (the machine's errors along the feed-in
+/// a diagnosis found: a cyclic or scale error of its axis is printed on its ruler).
+pub fn synchronise_with(plan: &Plan, rec: &Record, ruler: Option<&Ruler>) -> Result<Sync> {
     let centre = plan.centre_mm;
     let rel = |p: [f64; 3]| [p[0] - centre[0], p[1] - centre[1], p[2] - centre[2]];
     let norm = |p: [f64; 3]| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
@@ -707,7 +756,7 @@ pub fn synchronise(plan: &Plan, rec: &Record) -> Result<Sync> {
         location: rec.location(i.min(rec.len().saturating_sub(1))),
         message: msg,
     };
-    let mut circles = vec![];
+    let mut found: Vec<Found> = vec![];
     let mut cursor = 0usize;
     let mut cycle_start = f64::NAN;
     let mut dwell_ratios = vec![];
@@ -770,6 +819,7 @@ pub fn synchronise(plan: &Plan, rec: &Record) -> Result<Sync> {
                 fi_feed / 60.0,
                 cp.dwell_before_s.clamp(0.005, 0.25),
                 0.005,
+                ruler,
             );
             match ramp {
                 Some(r) => break (i, r),
@@ -796,6 +846,7 @@ pub fn synchronise(plan: &Plan, rec: &Record) -> Result<Sync> {
             fo_feed / 60.0,
             0.005,
             dwell_after(plan, cp.feed_out).clamp(0.005, 0.25),
+            ruler,
         )
         .ok_or_else(|| {
             err(
@@ -876,7 +927,7 @@ pub fn synchronise(plan: &Plan, rec: &Record) -> Result<Sync> {
         // On a partial arc the runs are short: their time fixes only a combination of the arcs'
         // speed and acceleration, so the speed must come from a feed-in that cruised.
         let lines = line_speed(&ramp_in, &ramp_out);
-        if plan.arc.is_partial() && !lines.1.is_finite() {
+        if plan.arc.is_partial() && !lines.sigma_mm_s.is_finite() {
             let a = ramp_in.profile.accel_mm_s2;
             let need = (speed0 * speed0 / a / (1.0 - MIN_CRUISE_FRACTION) * 2.0).ceil() / 2.0;
             return Err(err(
@@ -888,17 +939,7 @@ pub fn synchronise(plan: &Plan, rec: &Record) -> Result<Sync> {
                 ),
             ));
         }
-        // The timeline of the runs and the data arcs on it (see `arc_motion`).
-        let timing = arc_motion(plan, rec, &items, &lengths, t_arcs.0, avail, lines, accel);
-        let (runs, data) = timeline(
-            plan,
-            rec,
-            &items,
-            t_arcs.0,
-            timing.speed_mm_s,
-            timing.accel_mm_s2,
-        );
-        if circles.is_empty() {
+        if found.is_empty() {
             // Cycle start: the end of the program stop; from there the dwells and lines (the
             // take-up) before the feed-in ran, the lines at the feed-in's speed and acceleration.
             let stop = plan.segments[..cp.feed_in]
@@ -934,14 +975,45 @@ pub fn synchronise(plan: &Plan, rec: &Record) -> Result<Sync> {
         }
         last_feed_out_end = Some((ramp_out.profile.end_s(), dwell_after(plan, cp.feed_out)));
         cursor = rec.index_at(ramp_out.profile.end_s());
-        circles.push(CircleSync {
+        found.push(Found {
             circle: k,
-            feed_in: ramp_in,
-            feed_out: ramp_out,
+            ramp_in,
+            ramp_out,
+            t0_s: t_arcs.0,
+            d_measured_mm: d_measured,
+            items,
+            lengths,
+            avail_s: avail,
+            programmed_mm_s: programmed,
+            lines,
+            accel_mm_s2: accel,
+        });
+    }
+    // 4. The feed from every timing fact the record holds, each weighed by what the machine's
+    // errors can do to it (`feed_facts`), and each circle's timeline at that feed.
+    let facts = feed_facts(rec, &found);
+    let feed = combine(&facts);
+    let feed_note = feed.as_ref().and_then(|f| f.note.clone());
+    let mut circles = Vec::with_capacity(found.len());
+    for f in found {
+        let timing = arc_motion(plan, rec, &f, feed.as_ref());
+        let (runs, data) = timeline(
+            plan,
+            rec,
+            &f.items,
+            f.t0_s,
+            timing.speed_mm_s,
+            timing.accel_mm_s2,
+        );
+        circles.push(CircleSync {
+            circle: f.circle,
+            feed_in: f.ramp_in,
+            feed_out: f.ramp_out,
             speed_mm_s: timing.speed_mm_s,
+            speed_sigma_mm_s: timing.speed_sigma_mm_s,
             arc_accel_mm_s2: timing.accel_mm_s2,
             timing_sigma_s: timing.timing_sigma_s,
-            d_measured_mm: d_measured,
+            d_measured_mm: f.d_measured_mm,
             data,
             runs,
         });
@@ -954,6 +1026,10 @@ pub fn synchronise(plan: &Plan, rec: &Record) -> Result<Sync> {
         })
         .collect();
     let mean = factors.iter().sum::<f64>() / factors.len() as f64;
+    let feed_sigma = circles
+        .iter()
+        .map(|c| c.speed_sigma_mm_s / (plan.circles[c.circle].feed_mm_min / 60.0))
+        .fold(0.0, f64::max);
     let spread = if factors.len() > 1 {
         (factors.iter().map(|f| (f - mean).powi(2)).sum::<f64>() / (factors.len() - 1) as f64)
             .sqrt()
@@ -973,6 +1049,9 @@ pub fn synchronise(plan: &Plan, rec: &Record) -> Result<Sync> {
         programmed_feed_mm_min: plan.feed_mm_min,
         feed_percent: 100.0 * mean,
         feed_spread_percent: 100.0 * spread,
+        feed_sigma_percent: 100.0 * feed_sigma,
+        feed_facts: facts,
+        feed_note,
         clock_scale,
         accel_mm_s2: accel,
         circles,
@@ -1111,105 +1190,425 @@ fn timeline(
 /// comes with no standard error, and the arcs' speed is then searched in their data. The
 /// acceleration check in [`arc_motion`] cannot be relied on to catch it: a partial arc's runs
 /// are short, and a speed 1 % off still leaves them a plausible acceleration.
-fn line_speed(feed_in: &Ramp, feed_out: &Ramp) -> (f64, f64) {
+fn line_speed(feed_in: &Ramp, feed_out: &Ramp) -> LineSpeed {
     let usable = |r: &Ramp| {
         let s = r.speed_sigma_mm_s;
         let p = &r.profile;
         let cruise = p.length_mm - p.speed_mm_s * p.speed_mm_s / p.accel_mm_s2;
-        (s.is_finite() && s > 0.0 && cruise >= MIN_CRUISE_FRACTION * p.length_mm)
-            .then_some((p.speed_mm_s, s))
+        (s.is_finite() && s > 0.0 && cruise >= MIN_CRUISE_FRACTION * p.length_mm).then_some(
+            LineSpeed {
+                speed_mm_s: p.speed_mm_s,
+                sigma_mm_s: s,
+                cruise_mm: cruise,
+            },
+        )
     };
-    usable(feed_in).or_else(|| usable(feed_out)).unwrap_or((
-        0.5 * (feed_in.profile.speed_mm_s + feed_out.profile.speed_mm_s),
-        f64::INFINITY,
-    ))
+    usable(feed_in)
+        .or_else(|| usable(feed_out))
+        .unwrap_or(LineSpeed {
+            speed_mm_s: 0.5 * (feed_in.profile.speed_mm_s + feed_out.profile.speed_mm_s),
+            sigma_mm_s: f64::INFINITY,
+            cruise_mm: 0.0,
+        })
+}
+
+/// A circle's lines' speed ([`line_speed`]): the speed (mm/s), its standard error from the ramp's
+/// fit (infinite where no ramp cruised) and the length of the cruise that measured it (mm).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct LineSpeed {
+    speed_mm_s: f64,
+    sigma_mm_s: f64,
+    cruise_mm: f64,
 }
 
 /// Least part of a ramp's length spent at its cruising speed for its fitted speed to count as
 /// the feed (`line_speed`).
 pub const MIN_CRUISE_FRACTION: f64 = 0.2;
 
-/// At most this many data samples of a circle enter the search of the arcs' speed
-/// ([`speed_from_data`]); more are taken at an even stride.
-const TIMING_SAMPLES: usize = 30_000;
-
-/// How a circle's arcs ran: speed, the acceleration at their starts and stops, and how far the
-/// data arcs' times may be off for the speed's standard error.
+/// How a circle's arcs ran: speed and its standard error, the acceleration at their starts and
+/// stops, and how far the data arcs' times may be off for the speed's standard error.
 #[derive(Debug, Clone, PartialEq)]
 struct ArcTiming {
     speed_mm_s: f64,
+    speed_sigma_mm_s: f64,
     accel_mm_s2: f64,
     timing_sigma_s: f64,
 }
 
+/// One circle as found in the record, before its arcs are timed: its ramps, what runs between
+/// them and how long that took.
+struct Found {
+    circle: usize,
+    ramp_in: Ramp,
+    ramp_out: Ramp,
+    /// The feed-in's end: where the arcs start (s).
+    t0_s: f64,
+    d_measured_mm: f64,
+    items: Vec<Item>,
+    /// Path length of each run of arcs (mm).
+    lengths: Vec<f64>,
+    /// Time between the feed-in's end and the feed-out's start, less the plan's dwells (s).
+    avail_s: f64,
+    /// The arcs' programmed feed (mm/s).
+    programmed_mm_s: f64,
+    lines: LineSpeed,
+    /// The ramps' acceleration (mm/s², mean of feed-in and feed-out).
+    accel_mm_s2: f64,
+}
+
+impl Found {
+    /// The acceleration at the runs' starts and stops with which they take `avail_s` at speed
+    /// `v`: Σ_r (S_r/v + v/a) = T gives a = n·v/(T − ΣS/v); None where no positive one does.
+    fn accel_for(&self, v: f64) -> Option<f64> {
+        let total: f64 = self.lengths.iter().sum();
+        let spare = self.avail_s - total / v;
+        (spare > 0.0)
+            .then(|| self.lengths.len() as f64 * v / spare)
+            .filter(|a| a.is_finite() && *a > 0.0)
+    }
+
+    /// An acceleration on the arcs a machine whose lines accelerate at `accel_mm_s2` can have
+    /// (1/25 … 10 times the lines': a controller shares its budget on an arc between the
+    /// tangential and the centripetal part — LinuxCNC keeps half for the tangent — and takes
+    /// the smaller of the plane's two axes, while the ramps measure the feed-in's axis alone,
+    /// which may accelerate several times faster).
+    fn plausible(&self, a: f64) -> bool {
+        (0.04 * self.accel_mm_s2..=10.0 * self.accel_mm_s2).contains(&a)
+    }
+}
+
+/// Where an estimate of the feed comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FeedSource {
+    /// The cruise of a circle's feed-in (or, where the feed-in gives none, its feed-out): a ruler
+    /// as long as the cruise with the machine's errors along its axis printed on it.
+    Ramp,
+    /// The arcs' durations between feed-in and feed-out of circles of different lengths at one
+    /// programmed feed, solved together for the speed and the arcs' acceleration: a ruler as long
+    /// as the difference of the circles' paths, read off the ramps' ends.
+    ArcDurations,
+}
+
+impl FeedSource {
+    /// The name in outputs (JSON `source`, the summary).
+    pub fn name(self) -> &'static str {
+        match self {
+            FeedSource::Ramp => "ramp",
+            FeedSource::ArcDurations => "arc_durations",
+        }
+    }
+}
+
+/// One estimate of the feed factor (measured over programmed feed, on the record's clock).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FeedFact {
+    pub source: FeedSource,
+    /// The plan's circle it comes from (None: several circles together).
+    pub circle: Option<usize>,
+    /// Measured over programmed feed.
+    pub factor: f64,
+    /// Its standard error, including a bound on what the machine's errors can do to it.
+    pub sigma: f64,
+}
+
+/// How far the machine's errors can bend a ramp that cruised (relative): a cyclic error of 5 µm
+/// over a 3 mm pitch, 2πA/P = 10⁻². Where its speed leaves the arcs no plausible acceleration,
+/// the arcs' speed is searched in their data within this of it (`arc_motion`).
+pub const RULER_WINDOW: f64 = 0.01;
+
+/// What the machine's position errors along a ramp's axis that no diagnosis names may change
+/// over the ramp's cruise (µm): a ramp's speed is read through D along a ruler as long as its
+/// cruise, and carries this over that length as a bound (1.7·10⁻⁴ on the default 2 mm feed-in
+/// at 1000 mm/min). The errors a diagnosis names (a cyclic error of a few µm over a pitch of a
+/// few mm stretches a 2 mm feed-in by 10⁻³) are taken off the ruler ([`Ruler`]) before.
+pub const RULER_ERROR_UM: f64 = 0.25;
+
+/// The least relative bound on a ramp's ruler, whatever its length: errors that grow with the
+/// travel (a scale error no diagnosis names, or one it names as a twin that agrees with it on
+/// the circle and not along the radial ramp, e.g. a second-order scale for a bow) change over a
+/// ruler in proportion to its length; 100 µm/m.
+pub const RULER_SLOPE_BOUND: f64 = 1e-4;
+
+/// How far the machine's errors may move the times at which a circle's ramps end and start
+/// apart between circles (µm of path, over the speed): a backlash, a spike or a cyclic error
+/// seen at another radius.
+pub const RAMP_END_ERROR_UM: f64 = 3.0;
+
+/// Every estimate of the feed factor the record holds: each circle's ramp cruise (where it
+/// cruised and gives its arcs a plausible acceleration) and the arcs' durations of circles at
+/// one feed solved together. (The arcs' data were tried as a third and are not one: fitting the
+/// speed to them hides in the timeline whatever the fit does not model — a cyclic error on y
+/// moved it by 5·10⁻³ — see docs/synchronisation.md.)
+fn feed_facts(rec: &Record, found: &[Found]) -> Vec<FeedFact> {
+    let mut facts = vec![];
+    for f in found {
+        let l = f.lines;
+        if l.sigma_mm_s.is_finite() && f.accel_for(l.speed_mm_s).is_some_and(|a| f.plausible(a)) {
+            let ruler = l.speed_mm_s
+                * (1e-3 * RULER_ERROR_UM / l.cruise_mm.max(1e-3)).hypot(RULER_SLOPE_BOUND);
+            facts.push(FeedFact {
+                source: FeedSource::Ramp,
+                circle: Some(f.circle),
+                factor: l.speed_mm_s / f.programmed_mm_s,
+                sigma: l.sigma_mm_s.hypot(ruler) / f.programmed_mm_s,
+            });
+        }
+    }
+    let dt = median_interval(&rec.t_s);
+    let mut covered = vec![false; found.len()];
+    for (i, f) in found.iter().enumerate() {
+        if covered[i] {
+            continue;
+        }
+        let group: Vec<usize> = (i..found.len())
+            .filter(|&j| (found[j].programmed_mm_s / f.programmed_mm_s - 1.0).abs() < 1e-9)
+            .collect();
+        if let Some(fact) = arc_durations(found, &group, dt) {
+            for &j in &group {
+                covered[j] = true;
+            }
+            facts.push(fact);
+        }
+    }
+    facts
+}
+
+/// The feed factor from the arcs' durations of the circles `group` (one programmed feed): each
+/// circle's time between its feed-in's end and its feed-out's start, less the dwells, is
+/// ΣS/v + n·(v/a) — linear in 1/v and v/a — so circles of different path lengths give both,
+/// whatever acceleration the controller uses on arcs (the same on every circle of the test). The
+/// ramps' ends are timed to the sample interval and to what a few µm of the machine's errors
+/// ([`RAMP_END_ERROR_UM`]) move them by; a constant shift, the same on every circle, goes into
+/// v/a. None where the circles' lengths per run differ by less than 1 % or the solution is not
+/// physical.
+fn arc_durations(found: &[Found], group: &[usize], dt: f64) -> Option<FeedFact> {
+    if group.len() < 2 {
+        return None;
+    }
+    let per_run: Vec<f64> = group
+        .iter()
+        .map(|&j| found[j].lengths.iter().sum::<f64>() / found[j].lengths.len() as f64)
+        .collect();
+    let (lo, hi) = per_run
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(l, h), &x| (l.min(x), h.max(x)));
+    if hi < 1.01 * lo {
+        return None;
+    }
+    // Weighted least squares for (x, y) = (1/v, v/a): rows (ΣS, n) → T.
+    let (mut n11, mut n12, mut n22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    let mut rows = vec![];
+    for &j in group {
+        let f = &found[j];
+        let total: f64 = f.lengths.iter().sum();
+        let n = f.lengths.len() as f64;
+        let v = total / f.avail_s;
+        let sigma_t = std::f64::consts::SQRT_2 * (0.5 * dt).hypot(1e-3 * RAMP_END_ERROR_UM / v);
+        let w = 1.0 / (sigma_t * sigma_t);
+        n11 += w * total * total;
+        n12 += w * total * n;
+        n22 += w * n * n;
+        b1 += w * total * f.avail_s;
+        b2 += w * n * f.avail_s;
+        rows.push((total, n, f.avail_s, w));
+    }
+    let det = n11 * n22 - n12 * n12;
+    if !(det.is_finite() && det > 0.0) {
+        return None;
+    }
+    let x = (n22 * b1 - n12 * b2) / det;
+    let y = (n11 * b2 - n12 * b1) / det;
+    if !(x > 0.0 && y > 0.0) {
+        return None;
+    }
+    // With more than two circles, the scatter about the fit scales the standard error.
+    let dof = rows.len() as f64 - 2.0;
+    let chi2: f64 = rows
+        .iter()
+        .map(|&(s, n, t, w)| w * (t - s * x - n * y).powi(2))
+        .sum();
+    let scale = if dof > 0.0 {
+        (chi2 / dof).max(1.0)
+    } else {
+        1.0
+    };
+    let sigma_x = (scale * n22 / det).sqrt();
+    let programmed = found[group[0]].programmed_mm_s;
+    let v = 1.0 / x;
+    Some(FeedFact {
+        source: FeedSource::ArcDurations,
+        circle: None,
+        factor: v / programmed,
+        sigma: sigma_x / (x * x) / programmed,
+    })
+}
+
+/// The feed facts together: their weighted mean and its standard error, scaled up by their
+/// scatter where it exceeds their standard errors; a note where a fact lies more than 3σ from
+/// the others.
+#[derive(Debug, Clone, PartialEq)]
+struct Feed {
+    factor: f64,
+    sigma: f64,
+    note: Option<String>,
+}
+
+/// Combine `facts` ([`Feed`]); None without any.
+fn combine(facts: &[FeedFact]) -> Option<Feed> {
+    let usable: Vec<&FeedFact> = facts
+        .iter()
+        .filter(|f| f.factor.is_finite() && f.sigma.is_finite() && f.sigma > 0.0)
+        .collect();
+    if usable.is_empty() {
+        return None;
+    }
+    let wsum: f64 = usable.iter().map(|f| f.sigma.powi(-2)).sum();
+    let factor = usable
+        .iter()
+        .map(|f| f.factor * f.sigma.powi(-2))
+        .sum::<f64>()
+        / wsum;
+    let mut sigma = wsum.powf(-0.5);
+    let chi2: f64 = usable
+        .iter()
+        .map(|f| ((f.factor - factor) / f.sigma).powi(2))
+        .sum();
+    if usable.len() > 1 {
+        sigma *= (chi2 / (usable.len() - 1) as f64).max(1.0).sqrt();
+    }
+    // A fact off the others' mean by more than 3σ (its own and theirs together).
+    let outliers: Vec<String> = usable
+        .iter()
+        .filter_map(|f| {
+            let rest: Vec<FeedFact> = usable
+                .iter()
+                .filter(|g| !std::ptr::eq(**g, *f))
+                .map(|g| **g)
+                .collect();
+            let others = combine_plain(&rest)?;
+            let z = (f.factor - others.0) / f.sigma.hypot(others.1);
+            (z.abs() > 3.0).then(|| {
+                format!(
+                    "{}{} says {:.3} ± {:.3} %, the others {:.3} ± {:.3} %",
+                    f.source.name(),
+                    f.circle
+                        .map(|c| format!(" of circle {}", c + 1))
+                        .unwrap_or_default(),
+                    100.0 * f.factor,
+                    100.0 * f.sigma,
+                    100.0 * others.0,
+                    100.0 * others.1
+                )
+            })
+        })
+        .collect();
+    let note = (!outliers.is_empty()).then(|| {
+        format!(
+            "the timing facts disagree beyond their standard errors ({}): the machine's errors bend one of them more than allowed for; the feed is their weighted mean with its standard error scaled by their scatter, and what depends on the timing carries it",
+            outliers.join("; ")
+        )
+    });
+    Some(Feed {
+        factor,
+        sigma,
+        note,
+    })
+}
+
+/// Weighted mean and standard error of `facts`, no scatter scaling (None without any).
+fn combine_plain(facts: &[FeedFact]) -> Option<(f64, f64)> {
+    let wsum: f64 = facts.iter().map(|f| f.sigma.powi(-2)).sum();
+    (wsum > 0.0 && wsum.is_finite()).then(|| {
+        (
+            facts
+                .iter()
+                .map(|f| f.factor * f.sigma.powi(-2))
+                .sum::<f64>()
+                / wsum,
+            wsum.powf(-0.5),
+        )
+    })
+}
+
 /// Speed and acceleration of a circle's arcs, and the timing's standard error.
 ///
-/// The arcs run at the feed of the lines, and the feed-in measures that speed to a few parts in
-/// 10⁵ (its cruise over a millimetre or two; [`line_speed`]); what the ramps cannot tell is the
-/// acceleration at the arcs' starts and stops, which a controller may set apart from the lines'
-/// (it shares the acceleration between the tangential and the centripetal part). For the speed v
-/// the runs' total time fixes that acceleration: Σ_r (S_r/v + v/a) = T gives
-/// a = n·v/(T − ΣS/v). The speed's standard error then moves the data arcs' times by up to a
-/// millisecond or two by the end of a run; that is the timing's standard error, which the
-/// diagnosis adds to what depends on it (a reversal spike's height).
+/// The speed is the combined `feed` ([`feed_facts`], [`combine`]) times the circle's programmed
+/// feed; what it cannot tell is the acceleration at the arcs' starts and stops, which a
+/// controller may set apart from the lines' (it shares the acceleration between the tangential
+/// and the centripetal part). For the speed v the runs' total time fixes it:
+/// Σ_r (S_r/v + v/a) = T gives a = n·v/(T − ΣS/v). The speed's standard error then moves the
+/// data arcs' times by up to a millisecond or two by the end of a run; that is the timing's
+/// standard error, which the diagnosis adds to what depends on it (a reversal spike's height).
 ///
-/// Fitting v and each run's start to the data instead was tried and is worse: it needs a model of
-/// everything in D that depends on the time, and where that model is not the machine (a backlash
-/// that is a dead zone rather than a step) it moves the timeline by milliseconds to hide the
-/// difference. When the lines' speed gives no acceleration within 1/10 … 10 of the lines' (the
-/// arcs ran at another speed), the speed is searched in the data over ±20 %
-/// ([`speed_from_data`]).
-#[allow(clippy::too_many_arguments)]
-fn arc_motion(
-    plan: &Plan,
-    rec: &Record,
-    items: &[Item],
-    lengths: &[f64],
-    t0: f64,
-    avail: f64,
-    line_speed: (f64, f64),
-    line_accel: f64,
-) -> ArcTiming {
-    let n = lengths.len();
-    let total: f64 = lengths.iter().sum();
-    let accel_for = |v: f64| {
-        let spare = avail - total / v;
-        (spare > 0.0)
-            .then(|| n as f64 * v / spare)
-            .filter(|a| a.is_finite() && *a > 0.0)
+/// Where the feed gives this circle no acceleration within 1/25 … 10 of the lines' (its arcs
+/// ran at another speed, or its ramp's ruler is bent), its speed is searched in its data
+/// ([`speed_from_data`]): within [`RULER_WINDOW`] of a ramp that cruised, else over ±20 %; its
+/// standard error is that minimum's distance from where the search started (at least 10⁻⁴).
+fn arc_motion(plan: &Plan, rec: &Record, f: &Found, feed: Option<&Feed>) -> ArcTiming {
+    let v_accel = solve_speed(&f.lengths, f.accel_mm_s2, f.avail_s);
+    let given = feed
+        .map(|fd| (fd.factor * f.programmed_mm_s, fd.sigma * f.programmed_mm_s))
+        .filter(|(v, _)| f.accel_for(*v).is_some_and(|a| f.plausible(a)));
+    let search = |v0: f64, window: f64| {
+        speed_from_data(
+            plan,
+            rec,
+            &f.items,
+            &f.lengths,
+            f.t0_s,
+            f.avail_s,
+            v0,
+            window,
+            TIMING_SAMPLES,
+        )
+        .map(|(v, _)| (v, (1e-4 * v).max((v - v0).abs())))
     };
-    let plausible = |a: f64| (0.1 * line_accel..=10.0 * line_accel).contains(&a);
-    let (v_line, sigma_line) = line_speed;
-    // The speed at which the runs, accelerating as the lines do, fill the arcs' time.
-    let v_accel = solve_speed(lengths, line_accel, avail);
-    let line_plausible = accel_for(v_line).is_some_and(plausible);
-    let (v, sigma_v) = if line_plausible && sigma_line.is_finite() {
-        (v_line, sigma_line)
-    } else {
-        // Search around the lines' speed if the arcs could have run at it with a plausible
-        // acceleration, else around `v_accel` (a feed-in too short to cruise can fit a speed the
-        // arcs' time rules out, or no speed at all).
-        let v0 = if line_plausible { v_line } else { v_accel };
-        match speed_from_data(plan, rec, items, lengths, t0, avail, v0, 0.2) {
-            // The search's minimum has no standard error of its own worth trusting (the residual
-            // is not the machine's noise alone): its distance from `v_accel` stands for it, at
-            // least 10⁻⁴.
-            Some(v) => (v, (1e-4 * v).max((v - v_accel).abs())),
-            None => (v_accel, 1e-3 * v_accel),
-        }
+    // A ramp that cruised is off by no more than what the machine's errors bend its ruler by
+    // ([`RULER_WINDOW`]): the plausible speed nearest to it, if that is within the window (the
+    // arcs' time rules the ramp's own speed out, so the truth lies on the plausible side), else a
+    // search in the data within the window. Else around the lines' speed if the arcs could have
+    // run at it with a plausible acceleration, else around the speed at which the runs,
+    // accelerating as the lines do, fill the arcs' time.
+    let l = f.lines;
+    let nearest = || {
+        let (lo, hi) = (
+            solve_speed(&f.lengths, 10.0 * f.accel_mm_s2, f.avail_s),
+            solve_speed(&f.lengths, 0.04 * f.accel_mm_s2, f.avail_s),
+        );
+        let v = l.speed_mm_s.clamp(lo, hi.max(lo));
+        ((v / l.speed_mm_s - 1.0).abs() <= RULER_WINDOW && f.accel_for(v).is_some())
+            .then(|| (v, (1e-4 * v).max((v - l.speed_mm_s).abs())))
     };
-    let Some(a) = accel_for(v) else {
+    let (v, sigma_v) = match given {
+        Some(x) => x,
+        None => l
+            .sigma_mm_s
+            .is_finite()
+            .then(|| nearest().or_else(|| search(l.speed_mm_s, RULER_WINDOW)))
+            .flatten()
+            .or_else(|| {
+                let v0 = if f.accel_for(l.speed_mm_s).is_some_and(|a| f.plausible(a)) {
+                    l.speed_mm_s
+                } else {
+                    v_accel
+                };
+                search(v0, 0.2)
+            })
+            .unwrap_or((v_accel, 1e-3 * v_accel)),
+    };
+    let Some(a) = f.accel_for(v) else {
         return ArcTiming {
             speed_mm_s: v_accel,
-            accel_mm_s2: line_accel,
+            speed_sigma_mm_s: f64::INFINITY,
+            accel_mm_s2: f.accel_mm_s2,
             timing_sigma_s: f64::INFINITY,
         };
     };
     // The data arcs' ends at v + σ_v against v.
-    let (_, at_v) = timeline(plan, rec, items, t0, v, a);
-    let timing_sigma_s = match accel_for(v + sigma_v) {
+    let (_, at_v) = timeline(plan, rec, &f.items, f.t0_s, v, a);
+    let timing_sigma_s = match f.accel_for(v + sigma_v) {
         Some(a1) => {
-            let (_, at_v1) = timeline(plan, rec, items, t0, v + sigma_v, a1);
+            let (_, at_v1) = timeline(plan, rec, &f.items, f.t0_s, v + sigma_v, a1);
             at_v.iter()
                 .zip(&at_v1)
                 .map(|(x, y)| {
@@ -1223,22 +1622,27 @@ fn arc_motion(
     };
     ArcTiming {
         speed_mm_s: v,
+        speed_sigma_mm_s: sigma_v,
         accel_mm_s2: a,
         timing_sigma_s,
     }
 }
 
+/// At most this many data samples of a circle enter the search of the arcs' speed where it is
+/// the circle's only timing ([`speed_from_data`]); more are taken at an even stride.
+const TIMING_SAMPLES: usize = 30_000;
+
 /// The data-arc samples of a circle on the timeline of `v0` with the runs unshifted, shrunk by
 /// 1 % of each arc's time at both ends (so that nearby timelines have them on their runs too),
-/// at most [`TIMING_SAMPLES`] of them at an even stride.
-fn timing_samples(rec: &Record, data: &[DataArc]) -> Vec<usize> {
+/// at most `max_samples` of them at an even stride.
+fn timing_samples(rec: &Record, data: &[DataArc], max_samples: usize) -> Vec<usize> {
     let mut idx: Vec<usize> = vec![];
     for a in data {
         let m = 0.01 * (a.t_end_s - a.t_start_s);
         let (i, j) = (rec.index_at(a.t_start_s + m), rec.index_at(a.t_end_s - m));
         idx.extend(i..j);
     }
-    let stride = idx.len().div_ceil(TIMING_SAMPLES).max(1);
+    let stride = idx.len().div_ceil(max_samples).max(1);
     idx.into_iter().step_by(stride).collect()
 }
 
@@ -1287,11 +1691,11 @@ fn nominal_on_runs(
         .collect()
 }
 
-/// The arcs' speed from the data of one circle alone, where the lines' speed does not fit the
-/// runs' time: the v within `v0`·(1 ± `window`) — each with the acceleration the runs' total
-/// time then implies — whose timeline leaves the least residual after [`timing_design`]'s fit
-/// (golden section). None where the data do not determine it (the least residual at the
-/// window's edge), or no acceleration is physical.
+/// The arcs' speed from the data of one circle alone: the v within `v0`·(1 ± `window`) — each
+/// with the acceleration the runs' total time then implies — whose timeline leaves the least
+/// residual after [`timing_residuals`]' fit (golden section, on at most `max_samples` samples),
+/// and its standard error from the residual's curvature there. None where the data do not
+/// determine it (the least residual at the window's edge), or no acceleration is physical.
 #[allow(clippy::too_many_arguments)]
 fn speed_from_data(
     plan: &Plan,
@@ -1302,7 +1706,8 @@ fn speed_from_data(
     avail: f64,
     v0: f64,
     window: f64,
-) -> Option<f64> {
+    max_samples: usize,
+) -> Option<(f64, f64)> {
     let n_runs = lengths.len();
     let total: f64 = lengths.iter().sum();
     let accel_for = |v: f64| {
@@ -1311,9 +1716,12 @@ fn speed_from_data(
             .then(|| n_runs as f64 * v / spare)
             .filter(|a| a.is_finite() && *a > 0.0)
     };
-    let a0 = accel_for(v0)?;
-    let (_, data0) = timeline(plan, rec, items, t0, v0, a0);
-    let idx = timing_samples(rec, &data0);
+    // The samples: on the data arcs of a timeline within the window that the arcs' time allows.
+    let (vs, a0) = [v0, v0 * (1.0 + 0.5 * window), v0 * (1.0 + window)]
+        .into_iter()
+        .find_map(|v| accel_for(v).map(|a| (v, a)))?;
+    let (_, data0) = timeline(plan, rec, items, t0, vs, a0);
+    let idx = timing_samples(rec, &data0, max_samples);
     if idx.len() < 64 {
         return None;
     }
@@ -1347,7 +1755,20 @@ fn speed_from_data(
     }
     let (v, f) = if f1 < f2 { (x1, f1) } else { (x2, f2) };
     let interior = (v - lo0).min(hi0 - v) >= 0.05 * (hi0 - lo0);
-    (f.is_finite() && interior).then_some(v)
+    if !(f.is_finite() && interior) {
+        return None;
+    }
+    // Its standard error from the residual's curvature there: SSR(v) ≈ SSR_min + k·(v − v̂)²,
+    // σ² = s²/k with s² = SSR_min/(N − columns).
+    let h = 1e-4 * v;
+    let k = (ssr(v + h) + ssr(v - h) - 2.0 * f) / (2.0 * h * h);
+    let s2 = f / (idx.len() as f64 - TIMING_COLUMNS as f64).max(1.0);
+    let sigma = if k > 0.0 && k.is_finite() {
+        (s2 / k).sqrt()
+    } else {
+        window * v
+    };
+    Some((v, sigma))
 }
 
 /// Columns of [`timing_design`]: u (3), 1, backlash (3), reversal spike at two τ (6), drift,
@@ -1694,6 +2115,87 @@ mod tests {
     }
 
     #[test]
+    fn a_ruler_with_the_machines_errors_on_it_is_read_true_through_them() {
+        // A feed-in along x from 88 to 90 mm (relative to the table ball) at 16 mm/s on an axis
+        // with a 2 µm, 10 mm-pitch cyclic error: D carries δ_x = A·sin(2π·x/P + φ), which
+        // stretches the 2 mm ruler by up to 2πA/P = 1.3·10⁻³. Read through that error, the
+        // speed is true again.
+        let prof = Profile {
+            t0_s: 0.5,
+            length_mm: 2.0,
+            speed_mm_s: 16.0,
+            accel_mm_s2: 500.0,
+        };
+        let (amp_mm, pitch_mm, phase) = (2e-3, 10.0, 0.4);
+        let cyclic = |x: f64| amp_mm * (std::f64::consts::TAU * x / pitch_mm + phase).sin();
+        let t: Vec<f64> = (0..1500).map(|i| i as f64 * 1e-3).collect();
+        let d: Vec<f64> = t
+            .iter()
+            .map(|&ti| {
+                let x = 88.0 + prof.s_at(ti);
+                x + cyclic(x)
+            })
+            .collect();
+        let rec = Record::from_samples(FsPath::new("r.csv"), t, d);
+        let cross = crossing(&rec, 0, 89.0, 1.0).unwrap();
+        let error = |p: &[[f64; 3]]| p.iter().map(|q| cyclic(q[0])).collect::<Vec<_>>();
+        let ruler = Ruler { error_mm: &error };
+        let fit = |r: Option<&Ruler>| {
+            fit_ramp(
+                &rec,
+                cross,
+                [88.0, 0.0, 0.0],
+                [90.0, 0.0, 0.0],
+                88.0,
+                90.0,
+                16.0,
+                0.25,
+                0.25,
+                r,
+            )
+            .unwrap()
+            .profile
+            .speed_mm_s
+                / 16.0
+                - 1.0
+        };
+        let (bent, true_read) = (fit(None), fit(Some(&ruler)));
+        assert!(
+            bent.abs() > 3e-4,
+            "the cyclic error bends the ruler: {bent}"
+        );
+        assert!(true_read.abs() < 1e-5, "read through it: {true_read}");
+    }
+
+    #[test]
+    fn facts_combine_by_their_errors_and_a_disagreement_is_said() {
+        let fact = |source, factor, sigma| FeedFact {
+            source,
+            circle: Some(0),
+            factor,
+            sigma,
+        };
+        // Two facts that agree: the weighted mean, the smaller σ wins.
+        let f = combine(&[
+            fact(FeedSource::Ramp, 1.0002, 2e-4),
+            fact(FeedSource::ArcDurations, 1.0000, 5e-5),
+        ])
+        .unwrap();
+        assert!((f.factor - (1.0002 * 25.0 + 1.0 * 400.0) / 425.0).abs() < 1e-9);
+        assert!(f.note.is_none());
+        // A ruler 10⁻³ off at σ 10⁻⁴ against arc durations at 5·10⁻⁵: said, and σ scaled up.
+        let f = combine(&[
+            fact(FeedSource::Ramp, 1.001, 1e-4),
+            fact(FeedSource::ArcDurations, 1.0000, 5e-5),
+        ])
+        .unwrap();
+        let note = f.note.unwrap();
+        assert!(note.contains("ramp of circle 1 says 100.100"), "{note}");
+        assert!(f.sigma > 3e-4, "{}", f.sigma);
+        assert!(combine(&[]).is_none());
+    }
+
+    #[test]
     fn a_ramp_fit_recovers_start_speed_and_acceleration() {
         // A feed-in of 2 mm from R 88 to 90 mm (xy, radial along x) at 16.667 mm/s, a = 500,
         // sampled at 1 kHz with 0.3 µm noise, dwells either side.
@@ -1727,6 +2229,7 @@ mod tests {
             1000.0 / 60.0,
             0.25,
             0.25,
+            None,
         )
         .unwrap();
         assert!((r.profile.t0_s - prof.t0_s).abs() < 2e-4, "{:?}", r.profile);

@@ -8,9 +8,10 @@ use crate::circular::html::report_html;
 use crate::circular::input::{check_holes, read_record_with_path, read_samples};
 use crate::circular::model::parse_pitch;
 use crate::circular::plan::Plan;
+use crate::circular::planned::diagnose_planned;
 use crate::circular::plot::write_report;
 use crate::circular::report::{plan_json, summary, sync_json, sync_summary, to_json};
-use crate::circular::sync::{check_feed, data_path, synchronise, Record};
+use crate::circular::sync::{check_feed, synchronise, Record};
 use crate::fsio::{check_dir_destination, write_dir};
 use crate::{Error, Result};
 
@@ -247,8 +248,11 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     };
     let conditions = conditions(args)?;
     let mut synced = None;
-    let (path, d) = match (&args.samples, &args.record, &args.path, &args.plan) {
-        (Some(samples), _, _, _) => read_samples(samples, pitch)?,
+    let diag = match (&args.samples, &args.record, &args.path, &args.plan) {
+        (Some(samples), _, _, _) => {
+            let (path, d) = read_samples(samples, pitch)?;
+            diagnose(&path, &d, &Options::default())?
+        }
         (None, Some(record), None, Some(plan_file)) => {
             let plan = Plan::read(plan_file)?;
             let rec = Record::read(record)?;
@@ -256,12 +260,14 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             let sync = synchronise(&plan, &rec).map_err(|e| late_start(&plan, &rec, e))?;
             check_feed(&plan, &sync, &rec)?;
             check_holes(&rec, &sync)?;
-            let data = data_path(&plan, &rec, &sync, pitch)?;
-            synced = Some((plan_file, plan, sync));
-            data
+            let done = diagnose_planned(&plan, &rec, sync, pitch, &Options::default())?;
+            synced = Some((plan_file, plan, done.sync));
+            done.diagnosis
         }
         (None, Some(record), Some(nominal), None) => {
-            read_record_with_path(record, nominal, args.path_offset_s.unwrap_or(0.0), pitch)?
+            let (path, d) =
+                read_record_with_path(record, nominal, args.path_offset_s.unwrap_or(0.0), pitch)?;
+            diagnose(&path, &d, &Options::default())?
         }
         _ => {
             return Err(Error::Usage(
@@ -269,7 +275,6 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             ))
         }
     };
-    let diag = diagnose(&path, &d, &Options::default())?;
     let mut json = to_json(&diag);
     if let Some((file, plan, sync)) = &synced {
         json["plan"] = plan_json(file, plan);
