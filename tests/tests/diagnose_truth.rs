@@ -206,7 +206,8 @@ fn an_axis_that_sticks_at_reversal_is_a_positive_spike() {
     let f = only(&d, "reversal_spike_x");
     let s = summary(&d);
     let (h, sh) = param(f, 0);
-    assert_unbiased("reversal_spike_x h", h, sh, 4.0, 0.1, &s);
+    // The height's σ carries the synchronisation's timing σ: a quarter of the value allowed.
+    planned::assert_unbiased_sigma("reversal_spike_x h", h, sh, 4.0, 0.1, 0.25, &s);
     let (tau, st) = param(f, 1);
     // τ is measured through the sampling at 4 ms and the synchronisation's timing.
     assert!(
