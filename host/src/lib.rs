@@ -30,6 +30,7 @@ pub mod fsio;
 pub mod history;
 pub mod instrument;
 pub mod link;
+pub mod live_web;
 pub mod numerics;
 pub mod rotary;
 pub mod rrsps;
