@@ -6,12 +6,16 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use super::output::{emit, note};
+use super::output::{emit, note, print};
 use super::stream_args::StreamArgs;
 use crate::link::record::{
-    check_output, create_partial, finish_output, partial_path, record_to, summary, CsvOut, End,
-    CSV_HEADER,
+    check_output, create_partial, finish_output, partial_path, record_observed, summary, CsvOut,
+    End, CSV_HEADER,
 };
+use crate::circular::plan::Plan;
+use crate::live_web::end::diagnose_record;
+use crate::live_web::feed::{new_board, LiveFeed};
+use crate::live_web::server::EVENT_INTERVAL;
 use crate::link::stream::{describe_info, interrupt_flag, Stream};
 use crate::{Error, Result};
 
@@ -27,12 +31,26 @@ pub struct RecordArgs {
     /// Replace --out if it exists (a regular file only; never a link or a device).
     #[arg(long)]
     pub force: bool,
+    /// With --web: the plan.json of the program the machine runs (`jdbb plan`). The page shows
+    /// where the machine is in it and the current circle's trace; at the end the record is
+    /// diagnosed as `jdbb diagnose --record OUT --plan plan.json` does, printed and shown.
+    #[arg(long, value_name = "FILE", requires = "web")]
+    pub plan: Option<PathBuf>,
+    /// With --plan: tolerance on the circular deviation G (µm) for the end-of-test verdict, as
+    /// `jdbb diagnose --tolerance-um`.
+    #[arg(long, requires = "plan", value_parser = super::args::positive)]
+    pub tolerance_um: Option<f64>,
 }
 
 /// Run `jdbb record`.
 pub fn run(args: &RecordArgs) -> Result<()> {
     args.stream.validate()?;
     check_output(&args.out, args.force)?;
+    let plan = args.plan.as_deref().map(Plan::read).transpose()?;
+    let board = new_board();
+    // Before the port and the file: an address in use leaves nothing behind.
+    let server = args.stream.web_server(&board)?;
+    let mut feed = server.as_ref().map(|_| LiveFeed::new(board, plan.as_ref()));
     // The port first: a mistyped port leaves no file behind and touches none.
     let mut stream = Stream::open(&args.stream.port)?;
     let partial = partial_path(&args.out);
@@ -55,13 +73,19 @@ pub fn run(args: &RecordArgs) -> Result<()> {
     ));
     let t0 = Instant::now();
     let mut out = CsvOut::new(file, CSV_HEADER.len() as u64);
-    let end = record_to(
+    let end = record_observed(
         &mut stream,
         &mut out,
         &args.out,
         args.stream.deadline(t0),
         &interrupted,
         &mut |info| note(&format!("device: {}", describe_info(info))),
+        &mut |batch, stats| {
+            if let Some(f) = feed.as_mut() {
+                f.samples(batch);
+                f.publish_if_due(stats, Instant::now());
+            }
+        },
     );
     let seconds = t0.elapsed().as_secs_f64();
     args.stream.stop(&mut stream);
@@ -83,6 +107,9 @@ pub fn run(args: &RecordArgs) -> Result<()> {
     } else {
         finish_output(&partial, &args.out, args.force)
     };
+    if let Some(f) = feed.as_mut() {
+        f.finish(stream.stats(), &end.describe());
+    }
     let suspects = out.check.suspects;
     emit(&format!(
         "recorded {} ({}): {}{}",
@@ -95,6 +122,30 @@ pub fn run(args: &RecordArgs) -> Result<()> {
             String::new()
         }
     ))?;
+    if let (Some(plan), Some(f), Ok(()), false) = (
+        &plan,
+        feed.as_mut(),
+        &placed,
+        matches!(end, End::NotStarted(_)),
+    ) {
+        match diagnose_record(plan, &args.out, args.tolerance_um) {
+            Ok(text) => {
+                print(&text)?;
+                f.diagnosis(stream.stats(), &text);
+            }
+            // The record is complete and in place; only its diagnosis failed: say why.
+            Err(e) => {
+                let text = format!("no end-of-test diagnosis: {e}");
+                note(&text);
+                f.diagnosis(stream.stats(), &text);
+            }
+        }
+    }
+    if server.is_some() {
+        // Let the open pages receive the last state before the server stops; they keep showing it.
+        std::thread::sleep(4 * EVENT_INTERVAL);
+    }
+    drop(server);
     let failed = match end {
         End::Lost(e) | End::NotStarted(e) | End::Write(e) => Some(e),
         End::Restarted(restart) => Some(Error::DeviceRestarted {

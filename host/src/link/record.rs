@@ -402,6 +402,29 @@ pub fn record_to<P: Read + Write, W: Write + Truncate>(
     interrupted: &AtomicBool,
     on_info: &mut dyn FnMut(&DeviceInfo),
 ) -> End {
+    record_observed(
+        stream,
+        out,
+        path,
+        deadline,
+        interrupted,
+        on_info,
+        &mut |_, _| {},
+    )
+}
+
+/// [`record_to`], calling `on_samples` after every read with the samples it wrote as data lines
+/// (possibly none) and the stream's counters — after they are in the file, so an observer (the
+/// live page) sees nothing the file does not hold and cannot delay a write. It must not block.
+pub fn record_observed<P: Read + Write, W: Write + Truncate>(
+    stream: &mut Stream<P>,
+    out: &mut CsvOut<W>,
+    path: &Path,
+    deadline: Option<Instant>,
+    interrupted: &AtomicBool,
+    on_info: &mut dyn FnMut(&DeviceInfo),
+    on_samples: &mut dyn FnMut(&[SeqSample], &Stats),
+) -> End {
     stream.set_one_run(true);
     let mut lines = Vec::with_capacity(1 << 16);
     let mut batch = Vec::new();
@@ -439,7 +462,6 @@ pub fn record_to<P: Read + Write, W: Write + Truncate>(
         }
         let written = out.append(&lines, &batch);
         lines.clear();
-        batch.clear();
         if let Err(source) = written {
             return End::Write(Error::RecordWrite {
                 path: path.to_path_buf(),
@@ -447,6 +469,8 @@ pub fn record_to<P: Read + Write, W: Write + Truncate>(
                 source,
             });
         }
+        on_samples(&batch, stream.stats());
+        batch.clear();
         if let Some(r) = stream.run_ended() {
             return End::Restarted(*r);
         }

@@ -6,12 +6,14 @@
 //!   followed from D ([`state::Tracker`]).
 //! - [`feed`]: the recorder's side: takes the samples, publishes the state into a shared
 //!   [`feed::Board`] without ever waiting for the page.
+//! - [`end`]: the end-of-test diagnosis, as `jdbb diagnose --record --plan` gives it.
 //! - [`server`]: the HTTP server (tiny_http) serving the page and the event stream, read-only,
 //!   on localhost unless told otherwise (then with a token).
 //!
-//! May use: [`crate::circular::plan`] and [`crate::circular::sync`]'s level tolerance,
+//! May use: [`crate::circular`] (the plan, the synchronisation, the diagnosis and its summary),
 //! [`crate::link::stream`]'s samples and counters, [`crate::link::live`]'s rate meter. Prints
 //! nothing (the CLI does).
+pub mod end;
 pub mod feed;
 pub mod server;
 pub mod state;

@@ -1,0 +1,27 @@
+//! The end-of-test diagnosis of `jdbb record --plan --web`: the finished record synchronised
+//! with its plan and diagnosed exactly as `jdbb diagnose --record FILE --plan plan.json` does
+//! (same functions, default options, no pitch), as the text that command prints.
+use std::path::Path;
+
+use crate::circular::diagnose::{diagnose, Options};
+use crate::circular::input::check_holes;
+use crate::circular::plan::Plan;
+use crate::circular::report::{summary, sync_summary, tolerance_verdict};
+use crate::circular::sync::{data_path, synchronise, Record};
+use crate::Result;
+
+/// Synchronise and diagnose the record at `record` with `plan`; the text `jdbb diagnose --record
+/// --plan [--tolerance-um]` prints (synchronisation, diagnosis, verdict).
+pub fn diagnose_record(plan: &Plan, record: &Path, tolerance_um: Option<f64>) -> Result<String> {
+    let rec = Record::read(record)?;
+    let sync = synchronise(plan, &rec)?;
+    check_holes(&rec, &sync)?;
+    let (path, d) = data_path(plan, &rec, &sync, [None; 3])?;
+    let diag = diagnose(&path, &d, &Options::default())?;
+    let mut text = format!("{}\n{}", sync_summary(plan, &sync), summary(&diag));
+    if let Some(tol) = tolerance_um {
+        text.push('\n');
+        text.push_str(&tolerance_verdict(&diag, tol).1);
+    }
+    Ok(text)
+}
