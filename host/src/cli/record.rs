@@ -8,15 +8,15 @@ use std::time::Instant;
 
 use super::output::{emit, note, print};
 use super::stream_args::StreamArgs;
+use crate::circular::plan::Plan;
 use crate::link::record::{
     check_output, create_partial, finish_output, partial_path, record_observed, summary, CsvOut,
     End, CSV_HEADER,
 };
-use crate::circular::plan::Plan;
+use crate::link::stream::{describe_info, interrupt_flag, Stream};
 use crate::live_web::end::diagnose_record;
 use crate::live_web::feed::{new_board, LiveFeed};
 use crate::live_web::server::EVENT_INTERVAL;
-use crate::link::stream::{describe_info, interrupt_flag, Stream};
 use crate::{Error, Result};
 
 /// Arguments of `jdbb record`.

@@ -1,0 +1,345 @@
+//! The live page (issue 18) from the outside: the server on an ephemeral port, fed by a synthetic
+//! test — D along a real plan at its programmed feed, with a 4 µm once-per-revolution wobble on
+//! the arcs — read with a plain TCP client: the page, the event stream (rate of events, progress
+//! through every circle, the trace's points and deviation), the read-only and token rules.
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use jdbb::circular::plan::build::{plan, PlanSpec};
+use jdbb::circular::plan::{Dialect, Plan, Plane, Segment};
+use jdbb::link::stream::{SeqSample, Stats};
+use jdbb::live_web::feed::{new_board, LiveFeed};
+use jdbb::live_web::server::LiveServer;
+use jdbb_core::protocol::{Sample, Status};
+
+fn test_plan() -> Plan {
+    let spec = PlanSpec::machine_test(
+        &[85.0, 95.0],
+        &[0.0],
+        Plane::Xy,
+        2000.0,
+        [10.0, 20.0, 0.0],
+        Dialect::Linuxcnc,
+    );
+    plan(&spec, &jdbb_core::calib::Calibration::DEFAULT).unwrap()
+}
+
+/// D at 1 kHz along the plan from its first motion after the operator's stop, at the programmed
+/// feed, dwells included; on arcs + 4 µm·cos(angle).
+fn synthetic_d(plan: &Plan) -> Vec<f64> {
+    let c = plan.centre_mm;
+    let dist = |p: [f64; 3]| {
+        ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt()
+    };
+    let first = plan
+        .segments
+        .iter()
+        .position(|s| matches!(s, Segment::Stop))
+        .unwrap()
+        + 1;
+    let dt = 1e-3;
+    let mut d = vec![];
+    let mut here = plan.start_mm;
+    // A second at rest before the cycle start.
+    d.extend(std::iter::repeat_n(dist(here), 1000));
+    for (i, s) in plan.segments.iter().enumerate().skip(first) {
+        let Some(dur) = s.nominal_duration_s() else {
+            continue;
+        };
+        let n = (dur / dt).round() as usize;
+        for k in 0..n {
+            match s {
+                Segment::Dwell { .. } => d.push(dist(here)),
+                _ => {
+                    let p = plan.position_at(i, s.length_mm() * (k as f64 + 0.5) / n as f64);
+                    let wobble = if matches!(s, Segment::Arc { .. }) {
+                        let a = (p[1] - c[1]).atan2(p[0] - c[0]);
+                        4e-3 * a.cos()
+                    } else {
+                        0.0
+                    };
+                    d.push(dist(p) + wobble);
+                }
+            }
+        }
+        if let Some(to) = s.to_mm() {
+            here = to;
+        }
+    }
+    d.extend(std::iter::repeat_n(dist(here), 1000));
+    d
+}
+
+fn get(addr: SocketAddr, path: &str) -> (u16, String) {
+    request(addr, "GET", path)
+}
+
+fn request(addr: SocketAddr, method: &str, path: &str) -> (u16, String) {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    write!(
+        s,
+        // HTTP/1.0: the body as it is, never chunked.
+        "{method} {path} HTTP/1.0\r\nHost: {addr}\r\nContent-Length: 0\r\n\r\n"
+    )
+    .unwrap();
+    let mut text = String::new();
+    s.read_to_string(&mut text).unwrap();
+    let code = text[9..12].parse().unwrap();
+    let body = text
+        .split_once("\r\n\r\n")
+        .map_or("", |(_, b)| b)
+        .to_string();
+    (code, body)
+}
+
+/// Read `data:` events from /events for `for_time`; returns (arrival time, JSON) of each.
+fn events(addr: SocketAddr, path: &str, for_time: Duration) -> Vec<(Instant, serde_json::Value)> {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(2))).unwrap();
+    write!(s, "GET {path} HTTP/1.1\r\nHost: {addr}\r\n\r\n").unwrap();
+    let mut r = BufReader::new(s);
+    let mut head = String::new();
+    loop {
+        let mut line = String::new();
+        r.read_line(&mut line).unwrap();
+        head.push_str(&line);
+        if line == "\r\n" {
+            break;
+        }
+    }
+    assert!(head.starts_with("HTTP/1.1 200"), "{head}");
+    assert!(head.contains("Content-Type: text/event-stream"), "{head}");
+    let t0 = Instant::now();
+    let mut out = vec![];
+    while t0.elapsed() < for_time {
+        let mut line = String::new();
+        if r.read_line(&mut line).unwrap() == 0 {
+            break;
+        }
+        if let Some(json) = line.strip_prefix("data: ") {
+            out.push((
+                Instant::now(),
+                serde_json::from_str(json.trim_end()).unwrap(),
+            ));
+        }
+    }
+    out
+}
+
+/// Feed `d` (1 kHz device time) in batches of 100 samples, 1 ms apart (100× real time).
+fn feed_in_thread(
+    mut feed: LiveFeed,
+    d: Vec<f64>,
+    done: Arc<AtomicBool>,
+) -> std::thread::JoinHandle<()> {
+    std::thread::spawn(move || {
+        let mut stats = Stats::default();
+        for (b, chunk) in d.chunks(100).enumerate() {
+            let batch: Vec<SeqSample> = chunk
+                .iter()
+                .enumerate()
+                .map(|(i, &d_mm)| {
+                    let seq = (b * 100 + i) as u64;
+                    SeqSample {
+                        seq,
+                        sample: Sample {
+                            t_us: 1000 * seq,
+                            enc1: 0,
+                            enc2: 0,
+                            d_mm,
+                            status: Status(0),
+                        },
+                    }
+                })
+                .collect();
+            stats.samples += batch.len() as u64;
+            feed.samples(&batch);
+            feed.publish_if_due(&stats, Instant::now());
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        feed.finish(&stats, "time limit reached");
+        done.store(true, Ordering::SeqCst);
+    })
+}
+
+#[test]
+fn the_page_follows_a_synthetic_test_through_every_circle() {
+    let plan = test_plan();
+    let d = synthetic_d(&plan);
+    let n_samples = d.len() as u64;
+    let board = new_board();
+    let server = LiveServer::start("127.0.0.1:0".parse().unwrap(), board.clone()).unwrap();
+    let addr = server.addr();
+    println!("live page on {}", server.url());
+    assert!(server.token().is_none());
+
+    let (code, page) = get(addr, "/");
+    assert_eq!(code, 200);
+    assert!(page.contains("EventSource") && page.contains("id=\"progress\""));
+
+    let done = Arc::new(AtomicBool::new(false));
+    let feeder = feed_in_thread(LiveFeed::new(board.clone(), Some(&plan)), d, done.clone());
+    // The whole synthetic test takes about (its samples / 100) ms; read until after its end.
+    let run = Duration::from_millis(n_samples / 100 + 1500);
+    let evs = events(addr, "/events", run);
+    feeder.join().unwrap();
+    assert!(done.load(Ordering::SeqCst));
+
+    // At least 10 events per second, while the feed ran.
+    let secs = evs.last().unwrap().0.duration_since(evs[0].0).as_secs_f64();
+    let per_s = (evs.len() - 1) as f64 / secs;
+    println!("{} events over {secs:.2} s: {per_s:.1}/s", evs.len());
+    assert!(per_s >= 10.0, "{per_s} events/s");
+    // Versions increase; every circle is seen on its arcs, in both senses, with a trace.
+    let mut last_version = 0;
+    let mut seen = std::collections::BTreeSet::new();
+    let mut max_points = 0;
+    for (_, v) in &evs {
+        let version = v["version"].as_u64().unwrap();
+        assert!(version > last_version, "versions increase");
+        last_version = version;
+        let p = &v["progress"];
+        assert_eq!(p["circles"], 2);
+        if p["phase"] == "circle" {
+            seen.insert((
+                p["circle"].as_u64().unwrap(),
+                p["sense"].as_str().unwrap_or("-").to_string(),
+            ));
+        }
+        if let Some(pts) = v["trace"]["points"].as_array() {
+            assert!(pts.len() <= 2000);
+            max_points = max_points.max(pts.len());
+        }
+    }
+    let want: std::collections::BTreeSet<_> = [(1, "ccw"), (1, "cw"), (2, "ccw"), (2, "cw")]
+        .into_iter()
+        .map(|(k, s)| (k, s.to_string()))
+        .collect();
+    assert!(want.is_subset(&seen), "seen {seen:?}");
+    assert!(max_points > 1000, "trace points {max_points}");
+    // The end: all done, 100 %, the count of samples, the last circle's trace showing the
+    // 4 µm wobble (peak to valley 8 µm, within the decimation and the lead-in's timing).
+    let (_, last) = evs.last().unwrap();
+    assert_eq!(last["ended"], "time limit reached");
+    assert_eq!(last["progress"]["phase"], "done");
+    assert_eq!(last["progress"]["percent"], 100.0);
+    assert_eq!(last["counts"]["samples"], n_samples);
+    let devs: Vec<f64> = last["trace"]["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["dev_um"].as_f64().unwrap())
+        .collect();
+    let pv = devs.iter().cloned().fold(f64::MIN, f64::max)
+        - devs.iter().cloned().fold(f64::MAX, f64::min);
+    println!(
+        "last trace: {} points, peak to valley {pv:.3} µm",
+        devs.len()
+    );
+    assert!((pv - 8.0).abs() < 0.2, "peak to valley {pv} µm");
+    assert_eq!(last["trace"]["circle"], 2);
+    // A point's angle matches its deviation: dev ≈ 4 cos(angle) − mean.
+    for p in last["trace"]["points"].as_array().unwrap() {
+        let a = p["angle_deg"].as_f64().unwrap().to_radians();
+        let dev = p["dev_um"].as_f64().unwrap();
+        assert!((dev - 4.0 * a.cos()).abs() < 0.6, "{p}");
+    }
+
+    // /state gives the same last state once.
+    let (code, body) = get(addr, "/state");
+    assert_eq!(code, 200);
+    let st: serde_json::Value = serde_json::from_str(&body).unwrap();
+    assert_eq!(st["version"], last["version"]);
+}
+
+#[test]
+fn the_page_only_reads_and_unknown_paths_are_not_found() {
+    let server = LiveServer::start("127.0.0.1:0".parse().unwrap(), new_board()).unwrap();
+    let addr = server.addr();
+    for m in ["POST", "PUT", "DELETE"] {
+        let (code, body) = request(addr, m, "/");
+        assert_eq!(code, 405, "{m}: {body}");
+        assert!(body.contains("GET only"));
+    }
+    assert_eq!(get(addr, "/nothing").0, 404);
+}
+
+#[test]
+fn a_non_local_address_needs_the_token() {
+    let server = LiveServer::start("0.0.0.0:0".parse().unwrap(), new_board()).unwrap();
+    let token = server.token().unwrap().to_string();
+    let addr: SocketAddr = format!("127.0.0.1:{}", server.addr().port())
+        .parse()
+        .unwrap();
+    for path in ["/", "/events", "/state", "/?token=wrong"] {
+        let (code, body) = get(addr, path);
+        assert_eq!(code, 403, "{path}");
+        assert!(body.contains("token"), "{body}");
+    }
+    assert_eq!(get(addr, &format!("/?token={token}")).0, 200);
+    assert_eq!(get(addr, &format!("/state?token={token}")).0, 200);
+    let evs = events(
+        addr,
+        &format!("/events?token={token}"),
+        Duration::from_millis(300),
+    );
+    assert!(!evs.is_empty());
+}
+
+#[test]
+fn a_stalled_page_costs_the_feed_nothing() {
+    // A client that opens the stream and never reads: the feed publishes as fast as ever.
+    let board = new_board();
+    let server = LiveServer::start("127.0.0.1:0".parse().unwrap(), board.clone()).unwrap();
+    let addr = server.addr();
+    let mut stalled = vec![];
+    for _ in 0..4 {
+        let mut s = TcpStream::connect(addr).unwrap();
+        write!(s, "GET /events HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
+        stalled.push(s);
+    }
+    let plan = test_plan();
+    let d = synthetic_d(&plan);
+    let mut feed = LiveFeed::new(board, Some(&plan));
+    let mut stats = Stats::default();
+    let t0 = Instant::now();
+    let mut worst = Duration::ZERO;
+    for (b, chunk) in d.chunks(100).enumerate() {
+        let batch: Vec<SeqSample> = chunk
+            .iter()
+            .enumerate()
+            .map(|(i, &d_mm)| SeqSample {
+                seq: (b * 100 + i) as u64,
+                sample: Sample {
+                    t_us: 1000 * (b * 100 + i) as u64,
+                    enc1: 0,
+                    enc2: 0,
+                    d_mm,
+                    status: Status(0),
+                },
+            })
+            .collect();
+        stats.samples += 100;
+        let t = Instant::now();
+        feed.samples(&batch);
+        feed.publish_if_due(&stats, Instant::now());
+        worst = worst.max(t.elapsed());
+        if b % 50 == 0 {
+            // Let publications fall due (50 ms) now and then.
+            std::thread::sleep(Duration::from_millis(60));
+        }
+    }
+    println!(
+        "{} samples fed in {:.2} s, the slowest batch of 100 took {:?}",
+        d.len(),
+        t0.elapsed().as_secs_f64(),
+        worst
+    );
+    // A batch of 100 samples (0.1 s at 1 kHz) is handled in far less than its own duration.
+    assert!(worst < Duration::from_millis(20), "{worst:?}");
+    drop(stalled);
+}
