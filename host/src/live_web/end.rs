@@ -18,10 +18,11 @@ pub fn diagnose_record(plan: &Plan, record: &Path, tolerance_um: Option<f64>) ->
     check_holes(&rec, &sync)?;
     let (path, d) = data_path(plan, &rec, &sync, [None; 3])?;
     let diag = diagnose(&path, &d, &Options::default())?;
-    let mut text = format!("{}\n{}", sync_summary(plan, &sync), summary(&diag));
+    // As `jdbb diagnose` prints them: the two summaries as they are, the verdict as a line.
+    let mut text = format!("{}{}", sync_summary(plan, &sync), summary(&diag));
     if let Some(tol) = tolerance_um {
-        text.push('\n');
         text.push_str(&tolerance_verdict(&diag, tol).1);
+        text.push('\n');
     }
     Ok(text)
 }
