@@ -4,9 +4,10 @@
 //! with `jdbb record --web 127.0.0.1:0 --plan plan.json --tolerance-um 20`:
 //!
 //! - a plain TCP client reads the event stream during the whole run: at least 10 events a second,
-//!   the phases in the plan's order (feed-in, circle ccw, circle cw, feed-out, done), a trace of
+//!   the phases in the plan's order (feed-in, circle ccw, circle cw, done), a trace of
 //!   hundreds of points on the circle, the samples counted as the record holds them;
-//! - headless Chromium loads the page while the circle runs: the DOM shows the progress and a
+//! - headless Chromium loads the page (`?poll=1`: it reads `/state` ten times a second, since an
+//!   open event stream keeps headless Chromium's virtual time from running out) while the circle runs: the DOM shows the progress and a
 //!   trace with points; a screenshot is kept (`$CARGO_TARGET_TMPDIR/live_page.png`). Without
 //!   Chromium that part says it is skipped and why (fails with `JDBB_REQUIRE_CHROMIUM=1`);
 //! - the record is whole (seq from 0 without a gap, 200 µs apart), and the end-of-test
@@ -236,11 +237,14 @@ fn the_live_page_follows_a_qemu_test_and_diagnoses_it_at_the_end() {
                     browser_done = true;
                     let bin = chromium_bin.as_ref().unwrap();
                     let profile = dir.path().join("profile");
+                    // ?poll=1: the page reads /state; an open event stream would keep Chromium's
+                    // virtual time from ever running out (it waits for an idle network).
+                    let page = format!("{url}?poll=1");
                     let dom = chromium(
                         bin,
                         &profile,
                         &["--virtual-time-budget=2000".into(), "--dump-dom".into()],
-                        &url,
+                        &page,
                     );
                     assert!(dom.contains("circle 1 of 1"), "{dom}");
                     let pts: usize = dom
@@ -260,7 +264,7 @@ fn the_live_page_follows_a_qemu_test_and_diagnoses_it_at_the_end() {
                             "--virtual-time-budget=2000".into(),
                             format!("--screenshot={}", png.display()),
                         ],
-                        &url,
+                        &page,
                     );
                     let size = std::fs::metadata(&png).map(|m| m.len()).unwrap_or(0);
                     assert!(size > 10_000, "screenshot of {size} bytes");
@@ -306,7 +310,8 @@ fn the_live_page_follows_a_qemu_test_and_diagnoses_it_at_the_end() {
     println!("{} events over {secs:.1} s: {per_s:.1}/s", events.len());
     assert!(per_s >= 10.0, "{per_s} events/s");
     let mut phases: Vec<String> = vec![];
-    for (_, v) in &events {
+    // (The first event may be the state before the first sample, without progress.)
+    for (_, v) in events.iter().filter(|(_, v)| !v["progress"].is_null()) {
         let p = &v["progress"];
         let name = match p["sense"].as_str() {
             Some(s) if p["phase"] == "circle" => format!("circle {s}"),
@@ -317,7 +322,8 @@ fn the_live_page_follows_a_qemu_test_and_diagnoses_it_at_the_end() {
         }
     }
     println!("phases: {phases:?}");
-    let want = ["feed_in", "circle ccw", "circle cw", "feed_out", "done"];
+    // (The feed-out lasts a few hundredths of a second: an event may or may not fall in it.)
+    let want = ["feed_in", "circle ccw", "circle cw", "done"];
     let mut it = phases.iter();
     for w in want {
         assert!(it.any(|p| p == w), "{w} not in order in {phases:?}");

@@ -12,7 +12,7 @@ use crate::link::live::{status_line, RateMeter, REDRAW};
 use crate::link::record::{port_lost, summary, End};
 use crate::link::stream::{describe_info, interrupt_flag, Poll, Stream};
 use crate::live_web::feed::{new_board, LiveFeed};
-use crate::live_web::server::EVENT_INTERVAL;
+use crate::live_web::server::LAST_STATE_GRACE;
 use crate::Result;
 
 /// Arguments of `jdbb live`.
@@ -109,7 +109,7 @@ pub fn run(args: &LiveArgs) -> Result<()> {
     if let Some(f) = feed.as_mut() {
         f.finish(stream.stats(), &end.describe());
         // Let the open pages receive the last state before the server stops.
-        std::thread::sleep(4 * EVENT_INTERVAL);
+        std::thread::sleep(LAST_STATE_GRACE);
     }
     drop(server);
     let last = status_line(

@@ -16,7 +16,7 @@ use crate::link::record::{
 use crate::link::stream::{describe_info, interrupt_flag, Stream};
 use crate::live_web::end::diagnose_record;
 use crate::live_web::feed::{new_board, LiveFeed};
-use crate::live_web::server::EVENT_INTERVAL;
+use crate::live_web::server::LAST_STATE_GRACE;
 use crate::{Error, Result};
 
 /// Arguments of `jdbb record`.
@@ -143,7 +143,7 @@ pub fn run(args: &RecordArgs) -> Result<()> {
     }
     if server.is_some() {
         // Let the open pages receive the last state before the server stops; they keep showing it.
-        std::thread::sleep(4 * EVENT_INTERVAL);
+        std::thread::sleep(LAST_STATE_GRACE);
     }
     drop(server);
     let failed = match end {

@@ -11,8 +11,9 @@ use crate::circular::plan::Plan;
 use crate::link::live::RateMeter;
 use crate::link::stream::{SeqSample, Stats};
 
-/// Least time between two publications (20 Hz at most; the page is sent ≥ 10 per second).
-pub const PUBLISH_INTERVAL: Duration = Duration::from_millis(50);
+/// Least time between two publications (25 Hz at most, so that the page, which looks every
+/// [`super::server::EVENT_INTERVAL`], gets well over 10 a second).
+pub const PUBLISH_INTERVAL: Duration = Duration::from_millis(40);
 
 /// The latest published state: its version and JSON. Shared by the recorder (writer) and the
 /// page's threads (readers).

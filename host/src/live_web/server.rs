@@ -2,7 +2,8 @@
 //! one, embedded in the binary: no CDN, nothing fetched from elsewhere), `GET /events` the state
 //! as server-sent events (`text/event-stream`, one `data:` line of JSON per event, at most every
 //! [`EVENT_INTERVAL`] and only when the state changed, a comment line each second otherwise),
-//! `GET /state` the latest state once (JSON). Anything but GET is refused (405): the page only
+//! `GET /state` the latest state once (JSON; with `?poll=1` the page reads it ten times a second
+//! instead of the stream, for headless browsers and proxies that hold streams back). Anything but GET is refused (405): the page only
 //! reads. Bound to a loopback address, anyone on this computer may read it; bound to another
 //! address, every request must carry `?token=` with the random token the server was started
 //! with (printed with the URL), else 403.
@@ -24,8 +25,13 @@ use crate::{Error, Result};
 /// The default address: this computer only.
 pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
 
-/// Least time between two events of one stream (10 Hz at least, with [`super::feed`]'s 20 Hz).
-pub const EVENT_INTERVAL: Duration = Duration::from_millis(50);
+/// How often a stream looks for a new state: an event goes out within this of a publication
+/// ([`super::feed::PUBLISH_INTERVAL`]).
+pub const EVENT_INTERVAL: Duration = Duration::from_millis(20);
+
+/// How long a session's end waits before it stops the server, so that the open pages receive
+/// the last state (they keep showing it after the server is gone).
+pub const LAST_STATE_GRACE: Duration = Duration::from_millis(250);
 
 /// Most pages streaming at once; more get 503.
 pub const MAX_STREAMS: usize = 16;
@@ -272,11 +278,14 @@ mod tests {
         assert!(!p.contains("/*SCRIPT*/") && !p.contains("/*STYLE*/"));
         // Nothing from elsewhere: no src= or href= at all, no import, no fetch of another URL
         // (the one http:// is the SVG namespace's name).
-        for bad in ["src=", "href=", "import ", "url(", "fetch("] {
+        for bad in ["src=", "href=", "import ", "url("] {
             assert!(!p.contains(bad), "{bad}");
         }
         assert_eq!(p.matches("http://").count(), 1);
         assert!(p.contains("\"http://www.w3.org/2000/svg\""));
+        // The one fetch is of the server's own /state (?poll=1).
+        assert_eq!(p.matches("fetch(").count(), 1);
+        assert!(p.contains("fetch(state,"));
     }
 
     #[test]

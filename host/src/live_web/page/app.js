@@ -88,8 +88,24 @@
     }
     document.body.setAttribute("data-version", st.version);
   }
-  const source = new EventSource(events);
-  source.onopen = () => { $("conn").textContent = "connected"; };
-  source.onerror = () => { $("conn").textContent = "reconnecting…"; };
-  source.onmessage = (e) => show(JSON.parse(e.data));
+  if (new URLSearchParams(location.search).get("poll") === "1") {
+    // ?poll=1: read /state ten times a second instead of the event stream (for a proxy that
+    // holds streams back, and for headless browsers, whose virtual time waits for idle network).
+    const state = "state" + (token ? "?token=" + encodeURIComponent(token) : "");
+    let shown = -1;
+    setInterval(() => {
+      fetch(state, { cache: "no-store" })
+        .then((r) => r.json())
+        .then((st) => {
+          $("conn").textContent = "polling";
+          if (st.version !== shown) { shown = st.version; show(st); }
+        })
+        .catch(() => { $("conn").textContent = "no answer"; });
+    }, 100);
+  } else {
+    const source = new EventSource(events);
+    source.onopen = () => { $("conn").textContent = "connected"; };
+    source.onerror = () => { $("conn").textContent = "reconnecting…"; };
+    source.onmessage = (e) => show(JSON.parse(e.data));
+  }
 })();
