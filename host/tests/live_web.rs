@@ -121,10 +121,12 @@ fn events(addr: SocketAddr, path: &str, for_time: Duration) -> Vec<(Instant, ser
             break;
         }
         if let Some(json) = line.strip_prefix("data: ") {
-            out.push((
-                Instant::now(),
-                serde_json::from_str(json.trim_end()).unwrap(),
-            ));
+            let v: serde_json::Value = serde_json::from_str(json.trim_end()).unwrap();
+            let ended = !v["ended"].is_null();
+            out.push((Instant::now(), v));
+            if ended {
+                break;
+            }
         }
     }
     out
@@ -161,6 +163,13 @@ fn feed_in_thread(
             feed.publish_if_due(&stats, Instant::now());
             std::thread::sleep(Duration::from_millis(1));
         }
+        // The diagnosis of the last circle runs in its own thread: publish until it is there.
+        let t0 = Instant::now();
+        while feed.so_far().is_none_or(|f| f.circles < 2) && t0.elapsed() < Duration::from_secs(120)
+        {
+            std::thread::sleep(Duration::from_millis(50));
+            feed.publish_if_due(&stats, Instant::now());
+        }
         feed.finish(&stats, "time limit reached");
         done.store(true, Ordering::SeqCst);
     })
@@ -182,17 +191,32 @@ fn the_page_follows_a_synthetic_test_through_every_circle() {
     assert!(page.contains("EventSource") && page.contains("id=\"progress\""));
 
     let done = Arc::new(AtomicBool::new(false));
-    let feeder = feed_in_thread(LiveFeed::new(board.clone(), Some(&plan)), d, done.clone());
-    // The whole synthetic test takes about (its samples / 100) ms; read until after its end.
-    let run = Duration::from_millis(n_samples / 100 + 1500);
+    let feeder = feed_in_thread(
+        LiveFeed::new(board.clone(), Some(&plan), Some(20.0)),
+        d,
+        done.clone(),
+    );
+    // The whole synthetic test takes about (its samples / 100) ms, then the last circle's
+    // diagnosis; read until the end.
+    let run = Duration::from_secs(150);
     let evs = events(addr, "/events", run);
     feeder.join().unwrap();
     assert!(done.load(Ordering::SeqCst));
 
-    // At least 10 events per second, while the feed ran.
-    let secs = evs.last().unwrap().0.duration_since(evs[0].0).as_secs_f64();
-    let per_s = (evs.len() - 1) as f64 / secs;
-    println!("{} events over {secs:.2} s: {per_s:.1}/s", evs.len());
+    // At least 10 events per second while the samples came.
+    let feeding = Duration::from_millis(n_samples / 100);
+    let during: Vec<_> = evs
+        .iter()
+        .filter(|(t, _)| t.duration_since(evs[0].0) < feeding)
+        .collect();
+    let secs = during
+        .last()
+        .unwrap()
+        .0
+        .duration_since(evs[0].0)
+        .as_secs_f64();
+    let per_s = (during.len() - 1) as f64 / secs;
+    println!("{} events over {secs:.2} s: {per_s:.1}/s", during.len());
     assert!(per_s >= 10.0, "{per_s} events/s");
     // Versions increase; every circle is seen on its arcs, in both senses, with a trace.
     let mut last_version = 0;
@@ -247,6 +271,32 @@ fn the_page_follows_a_synthetic_test_through_every_circle() {
         let a = p["angle_deg"].as_f64().unwrap().to_radians();
         let dev = p["dev_um"].as_f64().unwrap();
         assert!((dev - 4.0 * a.cos()).abs() < 0.6, "{p}");
+    }
+
+    // The diagnosis while recording: after each circle, of the circles so far.
+    let so_far: Vec<&serde_json::Value> = evs
+        .iter()
+        .map(|(_, v)| &v["so_far"])
+        .filter(|v| !v.is_null())
+        .collect();
+    let first = so_far.first().expect("a diagnosis while recording");
+    println!(
+        "first diagnosis while recording ({} ms):\n{}",
+        first["took_ms"],
+        first["text"].as_str().unwrap()
+    );
+    assert_eq!(first["circles"], 1);
+    assert_eq!(last["so_far"]["circles"], 2, "{}", last["so_far"]);
+    for v in [first, &&last["so_far"]] {
+        let text = v["text"].as_str().unwrap();
+        assert!(text.starts_with("synchronised with the plan"), "{text}");
+        assert_eq!(v["pass"], true, "{text}");
+        // The 4 µm once-per-revolution wobble is a 4 µm centring error, and nothing else.
+        assert!(text.contains("setup_offset = 3.9999"), "{text}");
+        assert!(
+            text.contains("no machine effect is supported by the data"),
+            "{text}"
+        );
     }
 
     // /state gives the same last state once.
@@ -304,7 +354,7 @@ fn a_stalled_page_costs_the_feed_nothing() {
     }
     let plan = test_plan();
     let d = synthetic_d(&plan);
-    let mut feed = LiveFeed::new(board, Some(&plan));
+    let mut feed = LiveFeed::new(board, Some(&plan), None);
     let mut stats = Stats::default();
     let t0 = Instant::now();
     let mut worst = Duration::ZERO;

@@ -336,6 +336,30 @@ fn the_live_page_follows_a_qemu_test_and_diagnoses_it_at_the_end() {
     assert!(max_points > 500, "{max_points} trace points");
     let last = &events.last().unwrap().1;
     assert_eq!(last["ended"], "interrupted");
+    // The diagnosis while recording: once the circle's feed-out has ended, before the end.
+    let (when, first) = events
+        .iter()
+        .find(|(_, v)| !v["so_far"].is_null())
+        .expect("a diagnosis while recording");
+    let out_at = events
+        .iter()
+        .find(|(_, v)| v["progress"]["phase"] == "done")
+        .unwrap()
+        .0;
+    let so_far = &first["so_far"];
+    println!(
+        "diagnosis while recording: {} ms of work, on the page {:.0} ms after the feed-out ended",
+        so_far["took_ms"],
+        when.duration_since(out_at).as_secs_f64() * 1e3
+    );
+    assert!(first["ended"].is_null(), "it came before the end");
+    assert_eq!(so_far["circles"], 1);
+    assert_eq!(so_far["pass"], true);
+    let text = so_far["text"].as_str().unwrap();
+    assert!(
+        text.contains("backlash_x") && text.contains("squareness_xy"),
+        "{text}"
+    );
 
     // The record is whole.
     let text = std::fs::read_to_string(&rec).unwrap();

@@ -30,7 +30,7 @@ pub fn run(args: &LiveArgs) -> Result<()> {
     let board = new_board();
     // Before the port: an address in use touches no device.
     let server = a.web_server(&board)?;
-    let mut feed = server.as_ref().map(|_| LiveFeed::new(board, None));
+    let mut feed = server.as_ref().map(|_| LiveFeed::new(board, None, None));
     let mut stream = Stream::open(&a.port)?;
     let interrupted = interrupt_flag();
     a.start(&mut stream)?;

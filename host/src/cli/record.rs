@@ -50,7 +50,9 @@ pub fn run(args: &RecordArgs) -> Result<()> {
     let board = new_board();
     // Before the port and the file: an address in use leaves nothing behind.
     let server = args.stream.web_server(&board)?;
-    let mut feed = server.as_ref().map(|_| LiveFeed::new(board, plan.as_ref()));
+    let mut feed = server
+        .as_ref()
+        .map(|_| LiveFeed::new(board, plan.as_ref(), args.tolerance_um));
     // The port first: a mistyped port leaves no file behind and touches none.
     let mut stream = Stream::open(&args.stream.port)?;
     let partial = partial_path(&args.out);

@@ -7,6 +7,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use super::state::{Counts, LiveState, Tracker};
+use super::worker::Diagnoser;
 use crate::circular::plan::Plan;
 use crate::link::live::RateMeter;
 use crate::link::stream::{SeqSample, Stats};
@@ -45,13 +46,17 @@ pub struct LiveFeed {
     last_publish: Option<Instant>,
     /// The first sample's `t_us` (the tracker's time origin).
     t0_us: Option<u64>,
+    /// The diagnosis while recording, with a plan.
+    diagnoser: Option<Diagnoser>,
+    circles_done: usize,
     /// Publications skipped because a page held the board.
     pub skipped: u64,
 }
 
 impl LiveFeed {
-    /// A feed publishing into `board`, following `plan` when one is given; its clock starts now.
-    pub fn new(board: Board, plan: Option<&Plan>) -> LiveFeed {
+    /// A feed publishing into `board`, following `plan` when one is given (and diagnosing each
+    /// circle as it completes, against `tolerance_um`); its clock starts now.
+    pub fn new(board: Board, plan: Option<&Plan>, tolerance_um: Option<f64>) -> LiveFeed {
         let t0 = Instant::now();
         LiveFeed {
             board,
@@ -61,6 +66,8 @@ impl LiveFeed {
             t0,
             last_publish: None,
             t0_us: None,
+            diagnoser: plan.map(|p| Diagnoser::start(p, tolerance_um)),
+            circles_done: 0,
             skipped: 0,
         }
     }
@@ -73,11 +80,27 @@ impl LiveFeed {
         self.state.d_mm = Some(last.sample.d_mm);
         let t0_us = *self.t0_us.get_or_insert(batch[0].sample.t_us);
         if let Some(t) = self.tracker.as_mut() {
+            let mut pairs = Vec::with_capacity(batch.len());
             for s in batch {
                 let t_s = s.sample.t_us.saturating_sub(t0_us) as f64 * 1e-6;
                 t.push(t_s, s.sample.d_mm);
+                pairs.push((t_s, s.sample.d_mm));
+                if t.circles_done() > self.circles_done {
+                    self.circles_done = t.circles_done();
+                    if let Some(w) = &self.diagnoser {
+                        w.circle_done(self.circles_done, t_s);
+                    }
+                }
+            }
+            if let Some(w) = &self.diagnoser {
+                w.samples(pairs);
             }
         }
+    }
+
+    /// The diagnosis of the circles completed so far, as last published.
+    pub fn so_far(&self) -> Option<&super::worker::SoFar> {
+        self.state.so_far.as_ref()
     }
 
     /// Publish the state if [`PUBLISH_INTERVAL`] has passed since the last publication.
@@ -120,6 +143,9 @@ impl LiveFeed {
         if let Some(t) = &self.tracker {
             self.state.progress = Some(t.progress());
             self.state.trace = t.trace();
+        }
+        if let Some(r) = self.diagnoser.as_ref().and_then(Diagnoser::result) {
+            self.state.so_far = Some(r);
         }
     }
 

@@ -109,6 +109,9 @@ pub struct LiveState {
     pub progress: Option<Progress>,
     /// The current (or last) circle's trace, when a plan was given.
     pub trace: Option<Trace>,
+    /// The diagnosis of the circles completed so far, once the first is
+    /// ([`super::worker`]).
+    pub so_far: Option<super::worker::SoFar>,
     /// How the session ended, once it has (the summary's words).
     pub ended: Option<String>,
     /// The end-of-test diagnosis summary, once computed (the text `jdbb diagnose` prints).
@@ -357,6 +360,11 @@ impl Tracker {
             }
             Phase::Done => {}
         }
+    }
+
+    /// Circles whose feed-out has ended (the first n of the plan).
+    pub fn circles_done(&self) -> usize {
+        self.k
     }
 
     /// Where the machine is.

@@ -78,6 +78,14 @@
       $("percent").value = p.percent;
       drawTrace(st.trace);
     }
+    if (st.so_far) {
+      const f = st.so_far;
+      $("so_far_section").hidden = false;
+      $("so_far_title").textContent = "Diagnosis of circle" + (f.circles > 1 ? "s 1–" : " ") +
+        f.circles + (f.pass === null ? "" : f.pass ? ": PASS" : ": FAIL") +
+        " (" + f.took_ms.toFixed(0) + " ms)";
+      $("so_far").textContent = f.text;
+    }
     if (st.ended) {
       $("ended").hidden = false;
       $("ended").textContent = "Session ended: " + st.ended;
