@@ -416,3 +416,62 @@ fn a_stalled_page_costs_the_feed_nothing() {
     assert!(worst < Duration::from_millis(20), "{worst:?}");
     drop(stalled);
 }
+
+fn jdbb(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_jdbb"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn bad_web_options_fail_clearly_and_leave_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rec.csv");
+    let out_s = out.to_str().unwrap();
+    // An address in use: said before any port or file is touched.
+    let busy = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = busy.local_addr().unwrap().to_string();
+    let o = jdbb(&[
+        "record",
+        "--port",
+        "/dev/nonexistent-jdbb",
+        "--out",
+        out_s,
+        "--web",
+        &addr,
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains(&format!("cannot serve the live page on {addr}")),
+        "{err}"
+    );
+    assert!(err.contains("Give another --web ADDR"), "{err}");
+    assert!(!out.exists() && !dir.path().join("rec.csv.partial").exists());
+    // A plan that is not there: bad input (2), nothing created.
+    let o = jdbb(&[
+        "record",
+        "--port",
+        "/dev/nonexistent-jdbb",
+        "--out",
+        out_s,
+        "--web",
+        "127.0.0.1:0",
+        "--plan",
+        "no-such-plan.json",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("no-such-plan.json"), "{err}");
+    assert!(!out.exists() && !dir.path().join("rec.csv.partial").exists());
+    // --plan is for the page: without --web it is refused.
+    let o = jdbb(&["record", "--port", "x", "--out", out_s, "--plan", "p.json"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("--web"), "{err}");
+    // Not an address.
+    let o = jdbb(&["live", "--port", "x", "--web", "localhost-ish"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--web"));
+}
