@@ -176,3 +176,87 @@ fn work(plan: &Plan, tolerance_um: Option<f64>, rx: &Receiver<Msg>, tx: &Sender<
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::circular::plan::build::{plan, PlanSpec};
+    use crate::circular::plan::{Dialect, Plane};
+
+    fn two_circles() -> Plan {
+        let spec = PlanSpec::machine_test(
+            &[85.0, 95.0],
+            &[0.0],
+            Plane::Xy,
+            2000.0,
+            [0.0, 0.0, 0.0],
+            Dialect::Linuxcnc,
+        );
+        plan(&spec, &jdbb_core::calib::Calibration::DEFAULT).unwrap()
+    }
+
+    fn feed_outs(p: &Plan) -> usize {
+        p.segments
+            .iter()
+            .filter(|s| {
+                matches!(
+                    s,
+                    Segment::Line {
+                        role: LineRole::FeedOut,
+                        ..
+                    }
+                )
+            })
+            .count()
+    }
+
+    #[test]
+    fn the_plan_is_cut_after_the_nth_circle_and_its_dwells() {
+        let p = two_circles();
+        assert_eq!(feed_outs(&p), 2);
+        let one = plan_up_to(&p, 1);
+        assert_eq!(feed_outs(&one), 1);
+        assert!(one.segments.len() < p.segments.len());
+        assert_eq!(one.segments[..], p.segments[..one.segments.len()]);
+        // Ends with the feed-out or the dwells after it, never a motion of circle 2.
+        let last_motion = one
+            .segments
+            .iter()
+            .rev()
+            .find(|s| !matches!(s, Segment::Dwell { .. }))
+            .unwrap();
+        assert!(matches!(
+            last_motion,
+            Segment::Line {
+                role: LineRole::FeedOut,
+                ..
+            }
+        ));
+        assert_eq!(plan_up_to(&p, 2).segments, p.segments);
+    }
+
+    #[test]
+    fn a_circle_is_diagnosed_only_once_its_samples_have_settled_and_says_why_not() {
+        let p = two_circles();
+        let w = Diagnoser::start(&p, Some(20.0));
+        // Circle 1 "ended" at 1 s: nothing until samples reach 1.5 s.
+        w.circle_done(1, 1.0);
+        w.samples((0..1400).map(|i| (i as f64 * 1e-3, 85.0)).collect());
+        std::thread::sleep(std::time::Duration::from_millis(200));
+        assert!(w.result().is_none());
+        w.samples((1400..1600).map(|i| (i as f64 * 1e-3, 85.0)).collect());
+        let t0 = Instant::now();
+        let r = loop {
+            if let Some(r) = w.result() {
+                break r;
+            }
+            assert!(t0.elapsed().as_secs() < 30, "no result");
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        };
+        // D never moved: no feed-in to find, and the text says so.
+        assert_eq!(r.circles, 1);
+        assert_eq!(r.pass, None);
+        assert!(r.text.starts_with("no diagnosis yet: "), "{}", r.text);
+        assert!(r.text.contains("no feed-in"), "{}", r.text);
+    }
+}
