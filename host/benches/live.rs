@@ -127,4 +127,24 @@ fn main() {
         t0.elapsed().as_secs_f64() * 1e3,
         r.text.lines().next().unwrap_or("")
     );
+
+    // Where the time goes: the same steps, timed one by one.
+    let rec = jdbb::circular::sync::Record::from_samples(std::path::Path::new("bench"), t_s, d);
+    let t = Instant::now();
+    let sync = jdbb::circular::sync::synchronise(&plan, &rec).expect("synchronised");
+    let t_sync = t.elapsed();
+    let t = Instant::now();
+    let (path, dd) =
+        jdbb::circular::sync::data_path(&plan, &rec, &sync, [None; 3]).expect("the data path");
+    let t_path = t.elapsed();
+    let t = Instant::now();
+    let diag =
+        jdbb::circular::diagnose::diagnose(&path, &dd, &Default::default()).expect("diagnosed");
+    println!(
+        "  synchronise {:.0} ms, data path {:.0} ms, diagnose {:.0} ms ({} data samples)",
+        t_sync.as_secs_f64() * 1e3,
+        t_path.as_secs_f64() * 1e3,
+        t.elapsed().as_secs_f64() * 1e3,
+        diag.samples
+    );
 }
