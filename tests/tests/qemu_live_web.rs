@@ -8,7 +8,8 @@
 //!   hundreds of points on the circle, the samples counted as the record holds them;
 //! - headless Chromium loads the page (`?poll=1`: it reads `/state` ten times a second, since an
 //!   open event stream keeps headless Chromium's virtual time from running out) while the circle runs: the DOM shows the progress and a
-//!   trace with points; a screenshot is kept (`$CARGO_TARGET_TMPDIR/live_page.png`). Without
+//!   trace with points; a screenshot is kept (`$CARGO_TARGET_TMPDIR/live_page.png`, and
+//!   `live_page_diagnosis.png` once the circle's diagnosis is on the page). Without
 //!   Chromium that part says it is skipped and why (fails with `JDBB_REQUIRE_CHROMIUM=1`);
 //! - after the circle, while the recorder still runs (the scenario's 45 s tail), the diagnosis of
 //!   the circle comes on the event stream and in Chromium's DOM, PASS, naming the hidden effects;
@@ -254,6 +255,21 @@ fn the_live_page_follows_a_qemu_test_and_diagnoses_it_at_the_end() {
                         "{dom}"
                     );
                     println!("Chromium's DOM: the circle's diagnosis, naming backlash_x and squareness_xy");
+                    let png =
+                        PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("live_page_diagnosis.png");
+                    chromium(
+                        bin,
+                        &dir.path().join("profile"),
+                        &[
+                            "--virtual-time-budget=2000".into(),
+                            "--window-size=1000,2400".into(),
+                            format!("--screenshot={}", png.display()),
+                        ],
+                        &format!("{url}?poll=1"),
+                    );
+                    let size = std::fs::metadata(&png).map(|m| m.len()).unwrap_or(0);
+                    assert!(size > 10_000, "screenshot of {size} bytes");
+                    println!("screenshot: {} ({size} bytes)", png.display());
                 }
                 if on_cw && !browser_done {
                     browser_done = true;
