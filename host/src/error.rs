@@ -102,6 +102,9 @@ pub enum Error {
     /// The command line asks for something that cannot be done.
     #[error("{0}")]
     Usage(String),
+    /// The live page's server could not listen on its address (`--web ADDR`).
+    #[error("cannot serve the live page on {addr}: {message}. Is another jdbb (or another program) using it? Give another --web ADDR, e.g. 127.0.0.1:8766")]
+    WebServer { addr: String, message: String },
     /// A fit or computation could not produce a trustworthy answer.
     #[error("{0}")]
     Numerics(String),

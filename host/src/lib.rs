@@ -3,6 +3,7 @@
 //! | module | what it is for |
 //! |---|---|
 //! | [`link`] | the instrument connection: frame stream and its accounting, recording, live readout |
+//! | [`live_web`] | the live page during a test (`--web`): progress, trace, diagnosis while recording |
 //! | [`circular`] | circular tests: effect models, simulation, diagnosis, report and plots |
 //! | [`compensate`] | a diagnosis as settings of a CNC controller (LinuxCNC, grblHAL, Marlin, Klipper) |
 //! | [`history`] | a machine's diagnoses over time in one SQLite file; trends |
@@ -17,7 +18,7 @@
 //! | [`error`] | the error type and its exit codes |
 //! | [`fsio`] | the one writer (no link, no device, whole files, sets, `--force`) and input limits |
 //!
-//! Dependencies point one way: `cli` → `compensate`, `history` → `circular`, `rotary`, `rrsps`,
+//! Dependencies point one way: `cli` → `compensate`, `history`, `live_web` → `circular`, `rotary`, `rrsps`,
 //! `instrument`, `link` → `numerics`,
 //! `table` → `jdbb_core` (the instrument model, wire protocol and machine error models shared
 //! with the firmware). No module below `cli` prints or reads the command line.
@@ -30,6 +31,7 @@ pub mod fsio;
 pub mod history;
 pub mod instrument;
 pub mod link;
+pub mod live_web;
 pub mod numerics;
 pub mod rotary;
 pub mod rrsps;

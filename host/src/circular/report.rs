@@ -685,3 +685,23 @@ pub fn plan_json(file: &std::path::Path, plan: &Plan) -> serde_json::Value {
         })).collect::<Vec<_>>(),
     })
 }
+
+/// The verdict against a tolerance on G (µm): pass if every circle's G (each direction,
+/// minimum-zone centre) is at most `tol_um`, and the line `jdbb diagnose --tolerance-um` prints.
+pub fn tolerance_verdict(diag: &Diagnosis, tol_um: f64) -> (bool, String) {
+    let g = diag
+        .circle_zones
+        .iter()
+        .map(|c| c.g_um())
+        .fold(f64::NAN, f64::max);
+    let pass =
+        !diag.circle_zones.is_empty() && diag.circle_zones.iter().all(|c| c.g_um() <= tol_um);
+    let line = format!(
+        "{}: largest circular deviation G {} µm (minimum zone, per circle and direction) {} tolerance {} µm",
+        if pass { "PASS" } else { "FAIL" },
+        crate::units::format_to(g, diag.final_rms_um),
+        if pass { "<=" } else { ">" },
+        tol_um
+    );
+    (pass, line)
+}

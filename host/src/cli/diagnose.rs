@@ -183,20 +183,9 @@ fn add_run_facts(
     let Some(tol) = args.tolerance_um else {
         return Ok(None);
     };
-    let g = diag
-        .circle_zones
-        .iter()
-        .map(|c| c.g_um())
-        .fold(f64::NAN, f64::max);
-    let pass = !diag.circle_zones.is_empty() && diag.circle_zones.iter().all(|c| c.g_um() <= tol);
+    let (pass, line) = crate::circular::report::tolerance_verdict(diag, tol);
     json["tolerance"] = json!({"g_um": tol, "pass": pass});
-    Ok(Some(format!(
-        "{}: largest circular deviation G {} µm (minimum zone, per circle and direction) {} tolerance {} µm",
-        if pass { "PASS" } else { "FAIL" },
-        crate::units::format_to(g, diag.final_rms_um),
-        if pass { "<=" } else { ">" },
-        tol
-    )))
+    Ok(Some(line))
 }
 
 /// A synchronisation that failed on a record begun after cycle start says so first (the program

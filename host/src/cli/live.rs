@@ -11,6 +11,8 @@ use super::stream_args::StreamArgs;
 use crate::link::live::{status_line, RateMeter, REDRAW};
 use crate::link::record::{port_lost, summary, End};
 use crate::link::stream::{describe_info, interrupt_flag, Poll, Stream};
+use crate::live_web::feed::{new_board, LiveFeed};
+use crate::live_web::server::LAST_STATE_GRACE;
 use crate::Result;
 
 /// Arguments of `jdbb live`.
@@ -25,6 +27,10 @@ pub struct LiveArgs {
 pub fn run(args: &LiveArgs) -> Result<()> {
     let a = &args.stream;
     a.validate()?;
+    let board = new_board();
+    // Before the port: an address in use touches no device.
+    let server = a.web_server(&board)?;
+    let mut feed = server.as_ref().map(|_| LiveFeed::new(board, None, None));
     let mut stream = Stream::open(&a.port)?;
     let interrupted = interrupt_flag();
     a.start(&mut stream)?;
@@ -44,7 +50,14 @@ pub fn run(args: &LiveArgs) -> Result<()> {
         if deadline.is_some_and(|d| now >= d) {
             break End::Time;
         }
-        let polled = stream.poll(|_| {});
+        let polled = stream.poll(|batch| {
+            if let Some(f) = feed.as_mut() {
+                f.samples(batch);
+            }
+        });
+        if let Some(f) = feed.as_mut() {
+            f.publish_if_due(stream.stats(), Instant::now());
+        }
         if stream.stats().resets > resets_shown {
             // Said on a line of its own, so that it stays visible above the redrawn status.
             resets_shown = stream.stats().resets;
@@ -93,6 +106,12 @@ pub fn run(args: &LiveArgs) -> Result<()> {
     };
     let seconds = t0.elapsed().as_secs_f64();
     a.stop(&mut stream);
+    if let Some(f) = feed.as_mut() {
+        f.finish(stream.stats(), &end.describe());
+        // Let the open pages receive the last state before the server stops.
+        std::thread::sleep(LAST_STATE_GRACE);
+    }
+    drop(server);
     let last = status_line(
         stream.last_sample().map(|s| s.sample.d_mm),
         rate.hz,

@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use super::output::{emit, note};
+use super::output::{emit, note, print};
 use super::stream_args::StreamArgs;
 use crate::circular::plan::{Plan, PLAN_ID_KEY};
 use crate::circular::progress::Tracker;
@@ -16,6 +16,9 @@ use crate::link::record::{
 };
 use crate::link::stream::{describe_info, interrupt_flag, Stream};
 use crate::link::stream::{SeqSample, Stats};
+use crate::live_web::end::diagnose_record;
+use crate::live_web::feed::{new_board, LiveFeed};
+use crate::live_web::server::LAST_STATE_GRACE;
 use crate::{Error, Result};
 
 /// Arguments of `jdbb record`.
@@ -34,8 +37,15 @@ pub struct RecordArgs {
     /// line), so `jdbb diagnose --record --plan` can tell a record of another plan; a progress
     /// line shows the circle being run; a missed cycle start is said at once; and the record
     /// stops by itself after the program's end.
+    /// With --web the page also shows where the machine is in the plan and the current
+    /// circle's trace, and at the end the record is diagnosed as `jdbb diagnose --record OUT
+    /// --plan plan.json` does, printed and shown.
     #[arg(long, value_name = "PLAN_JSON")]
     pub plan: Option<PathBuf>,
+    /// With --plan and --web: tolerance on the circular deviation G (µm) for the end-of-test
+    /// verdict, as `jdbb diagnose --tolerance-um`.
+    #[arg(long, requires = "plan", value_parser = super::args::positive)]
+    pub tolerance_um: Option<f64>,
 }
 
 /// What `jdbb record --plan` shows while it records: a progress line every
@@ -100,6 +110,12 @@ pub fn run(args: &RecordArgs) -> Result<()> {
         Some(p) => vec![(PLAN_ID_KEY, p.id())],
         None => vec![],
     });
+    let board = new_board();
+    // Before the port and the file: an address in use leaves nothing behind.
+    let server = args.stream.web_server(&board)?;
+    let mut feed = server
+        .as_ref()
+        .map(|_| LiveFeed::new(board, plan.as_ref(), args.tolerance_um));
     // The port first: a mistyped port leaves no file behind and touches none.
     let mut stream = Stream::open(&args.stream.port)?;
     let partial = partial_path(&args.out);
@@ -130,7 +146,13 @@ pub fn run(args: &RecordArgs) -> Result<()> {
         args.stream.deadline(t0),
         &interrupted,
         &mut |info| note(&format!("device: {}", describe_info(info))),
-        &mut |samples, stats| watch.as_mut().is_some_and(|w| w.see(samples, stats)),
+        &mut |samples, stats| {
+            if let Some(f) = feed.as_mut() {
+                f.samples(samples);
+                f.publish_if_due(stats, Instant::now());
+            }
+            watch.as_mut().is_some_and(|w| w.see(samples, stats))
+        },
     );
     let seconds = t0.elapsed().as_secs_f64();
     args.stream.stop(&mut stream);
@@ -152,6 +174,9 @@ pub fn run(args: &RecordArgs) -> Result<()> {
     } else {
         finish_output(&partial, &args.out, args.force)
     };
+    if let Some(f) = feed.as_mut() {
+        f.finish(stream.stats(), &end.describe());
+    }
     let suspects = out.check.suspects;
     emit(&format!(
         "recorded {} ({}): {}{}",
@@ -164,6 +189,30 @@ pub fn run(args: &RecordArgs) -> Result<()> {
             String::new()
         }
     ))?;
+    if let (Some(plan), Some(f), Ok(()), false) = (
+        &plan,
+        feed.as_mut(),
+        &placed,
+        matches!(end, End::NotStarted(_)),
+    ) {
+        match diagnose_record(plan, &args.out, args.tolerance_um) {
+            Ok(text) => {
+                print(&text)?;
+                f.diagnosis(stream.stats(), &text);
+            }
+            // The record is complete and in place; only its diagnosis failed: say why.
+            Err(e) => {
+                let text = format!("no end-of-test diagnosis: {e}");
+                note(&text);
+                f.diagnosis(stream.stats(), &text);
+            }
+        }
+    }
+    if server.is_some() {
+        // Let the open pages receive the last state before the server stops; they keep showing it.
+        std::thread::sleep(LAST_STATE_GRACE);
+    }
+    drop(server);
     let failed = match end {
         End::Lost(e) | End::NotStarted(e) | End::Write(e) => Some(e),
         End::Restarted(restart) => Some(Error::DeviceRestarted {

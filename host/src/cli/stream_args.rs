@@ -27,9 +27,32 @@ pub struct StreamArgs {
     /// Listen only: send no Start (and no Stop at the end) to a device that is already streaming.
     #[arg(long)]
     pub no_start: bool,
+    /// Serve a live page of the session (D, rate, losses; with `record --plan`, the progress and
+    /// the current circle's trace) at ADDR, 127.0.0.1:8765 if no ADDR is given (port 0: any free
+    /// port). Another address than localhost needs the token printed with the URL. Read-only.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = crate::live_web::server::DEFAULT_ADDR)]
+    pub web: Option<std::net::SocketAddr>,
 }
 
 impl StreamArgs {
+    /// Start the live page's server when `--web` asks for it, and say its URL (stderr).
+    pub fn web_server(
+        &self,
+        board: &crate::live_web::feed::Board,
+    ) -> Result<Option<crate::live_web::server::LiveServer>> {
+        let Some(addr) = self.web else {
+            return Ok(None);
+        };
+        let server = crate::live_web::server::LiveServer::start(addr, board.clone())?;
+        super::output::note(&format!("live page: {}", server.url()));
+        if server.token().is_some() {
+            super::output::note(
+                "the page is reachable from other computers; only with this URL's token",
+            );
+        }
+        Ok(Some(server))
+    }
+
     /// Check the values before anything is opened.
     pub fn validate(&self) -> Result<()> {
         if let Some(hz) = self.rate {

@@ -427,9 +427,11 @@ pub fn record_to<P: Read + Write, W: Write + Truncate>(
     )
 }
 
-/// [`record_to`], with `watch` shown the samples of every read once they are in the file (with
-/// the stream's counts so far); it returns true to end the record ([`End::ProgramEnded`]: `jdbb
-/// record --plan` stops after the program's end).
+/// [`record_to`], with `watch` shown the samples of every read once they are in the file
+/// (possibly none), with the stream's counts so far — after they are in the file, so an
+/// observer (the live page) sees nothing the file does not hold and cannot delay a write; it
+/// must not block. It returns true to end the record ([`End::ProgramEnded`]: `jdbb record
+/// --plan` stops after the program's end).
 pub fn record_watched<P: Read + Write, W: Write + Truncate>(
     stream: &mut Stream<P>,
     out: &mut CsvOut<W>,
@@ -483,7 +485,7 @@ pub fn record_watched<P: Read + Write, W: Write + Truncate>(
                 source,
             });
         }
-        let ended = !batch.is_empty() && watch(&batch, stream.stats());
+        let ended = watch(&batch, stream.stats()) && !batch.is_empty();
         batch.clear();
         if ended {
             return End::ProgramEnded;

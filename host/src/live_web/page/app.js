@@ -1,0 +1,119 @@
+"use strict";
+// The live page: reads the server-sent events of /events (JSON of the state, docs/live.md) and
+// shows them. Read-only: nothing here sends anything but GET.
+(function () {
+  const token = new URLSearchParams(location.search).get("token");
+  const events = "events" + (token ? "?token=" + encodeURIComponent(token) : "");
+  const $ = (id) => document.getElementById(id);
+  const fixed = (x, n) => (x === null || x === undefined ? "–" : x.toFixed(n));
+  // The report's colours for one circle: ccw dark blue, cw orange (plot.rs PALETTE[0], [1]).
+  const COLOUR = { ccw: "#1f77b4", cw: "#ff7f0e" };
+  const SVG = "http://www.w3.org/2000/svg"; // a namespace name, never fetched
+  const el = (name, attrs) => {
+    const e = document.createElementNS(SVG, name);
+    for (const k in attrs) e.setAttribute(k, attrs[k]);
+    return e;
+  };
+  // The report's scale: rings in a 1-2-5 step, about 4 out to the largest deviation; the zero
+  // ring at 0.6 of the radius, -outer..+outer mapped to 0.2..1.0.
+  function scale(maxdev) {
+    maxdev = Math.max(maxdev, 1e-3);
+    const raw = maxdev / 4;
+    const mag = Math.pow(10, Math.floor(Math.log10(raw)));
+    const step = [1, 2, 5, 10].map((k) => k * mag).find((s) => s >= raw) || 10 * mag;
+    const rings = Math.max(1, Math.ceil(maxdev / step));
+    return { step: step, rings: rings, outer: rings * step };
+  }
+  function drawTrace(trace) {
+    const svg = $("polar");
+    while (svg.firstChild) svg.removeChild(svg.firstChild);
+    const pts = trace ? trace.points : [];
+    const maxdev = pts.reduce((m, p) => Math.max(m, Math.abs(p.dev_um)), 0);
+    const s = scale(maxdev);
+    const rad = (dev) => 0.6 + (0.4 * dev) / s.outer;
+    for (let i = -s.rings; i <= s.rings; i++) {
+      svg.appendChild(el("circle", { cx: 0, cy: 0, r: rad(i * s.step), fill: "none",
+        stroke: i === 0 ? "#00a000" : "#ddd", "stroke-width": i === 0 ? 0.006 : 0.003 }));
+    }
+    for (const sense of ["ccw", "cw"]) {
+      const mine = pts.filter((p) => p.sense === sense);
+      const xy = mine.map((p) => {
+        const a = (p.angle_deg * Math.PI) / 180, r = rad(p.dev_um);
+        return (r * Math.cos(a)).toFixed(4) + "," + (-r * Math.sin(a)).toFixed(4);
+      });
+      const line = el("polyline", { points: xy.join(" "), fill: "none", stroke: COLOUR[sense],
+        "stroke-width": 0.006, "data-sense": sense, "data-points": mine.length });
+      line.id = "trace_" + sense;
+      svg.appendChild(line);
+    }
+    svg.setAttribute("data-points", pts.length);
+    $("trace_title").textContent = trace
+      ? "Circle " + trace.circle + " (R " + trace.radius_mm + " mm): " + pts.length +
+        " points, " + s.step + " µm/div"
+      : "Trace";
+  }
+  function show(st) {
+    $("d_mm").textContent = fixed(st.d_mm, 4);
+    $("rate_hz").textContent = fixed(st.rate_hz, 1);
+    $("samples").textContent = st.counts.samples;
+    $("lost").textContent = st.counts.lost;
+    $("dropped").textContent = st.counts.dropped;
+    $("corrupt").textContent = st.counts.corrupt;
+    $("resets").textContent = st.counts.resets;
+    $("elapsed_s").textContent = fixed(st.elapsed_s, 1);
+    const p = st.progress;
+    if (p) {
+      $("plan").hidden = false;
+      const where = {
+        dwell: "waiting for the feed-in of circle " + p.circle + " of " + p.circles,
+        feed_in: "feed-in of circle " + p.circle + " of " + p.circles,
+        circle: "circle " + p.circle + " of " + p.circles + (p.sense ? ", " + p.sense : "") +
+          (p.on_data_arc ? "" : " (lead-in or overshoot)"),
+        feed_out: "feed-out of circle " + p.circle + " of " + p.circles,
+        done: "all " + p.circles + " circles run",
+      }[p.phase];
+      const text = where + ", " + p.percent.toFixed(1) + " %";
+      $("progress").textContent = text;
+      $("progress").setAttribute("data-phase", p.phase);
+      $("percent").value = p.percent;
+      drawTrace(st.trace);
+    }
+    if (st.so_far) {
+      const f = st.so_far;
+      $("so_far_section").hidden = false;
+      $("so_far_title").textContent = "Diagnosis of circle" + (f.circles > 1 ? "s 1–" : " ") +
+        f.circles + (f.pass === null ? "" : f.pass ? ": PASS" : ": FAIL") +
+        " (" + f.took_ms.toFixed(0) + " ms)";
+      $("so_far").textContent = f.text;
+    }
+    if (st.ended) {
+      $("ended").hidden = false;
+      $("ended").textContent = "Session ended: " + st.ended;
+    }
+    if (st.diagnosis) {
+      $("diagnosis").hidden = false;
+      $("diagnosis").textContent = st.diagnosis;
+    }
+    document.body.setAttribute("data-version", st.version);
+  }
+  if (new URLSearchParams(location.search).get("poll") === "1") {
+    // ?poll=1: read /state ten times a second instead of the event stream (for a proxy that
+    // holds streams back, and for headless browsers, whose virtual time waits for idle network).
+    const state = "state" + (token ? "?token=" + encodeURIComponent(token) : "");
+    let shown = -1;
+    setInterval(() => {
+      fetch(state, { cache: "no-store" })
+        .then((r) => r.json())
+        .then((st) => {
+          $("conn").textContent = "polling";
+          if (st.version !== shown) { shown = st.version; show(st); }
+        })
+        .catch(() => { $("conn").textContent = "no answer"; });
+    }, 100);
+  } else {
+    const source = new EventSource(events);
+    source.onopen = () => { $("conn").textContent = "connected"; };
+    source.onerror = () => { $("conn").textContent = "reconnecting…"; };
+    source.onmessage = (e) => show(JSON.parse(e.data));
+  }
+})();

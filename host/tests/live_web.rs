@@ -1,0 +1,495 @@
+//! The live page (issue 18) from the outside: the server on an ephemeral port, fed by a synthetic
+//! test — D along a real plan at its programmed feed, with a 4 µm once-per-revolution wobble on
+//! the arcs — read with a plain TCP client: the page, the event stream (rate of events, progress
+//! through every circle, the trace's points and deviation), the read-only and token rules.
+#![cfg(unix)] // the feed's CPU time is read with clock_gettime
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use jdbb::circular::plan::build::{plan, PlanSpec};
+use jdbb::circular::plan::{Dialect, Plan, Plane, Segment};
+use jdbb::link::stream::{SeqSample, Stats};
+use jdbb::live_web::feed::{new_board, LiveFeed};
+use jdbb::live_web::server::LiveServer;
+use jdbb_core::protocol::{Sample, Status};
+
+fn test_plan() -> Plan {
+    let spec = PlanSpec::machine_test(
+        &[85.0, 95.0],
+        &[0.0],
+        Plane::Xy,
+        2000.0,
+        [10.0, 20.0, 0.0],
+        Dialect::Linuxcnc,
+    );
+    plan(&spec, &jdbb_core::calib::Calibration::DEFAULT).unwrap()
+}
+
+/// D at 1 kHz along the plan from its first motion after the operator's stop, at the programmed
+/// feed, dwells included; on arcs + 4 µm·cos(angle).
+fn synthetic_d(plan: &Plan) -> Vec<f64> {
+    let c = plan.centre_mm;
+    let dist = |p: [f64; 3]| {
+        ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt()
+    };
+    let first = plan
+        .segments
+        .iter()
+        .position(|s| matches!(s, Segment::Stop))
+        .unwrap()
+        + 1;
+    let dt = 1e-3;
+    let mut d = vec![];
+    let mut here = plan.start_mm;
+    // A second at rest before the cycle start.
+    d.extend(std::iter::repeat_n(dist(here), 1000));
+    for (i, s) in plan.segments.iter().enumerate().skip(first) {
+        let Some(dur) = s.nominal_duration_s() else {
+            continue;
+        };
+        let n = (dur / dt).round() as usize;
+        for k in 0..n {
+            match s {
+                Segment::Dwell { .. } => d.push(dist(here)),
+                _ => {
+                    let p = plan.position_at(i, s.length_mm() * (k as f64 + 0.5) / n as f64);
+                    let wobble = if matches!(s, Segment::Arc { .. }) {
+                        let a = (p[1] - c[1]).atan2(p[0] - c[0]);
+                        4e-3 * a.cos()
+                    } else {
+                        0.0
+                    };
+                    d.push(dist(p) + wobble);
+                }
+            }
+        }
+        if let Some(to) = s.to_mm() {
+            here = to;
+        }
+    }
+    d.extend(std::iter::repeat_n(dist(here), 1000));
+    d
+}
+
+fn get(addr: SocketAddr, path: &str) -> (u16, String) {
+    request(addr, "GET", path)
+}
+
+fn request(addr: SocketAddr, method: &str, path: &str) -> (u16, String) {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    write!(
+        s,
+        // HTTP/1.0: the body as it is, never chunked.
+        "{method} {path} HTTP/1.0\r\nHost: {addr}\r\nContent-Length: 0\r\n\r\n"
+    )
+    .unwrap();
+    let mut text = String::new();
+    s.read_to_string(&mut text).unwrap();
+    let code = text[9..12].parse().unwrap();
+    let body = text
+        .split_once("\r\n\r\n")
+        .map_or("", |(_, b)| b)
+        .to_string();
+    (code, body)
+}
+
+/// Read `data:` events from /events for `for_time`; returns (arrival time, JSON) of each.
+fn events(addr: SocketAddr, path: &str, for_time: Duration) -> Vec<(Instant, serde_json::Value)> {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(2))).unwrap();
+    write!(s, "GET {path} HTTP/1.1\r\nHost: {addr}\r\n\r\n").unwrap();
+    let mut r = BufReader::new(s);
+    let mut head = String::new();
+    loop {
+        let mut line = String::new();
+        r.read_line(&mut line).unwrap();
+        head.push_str(&line);
+        if line == "\r\n" {
+            break;
+        }
+    }
+    assert!(head.starts_with("HTTP/1.1 200"), "{head}");
+    assert!(head.contains("Content-Type: text/event-stream"), "{head}");
+    let t0 = Instant::now();
+    let mut out = vec![];
+    while t0.elapsed() < for_time {
+        let mut line = String::new();
+        if r.read_line(&mut line).unwrap() == 0 {
+            break;
+        }
+        if let Some(json) = line.strip_prefix("data: ") {
+            let v: serde_json::Value = serde_json::from_str(json.trim_end()).unwrap();
+            let ended = !v["ended"].is_null();
+            out.push((Instant::now(), v));
+            if ended {
+                break;
+            }
+        }
+    }
+    out
+}
+
+/// Feed `d` (1 kHz device time) in batches of 100 samples, 1 ms apart (100× real time).
+fn feed_in_thread(
+    mut feed: LiveFeed,
+    d: Vec<f64>,
+    done: Arc<AtomicBool>,
+) -> std::thread::JoinHandle<()> {
+    std::thread::spawn(move || {
+        let mut stats = Stats::default();
+        for (b, chunk) in d.chunks(100).enumerate() {
+            let batch: Vec<SeqSample> = chunk
+                .iter()
+                .enumerate()
+                .map(|(i, &d_mm)| {
+                    let seq = (b * 100 + i) as u64;
+                    SeqSample {
+                        seq,
+                        sample: Sample {
+                            t_us: 1000 * seq,
+                            enc1: 0,
+                            enc2: 0,
+                            d_mm,
+                            status: Status(0),
+                        },
+                    }
+                })
+                .collect();
+            stats.samples += batch.len() as u64;
+            feed.samples(&batch);
+            feed.publish_if_due(&stats, Instant::now());
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        // The diagnosis of the last circle runs in its own thread: publish until it is there.
+        let t0 = Instant::now();
+        while feed.so_far().is_none_or(|f| f.circles < 2) && t0.elapsed() < Duration::from_secs(120)
+        {
+            std::thread::sleep(Duration::from_millis(50));
+            feed.publish_if_due(&stats, Instant::now());
+        }
+        feed.finish(&stats, "time limit reached");
+        done.store(true, Ordering::SeqCst);
+    })
+}
+
+#[test]
+fn the_page_follows_a_synthetic_test_through_every_circle() {
+    let plan = test_plan();
+    let d = synthetic_d(&plan);
+    let n_samples = d.len() as u64;
+    let board = new_board();
+    let server = LiveServer::start("127.0.0.1:0".parse().unwrap(), board.clone()).unwrap();
+    let addr = server.addr();
+    println!("live page on {}", server.url());
+    assert!(server.token().is_none());
+
+    let (code, page) = get(addr, "/");
+    assert_eq!(code, 200);
+    assert!(page.contains("EventSource") && page.contains("id=\"progress\""));
+
+    let done = Arc::new(AtomicBool::new(false));
+    let feeder = feed_in_thread(
+        LiveFeed::new(board.clone(), Some(&plan), Some(20.0)),
+        d,
+        done.clone(),
+    );
+    // The whole synthetic test takes about (its samples / 100) ms, then the last circle's
+    // diagnosis; read until the end.
+    let run = Duration::from_secs(150);
+    let evs = events(addr, "/events", run);
+    feeder.join().unwrap();
+    assert!(done.load(Ordering::SeqCst));
+
+    // At least 10 events per second while the samples came.
+    let feeding = Duration::from_millis(n_samples / 100);
+    let during: Vec<_> = evs
+        .iter()
+        .filter(|(t, _)| t.duration_since(evs[0].0) < feeding)
+        .collect();
+    let secs = during
+        .last()
+        .unwrap()
+        .0
+        .duration_since(evs[0].0)
+        .as_secs_f64();
+    let per_s = (during.len() - 1) as f64 / secs;
+    println!("{} events over {secs:.2} s: {per_s:.1}/s", during.len());
+    assert!(per_s >= 10.0, "{per_s} events/s");
+    // Versions increase; every circle is seen on its arcs, in both senses, with a trace.
+    let mut last_version = 0;
+    let mut seen = std::collections::BTreeSet::new();
+    let mut max_points = 0;
+    for (_, v) in &evs {
+        let version = v["version"].as_u64().unwrap();
+        assert!(version > last_version, "versions increase");
+        last_version = version;
+        let p = &v["progress"];
+        assert_eq!(p["circles"], 2);
+        if p["phase"] == "circle" {
+            seen.insert((
+                p["circle"].as_u64().unwrap(),
+                p["sense"].as_str().unwrap_or("-").to_string(),
+            ));
+        }
+        if let Some(pts) = v["trace"]["points"].as_array() {
+            assert!(pts.len() <= 2000);
+            max_points = max_points.max(pts.len());
+        }
+    }
+    let want: std::collections::BTreeSet<_> = [(1, "ccw"), (1, "cw"), (2, "ccw"), (2, "cw")]
+        .into_iter()
+        .map(|(k, s)| (k, s.to_string()))
+        .collect();
+    assert!(want.is_subset(&seen), "seen {seen:?}");
+    assert!(max_points > 1000, "trace points {max_points}");
+    // The end: all done, 100 %, the count of samples, the last circle's trace showing the
+    // 4 µm wobble (peak to valley 8 µm, within the decimation and the lead-in's timing).
+    let (_, last) = evs.last().unwrap();
+    assert_eq!(last["ended"], "time limit reached");
+    assert_eq!(last["progress"]["phase"], "done");
+    assert_eq!(last["progress"]["percent"], 100.0);
+    assert_eq!(last["counts"]["samples"], n_samples);
+    let devs: Vec<f64> = last["trace"]["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["dev_um"].as_f64().unwrap())
+        .collect();
+    let pv = devs.iter().cloned().fold(f64::MIN, f64::max)
+        - devs.iter().cloned().fold(f64::MAX, f64::min);
+    println!(
+        "last trace: {} points, peak to valley {pv:.3} µm",
+        devs.len()
+    );
+    assert!((pv - 8.0).abs() < 0.2, "peak to valley {pv} µm");
+    assert_eq!(last["trace"]["circle"], 2);
+    // A point's angle matches its deviation: dev ≈ 4 cos(angle) − mean.
+    for p in last["trace"]["points"].as_array().unwrap() {
+        let a = p["angle_deg"].as_f64().unwrap().to_radians();
+        let dev = p["dev_um"].as_f64().unwrap();
+        assert!((dev - 4.0 * a.cos()).abs() < 0.6, "{p}");
+    }
+
+    // The diagnosis while recording: after each circle, of the circles so far.
+    let so_far: Vec<&serde_json::Value> = evs
+        .iter()
+        .map(|(_, v)| &v["so_far"])
+        .filter(|v| !v.is_null())
+        .collect();
+    let first = so_far.first().expect("a diagnosis while recording");
+    println!(
+        "first diagnosis while recording ({} ms):\n{}",
+        first["took_ms"],
+        first["text"].as_str().unwrap()
+    );
+    assert_eq!(first["circles"], 1);
+    assert_eq!(last["so_far"]["circles"], 2, "{}", last["so_far"]);
+    for v in [first, &&last["so_far"]] {
+        let text = v["text"].as_str().unwrap();
+        assert!(text.starts_with("synchronised with the plan"), "{text}");
+        assert_eq!(v["pass"], true, "{text}");
+        // The 4 µm once-per-revolution wobble is a 4 µm centring error, and nothing else.
+        assert!(text.contains("setup_offset = 3.9999"), "{text}");
+        assert!(
+            text.contains("no machine effect is supported by the data"),
+            "{text}"
+        );
+    }
+
+    // /state gives the same last state once.
+    let (code, body) = get(addr, "/state");
+    assert_eq!(code, 200);
+    let st: serde_json::Value = serde_json::from_str(&body).unwrap();
+    assert_eq!(st["version"], last["version"]);
+}
+
+#[test]
+fn the_page_only_reads_and_unknown_paths_are_not_found() {
+    let server = LiveServer::start("127.0.0.1:0".parse().unwrap(), new_board()).unwrap();
+    let addr = server.addr();
+    for m in ["POST", "PUT", "DELETE"] {
+        let (code, body) = request(addr, m, "/");
+        assert_eq!(code, 405, "{m}: {body}");
+        assert!(body.contains("GET only"));
+    }
+    assert_eq!(get(addr, "/nothing").0, 404);
+}
+
+#[test]
+fn a_non_local_address_needs_the_token() {
+    let server = LiveServer::start("0.0.0.0:0".parse().unwrap(), new_board()).unwrap();
+    let token = server.token().unwrap().to_string();
+    let addr: SocketAddr = format!("127.0.0.1:{}", server.addr().port())
+        .parse()
+        .unwrap();
+    for path in ["/", "/events", "/state", "/?token=wrong"] {
+        let (code, body) = get(addr, path);
+        assert_eq!(code, 403, "{path}");
+        assert!(body.contains("token"), "{body}");
+    }
+    assert_eq!(get(addr, &format!("/?token={token}")).0, 200);
+    assert_eq!(get(addr, &format!("/state?token={token}")).0, 200);
+    let evs = events(
+        addr,
+        &format!("/events?token={token}"),
+        Duration::from_millis(300),
+    );
+    assert!(!evs.is_empty());
+}
+
+/// CPU time of the calling thread.
+fn thread_cpu() -> Duration {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: one valid timespec to write into.
+    assert_eq!(
+        unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) },
+        0
+    );
+    Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32)
+}
+
+#[test]
+fn a_stalled_page_costs_the_feed_nothing() {
+    // A client that opens the stream and never reads: the feed publishes as fast as ever.
+    let board = new_board();
+    let server = LiveServer::start("127.0.0.1:0".parse().unwrap(), board.clone()).unwrap();
+    let addr = server.addr();
+    let mut stalled = vec![];
+    for _ in 0..4 {
+        let mut s = TcpStream::connect(addr).unwrap();
+        write!(s, "GET /events HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
+        stalled.push(s);
+    }
+    let plan = test_plan();
+    let d = synthetic_d(&plan);
+    let mut feed = LiveFeed::new(board.clone(), Some(&plan), None);
+    let mut stats = Stats::default();
+    let t0 = Instant::now();
+    let mut worst = Duration::ZERO;
+    let (mut in_samples, mut in_publish, mut publications) = (Duration::ZERO, Duration::ZERO, 0u32);
+    for (b, chunk) in d.chunks(100).enumerate() {
+        let batch: Vec<SeqSample> = chunk
+            .iter()
+            .enumerate()
+            .map(|(i, &d_mm)| SeqSample {
+                seq: (b * 100 + i) as u64,
+                sample: Sample {
+                    t_us: 1000 * (b * 100 + i) as u64,
+                    enc1: 0,
+                    enc2: 0,
+                    d_mm,
+                    status: Status(0),
+                },
+            })
+            .collect();
+        stats.samples += 100;
+        let t = Instant::now();
+        let cpu = thread_cpu();
+        feed.samples(&batch);
+        let cpu_pub = thread_cpu();
+        in_samples += cpu_pub - cpu;
+        let before = board.lock().unwrap().version;
+        feed.publish_if_due(&stats, Instant::now());
+        if board.lock().unwrap().version != before {
+            in_publish += thread_cpu() - cpu_pub;
+            publications += 1;
+        }
+        worst = worst.max(t.elapsed());
+        if b % 50 == 0 {
+            // Let publications fall due (40 ms) now and then.
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+    // What the feed costs the recorder at 5 kHz with 25 publications a second (this thread's CPU
+    // time, so other tests on the cores do not count).
+    let per_sample = in_samples.as_secs_f64() / d.len() as f64;
+    let per_publication = in_publish.as_secs_f64() / f64::from(publications.max(1));
+    let share = per_sample * 5000.0 + per_publication * 25.0;
+    println!(
+        "{} samples fed in {:.2} s; {:.2} µs per sample, {:.2} ms per publication ({publications}); at 5 kHz and 25 publications/s: {:.1} % of a core (this build); the slowest batch of 100 took {:?}",
+        d.len(),
+        t0.elapsed().as_secs_f64(),
+        per_sample * 1e6,
+        per_publication * 1e3,
+        share * 100.0,
+        worst
+    );
+    assert!(publications > 20, "{publications} publications");
+    // Issue 18 asks for less than 5 %; measured 3.2 % in a debug build on a loaded machine, so
+    // twice that is the bound here (timings on a shared machine vary).
+    assert!(
+        share < 0.10,
+        "the feed costs {:.1} % of a core",
+        share * 100.0
+    );
+    // A batch of 100 samples (0.1 s at 1 kHz) is handled in less than its own duration, even
+    // with the stalled pages open and other tests using the cores (a blocked feed would hang).
+    assert!(worst < Duration::from_millis(100), "{worst:?}");
+    drop(stalled);
+}
+
+fn jdbb(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_jdbb"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn bad_web_options_fail_clearly_and_leave_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rec.csv");
+    let out_s = out.to_str().unwrap();
+    // An address in use: said before any port or file is touched.
+    let busy = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = busy.local_addr().unwrap().to_string();
+    let o = jdbb(&[
+        "record",
+        "--port",
+        "/dev/nonexistent-jdbb",
+        "--out",
+        out_s,
+        "--web",
+        &addr,
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains(&format!("cannot serve the live page on {addr}")),
+        "{err}"
+    );
+    assert!(err.contains("Give another --web ADDR"), "{err}");
+    assert!(!out.exists() && !dir.path().join("rec.csv.partial").exists());
+    // A plan that is not there: bad input (2), nothing created.
+    let o = jdbb(&[
+        "record",
+        "--port",
+        "/dev/nonexistent-jdbb",
+        "--out",
+        out_s,
+        "--web",
+        "127.0.0.1:0",
+        "--plan",
+        "no-such-plan.json",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("no-such-plan.json"), "{err}");
+    assert!(!out.exists() && !dir.path().join("rec.csv.partial").exists());
+    // --plan is for the page: without --web it is refused.
+    let o = jdbb(&["record", "--port", "x", "--out", out_s, "--plan", "p.json"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("--web"), "{err}");
+    // Not an address.
+    let o = jdbb(&["live", "--port", "x", "--web", "localhost-ish"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--web"));
+}
