@@ -85,8 +85,9 @@ impl Watch {
         }
         let now = Instant::now();
         if self.last_line.is_none_or(|t| now - t >= PROGRESS_EVERY) {
-            self.last_line = Some(now);
+            // A read may bring no samples (the live page sees every read): the line waits for one.
             if let (Some(last), Some(first)) = (samples.last(), self.tracker.first_t_s()) {
+                self.last_line = Some(now);
                 note(&format!(
                     "t {:.1} s, {} samples, D {:.4} mm, lost {}, {}",
                     last.sample.t_us as f64 * 1e-6 - first,
