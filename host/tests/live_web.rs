@@ -484,7 +484,15 @@ fn bad_web_options_fail_clearly_and_leave_nothing() {
     assert!(err.contains("no-such-plan.json"), "{err}");
     assert!(!out.exists() && !dir.path().join("rec.csv.partial").exists());
     // The end-of-test verdict needs the plan: --tolerance-um without --plan is refused.
-    let o = jdbb(&["record", "--port", "x", "--out", out_s, "--tolerance-um", "10"]);
+    let o = jdbb(&[
+        "record",
+        "--port",
+        "x",
+        "--out",
+        out_s,
+        "--tolerance-um",
+        "10",
+    ]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("--plan"), "{err}");

@@ -209,7 +209,18 @@ pub fn run(args: &RecordArgs) -> Result<()> {
             }
         }
     }
-    if server.is_some() {
+    if let Some(s) = &server {
+        // A record that ended by itself (the plan's program over, --seconds) leaves the page up
+        // with its final state and diagnosis until the user has read it: Ctrl-C ends the page.
+        if !interrupted.load(std::sync::atomic::Ordering::SeqCst) {
+            note(&format!(
+                "the record is complete and in place; the live page {} keeps its final state: Ctrl-C to close it",
+                s.url()
+            ));
+            while !interrupted.load(std::sync::atomic::Ordering::SeqCst) {
+                std::thread::sleep(std::time::Duration::from_millis(100));
+            }
+        }
         // Let the open pages receive the last state before the server stops; they keep showing it.
         std::thread::sleep(LAST_STATE_GRACE);
     }

@@ -11,12 +11,11 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use crate::circular::diagnose::Options;
+use crate::circular::diagnose::{diagnose, Options};
 use crate::circular::input::check_holes;
 use crate::circular::plan::{LineRole, Plan, Segment};
-use crate::circular::planned::diagnose_planned;
 use crate::circular::report::{summary, sync_summary, tolerance_verdict};
-use crate::circular::sync::{synchronise, Record};
+use crate::circular::sync::{data_path, synchronise, Record};
 
 /// Seconds of samples after a circle's feed-out is seen back at D_in before its diagnosis runs:
 /// the synchronisation fits the feed-out's ramp up to 0.25 s into the dwell after it.
@@ -151,11 +150,13 @@ fn work(plan: &Plan, tolerance_um: Option<f64>, rx: &Receiver<Msg>, tx: &Sender<
         let t0 = Instant::now();
         let cut = plan_up_to(plan, n);
         let rec = Record::from_samples(&PathBuf::from("(samples so far)"), t.clone(), d.clone());
+        // One pass (the ramps not read again through the errors found, as `diagnose_planned`
+        // does at the end): a circle's preview must come while the next one runs.
         let result = synchronise(&cut, &rec).and_then(|sync| {
             check_holes(&rec, &sync)?;
-            let done = diagnose_planned(&cut, &rec, sync, [None; 3], &Options::default())?;
-            let diag = done.diagnosis;
-            let mut text = format!("{}{}", sync_summary(&cut, &done.sync), summary(&diag));
+            let (path, dd) = data_path(&cut, &rec, &sync, [None; 3])?;
+            let diag = diagnose(&path, &dd, &Options::default())?;
+            let mut text = format!("{}{}", sync_summary(&cut, &sync), summary(&diag));
             let mut pass = None;
             if let Some(tol) = tolerance_um {
                 let (p, line) = tolerance_verdict(&diag, tol);
