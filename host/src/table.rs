@@ -59,9 +59,11 @@ pub struct Table {
     fields: Vec<Range<usize>>,
     /// 1-based character column of each field's start.
     columns: Vec<usize>,
-    /// The comment lines before the header, without `#` and trimmed (see
-    /// [`Table::header_comment`]).
+    /// The comment lines before the first data row (above or below the header), without `#`
+    /// and trimmed (see [`Table::header_comment`]).
     comments: Vec<String>,
+    /// Whether a data row has been read (comments after it are not the header's).
+    data_started: bool,
 }
 
 impl Table {
@@ -79,8 +81,10 @@ impl Table {
         Table::from_reader(path, Box::new(BufReader::with_capacity(1 << 16, file)))
     }
 
-    /// The value of a `# key: value` comment line before the header (the first such line), if
-    /// any: how a file says what it belongs to (a record's `plan_id`).
+    /// The value of a `# key: value` comment line before the first data row (the first such
+    /// line), if any: how a file says what it belongs to (a record's `plan_id`, above the header)
+    /// and what made it (its `instrument_serial`, written below the header once the device has
+    /// described itself). Lines below the header are seen once the first row has been read.
     pub fn header_comment(&self, key: &str) -> Option<&str> {
         self.comments.iter().find_map(|c| {
             c.strip_prefix(key)
@@ -111,6 +115,7 @@ impl Table {
             fields: vec![],
             columns: vec![],
             comments: vec![],
+            data_started: false,
         };
         if !t.advance()? {
             return Err(Error::input(
@@ -211,6 +216,7 @@ impl Table {
         if !self.advance()? {
             return Ok(None);
         }
+        self.data_started = true;
         Ok(Some(Row {
             path: &self.path,
             line_no: self.line_no,
@@ -270,7 +276,7 @@ impl Table {
             };
             let trimmed = text.trim();
             if trimmed.is_empty() || trimmed.starts_with('#') {
-                if self.header_line == 0 && self.comments.len() < 64 {
+                if !self.data_started && self.comments.len() < 64 {
                     self.comments
                         .push(trimmed[trimmed.len().min(1)..].trim().to_string());
                 }

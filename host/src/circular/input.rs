@@ -38,38 +38,14 @@ pub const MAX_DEVIATION_MM: f64 = 5.0;
 
 /// The value of a `# key: value` comment line before a file's first data line (above or below
 /// its header: `jdbb record` writes `# instrument_serial: …` right after the header, when the
-/// device has described itself), if there is one.
+/// device has described itself), if there is one: [`Table::header_comment`] once the first row
+/// is read.
 pub fn record_header_value(file: &FsPath, key: &str) -> Result<Option<String>> {
-    use std::io::{BufRead, Read};
-    let f = std::fs::File::open(file).map_err(|source| Error::File {
-        action: "cannot open",
-        path: file.to_path_buf(),
-        source,
-    })?;
-    let mut header_seen = false;
-    // The header comments are a few short lines: read no more than 64 KiB looking for them.
-    for line in std::io::BufReader::new(f.take(64 * 1024)).lines().take(64) {
-        let Ok(line) = line else { break };
-        let t = line.trim().trim_start_matches('\u{feff}');
-        if t.is_empty() {
-            continue;
-        }
-        let Some(comment) = t.strip_prefix('#') else {
-            if header_seen {
-                break;
-            }
-            header_seen = true;
-            continue;
-        };
-        if let Some(v) = comment
-            .trim()
-            .strip_prefix(key)
-            .and_then(|r| r.trim_start().strip_prefix(':'))
-        {
-            return Ok(Some(v.trim().to_string()).filter(|v| !v.is_empty()));
-        }
-    }
-    Ok(None)
+    let mut t = Table::open(file)?;
+    t.next_row()?;
+    Ok(t.header_comment(key)
+        .filter(|v| !v.is_empty())
+        .map(str::to_string))
 }
 
 /// Read `t_s,x_mm,y_mm,z_mm,d_mm`. Returns the path (with `pitch_mm` applied) and D.
