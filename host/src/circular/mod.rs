@@ -22,9 +22,9 @@
 //!
 //! May use: [`crate::numerics`], [`crate::table`], `jdbb_core::machine` (and, for [`plan`],
 //! `jdbb_core::{calib, geometry}`). Dependencies inside point one way: model ← simulate, input,
-//! runs, zone ← diagnose ← report, plot, html; words ← report, html; plan ← sync ← planned (with
-//! diagnose); simulate, plan, sync ← machine, record_sim ← progress; document stands alone (it
-//! reads files, not diagnoses).
+//! runs, zone ← diagnose ← report, plot, html; words ← report, html; plan ← sync ← planned
+//! (with input, progress, diagnose); simulate, plan, sync ← machine, record_sim ← progress;
+//! document stands alone (it reads files, not diagnoses).
 pub mod diagnose;
 pub mod document;
 pub mod html;

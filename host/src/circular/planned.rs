@@ -12,11 +12,13 @@
 //!
 //! May use: [`super::sync`], [`super::diagnose`], [`super::model`], [`super::path`].
 use super::diagnose::{diagnose, Diagnosis, Options};
+use super::input::check_holes;
 use super::model::{Effect, EffectSet};
 use super::path::Path;
 use super::plan::Plan;
-use super::sync::{data_path, synchronise_with, Record, Ruler, Sync};
-use crate::Result;
+use super::progress::{Tracker, FIRST_S};
+use super::sync::{check_feed, data_path, synchronise, synchronise_with, Record, Ruler, Sync};
+use crate::{Error, Result};
 
 /// Most diagnoses of one record (the first and the re-reads of the ramps).
 pub const MAX_PASSES: usize = 4;
@@ -30,6 +32,44 @@ pub struct Planned {
     pub diagnosis: Diagnosis,
     /// How many times the data were diagnosed (1: the ramps needed no second reading).
     pub passes: usize,
+}
+
+/// A record of `plan` as `jdbb diagnose --record --plan` takes it (and the live page at the end
+/// of a test): synchronised from D (a record begun after cycle start said as such), its feed
+/// and its holes checked, then diagnosed with [`diagnose_planned`]. The one path from a record
+/// and its plan to a diagnosis.
+pub fn diagnose_record(
+    plan: &Plan,
+    rec: &Record,
+    pitch_mm: [Option<f64>; 3],
+    opts: &Options,
+) -> Result<Planned> {
+    let sync = synchronise(plan, rec).map_err(|e| late_start(plan, rec, e))?;
+    check_feed(plan, &sync, rec)?;
+    check_holes(rec, &sync)?;
+    diagnose_planned(plan, rec, sync, pitch_mm, opts)
+}
+
+/// A synchronisation that failed because the record began after cycle start (D already away
+/// from the plan's start level in its first seconds) says so and what to do; any other failure
+/// is returned as it is.
+fn late_start(plan: &Plan, rec: &Record, e: Error) -> Error {
+    let mut tracker = Tracker::new(plan);
+    for (t, d) in rec.t_s.iter().zip(&rec.d_mm) {
+        tracker.push(*t, *d);
+        if *t > 2.0 * FIRST_S {
+            break;
+        }
+    }
+    match tracker.missed_start {
+        Some(m) => Error::Input {
+            location: rec.path.display().to_string(),
+            message: format!(
+                "{m}: the record began after the program started, so it cannot be lined up with the plan. Record again: start `jdbb record --plan` first, then press cycle start ({e})"
+            ),
+        },
+        None => e,
+    }
 }
 
 /// Diagnose `rec` of `plan`, synchronised as `sync` (module docs); `pitch_mm` as for

@@ -5,13 +5,13 @@ use super::output::{emit, json_text, print};
 use crate::circular::diagnose::{diagnose, Options};
 use crate::circular::document::DiagnosisDoc;
 use crate::circular::html::report_html;
-use crate::circular::input::{check_holes, read_record_with_path, read_samples};
+use crate::circular::input::{read_record_with_path, read_samples};
 use crate::circular::model::parse_pitch;
 use crate::circular::plan::Plan;
-use crate::circular::planned::diagnose_planned;
+use crate::circular::planned::diagnose_record;
 use crate::circular::plot::write_report;
 use crate::circular::report::{plan_json, summary, sync_json, sync_summary, to_json};
-use crate::circular::sync::{check_feed, synchronise, Record};
+use crate::circular::sync::Record;
 use crate::fsio::{check_dir_destination, write_dir};
 use crate::{Error, Result};
 
@@ -188,27 +188,6 @@ fn add_run_facts(
     Ok(Some(line))
 }
 
-/// A synchronisation that failed on a record begun after cycle start says so first (the program
-/// was already running when the record began), with what the synchronisation found.
-fn late_start(plan: &Plan, rec: &Record, e: Error) -> Error {
-    let mut tracker = crate::circular::progress::Tracker::new(plan);
-    for (t, d) in rec.t_s.iter().zip(&rec.d_mm) {
-        tracker.push(*t, *d);
-        if *t > 2.0 * crate::circular::progress::FIRST_S {
-            break;
-        }
-    }
-    match tracker.missed_start {
-        Some(m) => Error::Input {
-            location: rec.path.display().to_string(),
-            message: format!(
-                "{m}: the record began after the program started, so it cannot be lined up with the plan. Record again: start `jdbb record --plan` first, then press cycle start ({e})"
-            ),
-        },
-        None => e,
-    }
-}
-
 /// Refuse a record made for another plan (its `# plan_id:` line names another id). A record
 /// without the line (made before plan ids, or by hand) is taken as it is.
 fn check_plan_id(rec: &Record, plan: &Plan, plan_file: &std::path::Path) -> Result<()> {
@@ -246,10 +225,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             let plan = Plan::read(plan_file)?;
             let rec = Record::read(record)?;
             check_plan_id(&rec, &plan, plan_file)?;
-            let sync = synchronise(&plan, &rec).map_err(|e| late_start(&plan, &rec, e))?;
-            check_feed(&plan, &sync, &rec)?;
-            check_holes(&rec, &sync)?;
-            let done = diagnose_planned(&plan, &rec, sync, pitch, &Options::default())?;
+            let done = diagnose_record(&plan, &rec, pitch, &Options::default())?;
             synced = Some((plan_file, plan, done.sync));
             done.diagnosis
         }

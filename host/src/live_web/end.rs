@@ -4,21 +4,17 @@
 use std::path::Path;
 
 use crate::circular::diagnose::Options;
-use crate::circular::input::check_holes;
 use crate::circular::plan::Plan;
-use crate::circular::planned::diagnose_planned;
+use crate::circular::planned::diagnose_record as diagnose_planned_record;
 use crate::circular::report::{summary, sync_summary, tolerance_verdict};
-use crate::circular::sync::{check_feed, synchronise, Record};
+use crate::circular::sync::Record;
 use crate::Result;
 
 /// Synchronise and diagnose the record at `record` with `plan`; the text `jdbb diagnose --record
 /// --plan [--tolerance-um]` prints (synchronisation, diagnosis, verdict).
 pub fn diagnose_record(plan: &Plan, record: &Path, tolerance_um: Option<f64>) -> Result<String> {
     let rec = Record::read(record)?;
-    let sync = synchronise(plan, &rec)?;
-    check_feed(plan, &sync, &rec)?;
-    check_holes(&rec, &sync)?;
-    let done = diagnose_planned(plan, &rec, sync, [None; 3], &Options::default())?;
+    let done = diagnose_planned_record(plan, &rec, [None; 3], &Options::default())?;
     let diag = done.diagnosis;
     // As `jdbb diagnose` prints them: the two summaries as they are, the verdict as a line.
     let mut text = format!("{}{}", sync_summary(plan, &done.sync), summary(&diag));
