@@ -227,7 +227,7 @@ fn the_live_page_follows_a_qemu_test_and_diagnoses_it_at_the_end() {
         println!("skipped the browser part: no chromium (or chromium-browser, google-chrome) on PATH and no JDBB_CHROMIUM");
     }
     let mut browser_done = chromium_bin.is_none();
-    let mut browser_so_far_done = chromium_bin.is_none();
+    let mut browser_diagnosis_done = chromium_bin.is_none();
     let mut events = vec![];
     let t0 = Instant::now();
     let partial = dir.path().join("rec.csv.partial");
@@ -239,10 +239,12 @@ fn the_live_page_follows_a_qemu_test_and_diagnoses_it_at_the_end() {
                 let on_cw = v["progress"]["phase"] == "circle"
                     && v["progress"]["sense"] == "cw"
                     && v["progress"]["on_data_arc"] == true;
-                let has_so_far = !v["so_far"].is_null();
+                let has_diagnosis = v["circle_diagnoses"]
+                    .as_array()
+                    .is_some_and(|l| !l.is_empty());
                 events.push(ev);
-                if has_so_far && !browser_so_far_done {
-                    browser_so_far_done = true;
+                if has_diagnosis && !browser_diagnosis_done {
+                    browser_diagnosis_done = true;
                     let bin = chromium_bin.as_ref().unwrap();
                     let dom = chromium(
                         bin,
@@ -251,11 +253,13 @@ fn the_live_page_follows_a_qemu_test_and_diagnoses_it_at_the_end() {
                         &format!("{url}?poll=1"),
                     );
                     assert!(dom.contains("Diagnosis of circle 1: PASS"), "{dom}");
+                    // The ranked effects as a table, one row per effect.
                     assert!(
-                        dom.contains("backlash_x") && dom.contains("squareness_xy"),
+                        dom.contains("data-effect=\"backlash_x\"")
+                            && dom.contains("data-effect=\"squareness_xy\""),
                         "{dom}"
                     );
-                    println!("Chromium's DOM: the circle's diagnosis, naming backlash_x and squareness_xy");
+                    println!("Chromium's DOM: the circle's diagnosis, a table naming backlash_x and squareness_xy");
                     let png =
                         PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("live_page_diagnosis.png");
                     chromium(
@@ -316,7 +320,7 @@ fn the_live_page_follows_a_qemu_test_and_diagnoses_it_at_the_end() {
         // The scenario played out: the operator's Ctrl-C — while recording, or once the record
         // has stopped by itself after the plan's program (the page then stays up with its
         // final state until Ctrl-C) and the page's diagnosis has been read.
-        let stopped_by_itself = dir.path().join("rec.csv").exists() && browser_so_far_done;
+        let stopped_by_itself = dir.path().join("rec.csv").exists() && browser_diagnosis_done;
         if !interrupted
             && (stopped_by_itself
                 || std::fs::read_to_string(&partial)
@@ -384,26 +388,36 @@ fn the_live_page_follows_a_qemu_test_and_diagnoses_it_at_the_end() {
     // The diagnosis while recording: once the circle's feed-out has ended, of that circle.
     let (when, first) = events
         .iter()
-        .find(|(_, v)| !v["so_far"].is_null())
+        .find(|(_, v)| {
+            v["circle_diagnoses"]
+                .as_array()
+                .is_some_and(|l| !l.is_empty())
+        })
         .expect("a diagnosis while recording");
     let out_at = events
         .iter()
         .find(|(_, v)| v["progress"]["phase"] == "done")
         .unwrap()
         .0;
-    let so_far = &first["so_far"];
+    let c1 = &first["circle_diagnoses"][0];
     println!(
         "diagnosis while recording: {} ms of work, on the page {:.0} ms after the feed-out ended",
-        so_far["took_ms"],
+        c1["took_ms"],
         when.duration_since(out_at).as_secs_f64() * 1e3
     );
-    assert!(browser_so_far_done);
-    assert_eq!(so_far["circles"], 1);
-    assert_eq!(so_far["pass"], true);
-    let text = so_far["text"].as_str().unwrap();
+    assert!(browser_diagnosis_done);
+    assert_eq!(c1["circle"], 1);
+    assert_eq!(c1["pass"], true);
+    let text = c1["text"].as_str().unwrap();
+    let names: Vec<&str> = c1["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e["name"].as_str().unwrap())
+        .collect();
     assert!(
-        text.contains("backlash_x") && text.contains("squareness_xy"),
-        "{text}"
+        names.contains(&"backlash_x") && names.contains(&"squareness_xy"),
+        "{names:?}\n{text}"
     );
 
     // The record is whole.

@@ -98,9 +98,9 @@ impl LiveFeed {
         }
     }
 
-    /// The diagnosis of the circles completed so far, as last published.
-    pub fn so_far(&self) -> Option<&super::worker::SoFar> {
-        self.state.so_far.as_ref()
+    /// Each circle's diagnosis while recording, as last published.
+    pub fn circle_diagnoses(&self) -> &[super::worker::CircleDiagnosis] {
+        &self.state.circle_diagnoses
     }
 
     /// Publish the state if [`PUBLISH_INTERVAL`] has passed since the last publication.
@@ -144,8 +144,8 @@ impl LiveFeed {
             self.state.progress = Some(t.progress());
             self.state.trace = t.trace();
         }
-        if let Some(r) = self.diagnoser.as_ref().and_then(Diagnoser::result) {
-            self.state.so_far = Some(r);
+        if let Some(w) = &self.diagnoser {
+            self.state.circle_diagnoses.extend(w.results());
         }
     }
 

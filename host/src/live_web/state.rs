@@ -109,9 +109,8 @@ pub struct LiveState {
     pub progress: Option<Progress>,
     /// The current (or last) circle's trace, when a plan was given.
     pub trace: Option<Trace>,
-    /// The diagnosis of the circles completed so far, once the first is
-    /// ([`super::worker`]).
-    pub so_far: Option<super::worker::SoFar>,
+    /// Each circle's diagnosis while recording, in the order they came ([`super::worker`]).
+    pub circle_diagnoses: Vec<super::worker::CircleDiagnosis>,
     /// How the session ended, once it has (the summary's words).
     pub ended: Option<String>,
     /// The end-of-test diagnosis summary, once computed (the text `jdbb diagnose` prints).

@@ -52,6 +52,44 @@
         " points, " + s.step + " µm/div"
       : "Trace";
   }
+  const h = (name, text, attrs) => {
+    const e = document.createElement(name);
+    if (text !== undefined && text !== null) e.textContent = text;
+    for (const k in attrs || {}) e.setAttribute(k, attrs[k]);
+    return e;
+  };
+  // One circle's diagnosis (CircleDiagnosis in docs/live.md) as a section.
+  function circleDiagnosis(f) {
+    const sec = h("section", null, { class: "circle", "data-circle": f.circle });
+    sec.id = "circle_" + f.circle;
+    sec.appendChild(h("h3", "Diagnosis of circle " + f.circle +
+      (f.pass === null ? "" : f.pass ? ": PASS" : ": FAIL") + " (" + f.took_ms.toFixed(0) + " ms)"));
+    if (f.effects.length > 0) {
+      const t = h("table", null, { class: "effects" });
+      const head = h("tr");
+      for (const c of ["", "effect", "value", "", "share", "cause"]) head.appendChild(h("th", c));
+      t.appendChild(head);
+      for (const e of f.effects) {
+        const r = h("tr", null, { "data-effect": e.name });
+        r.appendChild(h("td", e.step));
+        r.appendChild(h("td", e.name));
+        r.appendChild(h("td", e.value, { class: "num" }));
+        r.appendChild(h("td", e.unit));
+        r.appendChild(h("td", e.share_percent === null ? "" : e.share_percent + " %", { class: "num" }));
+        r.appendChild(h("td", e.cause));
+        t.appendChild(r);
+      }
+      sec.appendChild(t);
+      const g = f.zones.map((z) => "G " + z.direction + " " + z.g_um + " µm").join(", ");
+      sec.appendChild(h("p", g + (f.h_um === null ? "" : ", H " + f.h_um + " µm") +
+        " (minimum zone, ISO 230-4)", { class: "zones" }));
+    }
+    const d = h("details");
+    d.appendChild(h("summary", f.effects.length > 0 ? "the full text" : f.text.split("\n")[0]));
+    d.appendChild(h("pre", f.text));
+    sec.appendChild(d);
+    return sec;
+  }
   function show(st) {
     $("d_mm").textContent = fixed(st.d_mm, 4);
     $("rate_hz").textContent = fixed(st.rate_hz, 1);
@@ -78,13 +116,14 @@
       $("percent").value = p.percent;
       drawTrace(st.trace);
     }
-    if (st.so_far) {
-      const f = st.so_far;
-      $("so_far_section").hidden = false;
-      $("so_far_title").textContent = "Diagnosis of circle" + (f.circles > 1 ? "s 1–" : " ") +
-        f.circles + (f.pass === null ? "" : f.pass ? ": PASS" : ": FAIL") +
-        " (" + f.took_ms.toFixed(0) + " ms)";
-      $("so_far").textContent = f.text;
+    // Each circle's diagnosis while recording: a table of the ranked effects, G per direction
+    // and H, the verdict; the full text under "details".
+    const list = st.circle_diagnoses || [];
+    $("circles_section").hidden = list.length === 0;
+    const box = $("circles");
+    if (box.childElementCount !== list.length) {
+      while (box.firstChild) box.removeChild(box.firstChild);
+      for (const f of list) box.appendChild(circleDiagnosis(f));
     }
     if (st.ended) {
       $("ended").hidden = false;
