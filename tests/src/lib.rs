@@ -13,6 +13,7 @@ use std::time::{Duration, Instant};
 pub mod calibration_data;
 pub mod mechanism;
 pub mod rotary_truth;
+pub mod rrsps_truth;
 
 /// Root of the repository.
 pub fn repo_root() -> PathBuf {

@@ -167,7 +167,10 @@ fn b_head_axis_offset_and_tilt_are_found_with_their_signs() {
     for name in [
         "dx.cos1", "dx.sin1", "dz.cos1", "dz.sin1", "ex.cos1", "ex.sin1", "ez.cos1", "ez.sin1",
     ] {
-        assert!(find(name).2.is_none(), "{name} turns with the head: {context}");
+        assert!(
+            find(name).2.is_none(),
+            "{name} turns with the head: {context}"
+        );
     }
     let rms_um = fourier["rms_residual_um"].as_f64().unwrap();
     assert!(rms_um < 1.5 * NOISE_MM * 1e3, "RMS {rms_um} µm: {context}");
