@@ -1,8 +1,10 @@
-//! Closed-form physical truth for the rotary-axis tests (issue 21): a swinging head whose axis
-//! line is offset and tilted, a ball on the spindle and a ball on the table, and the ball bar's
-//! length between them. Written from the physics with its own rotations (Rodrigues' formula);
+//! Closed-form physical truth for the rotary-axis tests (issue 21): a swinging head ([`BHead`])
+//! or a turntable ([`CTable`]) whose axis line is offset and tilted, a ball on the spindle and a
+//! ball on the table, and the ball bar's length between them. Written from the physics with its own rotations (Rodrigues' formula);
 //! it shares no code and no equation with the host's `rotary` model, whose six-error
 //! sensitivities it is meant to check.
+//!
+//! The rest of this doc is the head's; the turntable's is at [`CTable`].
 //!
 //! **Frame and senses** (ISO 841): machine axes X, Y, Z right-handed; B turns about +Y by the
 //! right-hand rule, so a positive B swings the downward tool (−Z) toward −X. The head's pivot is
@@ -39,14 +41,14 @@ pub struct BHead {
     pub tilt_z_rad: f64,
 }
 
-/// How the bar is installed (see the module doc for where the table ball sits).
+/// How the bar is installed (where the other ball sits: [`BHead`] in the module doc, [`CTable`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Install {
-    /// Along the tool, the table ball beyond the spindle ball.
+    /// Along the radius from the axis to the moving ball.
     Radial,
-    /// In the swing plane, square to the tool; the table ball on the head's +X side at B = 0.
+    /// In the plane of rotation, square to the radius.
     Tangential,
-    /// Along the B axis, the table ball on the spindle ball's −Y side.
+    /// Along the axis of rotation.
     Axial,
 }
 
@@ -130,6 +132,75 @@ impl BHead {
         let (actual, nominal) = self.ball(ball, beta);
         let table = add(nominal, scale(bar_mm, Self::bar_direction(install, beta)));
         norm(sub(table, actual)) - bar_mm
+    }
+}
+
+/// A turntable about Z with its axis line off where the controller thinks it is (seed 002's
+/// C table), for [`CTable::reading_mm`].
+///
+/// **Frame and senses**: C turns the table right-handed about +Z (ISO 841); the origin is where
+/// the nominal axis meets the table's surface. The real axis passes through (ox, oy, 0) and
+/// points along (tilt_y, −tilt_x, 1) normalised: `tilt_x_rad` turns +Z about +X (toward −Y),
+/// `tilt_y_rad` about +Y (toward +X). The table ball, at P0 = (L, 0, H) at C = 0 (L from the
+/// axis, H above the surface), is at o + Rot(axis, γ)(P0 − o) instead of Rot(Z, γ)·P0; the
+/// set-up was made at C = 0.
+///
+/// **The ball bar**: the linear axes put the spindle ball at a bar length ℓ from the nominal
+/// table ball in a direction fixed to the table: radial with the spindle ball *inward* (toward
+/// the axis), tangential with it *behind* the table ball (on the side C's positive turn moves
+/// away from), axial with it *above* the table ball (the spindle comes from above). The reading
+/// is the change of the distance between the balls, + when the bar extends: a table ball
+/// displaced outward, forward or *down* extends the bar.
+#[derive(Debug, Clone, Copy)]
+pub struct CTable {
+    /// A point of the real axis line (mm): (ox, oy, 0).
+    pub offset_mm: [f64; 3],
+    /// Tilt of the real axis about +X (rad): +Z leans toward −Y.
+    pub tilt_x_rad: f64,
+    /// Tilt of the real axis about +Y (rad): +Z leans toward +X.
+    pub tilt_y_rad: f64,
+}
+
+const Z: [f64; 3] = [0.0, 0.0, 1.0];
+
+impl CTable {
+    /// The real axis's direction (unit).
+    pub fn axis(&self) -> [f64; 3] {
+        let a = [self.tilt_y_rad, -self.tilt_x_rad, 1.0];
+        scale(1.0 / norm(a), a)
+    }
+
+    /// The table ball `l_mm` from the axis and `h_mm` above the surface (at C = 0 on +X) at C =
+    /// `gamma_rad`: (actual, nominal).
+    pub fn ball(&self, l_mm: f64, h_mm: f64, gamma_rad: f64) -> ([f64; 3], [f64; 3]) {
+        let p0 = [l_mm, 0.0, h_mm];
+        let o = self.offset_mm;
+        let actual = add(o, rotate(self.axis(), gamma_rad, sub(p0, o)));
+        (actual, rotate(Z, gamma_rad, p0))
+    }
+
+    /// The unit vector from the table ball to the spindle ball, fixed to the table, at C.
+    pub fn bar_direction(install: Install, gamma_rad: f64) -> [f64; 3] {
+        match install {
+            Install::Radial => rotate(Z, gamma_rad, [-1.0, 0.0, 0.0]),
+            Install::Tangential => rotate(Z, gamma_rad, [0.0, -1.0, 0.0]),
+            Install::Axial => Z,
+        }
+    }
+
+    /// The bar's reading (mm), exact: the distance between the spindle ball and the real table
+    /// ball minus the bar length `bar_mm`.
+    pub fn reading_mm(
+        &self,
+        l_mm: f64,
+        h_mm: f64,
+        install: Install,
+        bar_mm: f64,
+        gamma: f64,
+    ) -> f64 {
+        let (actual, nominal) = self.ball(l_mm, h_mm, gamma);
+        let spindle = add(nominal, scale(bar_mm, Self::bar_direction(install, gamma)));
+        norm(sub(spindle, actual)) - bar_mm
     }
 }
 

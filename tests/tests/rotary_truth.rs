@@ -21,7 +21,7 @@
 //! error with its own sign.
 use std::path::Path;
 
-use jdbb_tests::rotary_truth::{BHead, Install, SpindleBall};
+use jdbb_tests::rotary_truth::{BHead, CTable, Install, SpindleBall};
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal};
 
@@ -85,22 +85,38 @@ fn table_text(head: &BHead, seed: u64, flip_radial: bool) -> String {
 /// `jdbb rotary --axis b --order 1 --json` on the table: the Fourier coefficients by name, as
 /// (value, σ) in the report's units (µm, 1e-5 rad).
 fn fit(dir: &Path, text: &str) -> (Vec<(String, f64, Option<f64>)>, serde_json::Value) {
-    let f = dir.join("b.csv");
-    std::fs::write(&f, text).unwrap();
-    let out = std::process::Command::new(jdbb_tests::jdbb_bin())
-        .args(["rotary", "--axis", "b", "--table"])
-        .arg(&f)
-        .args([
+    let (coef, v) = rotary(
+        dir,
+        text,
+        &[
+            "--axis",
+            "b",
             "--l1",
             &L1_MM.to_string(),
             "--l2",
             &L2_MM.to_string(),
             "--h1",
             &H1_MM.to_string(),
-            "--order",
-            "1",
-            "--json",
-        ])
+        ],
+    );
+    (coef, v["fourier"].clone())
+}
+
+/// `jdbb rotary <args> --order 1 --json` on the table `text`: the Fourier coefficients by name
+/// as (value, σ) in the report's units (µm, 1e-5 rad), and the whole report.
+fn rotary(
+    dir: &Path,
+    text: &str,
+    args: &[&str],
+) -> (Vec<(String, f64, Option<f64>)>, serde_json::Value) {
+    let f = dir.join("runs.csv");
+    std::fs::write(&f, text).unwrap();
+    let out = std::process::Command::new(jdbb_tests::jdbb_bin())
+        .arg("rotary")
+        .args(args)
+        .arg("--table")
+        .arg(&f)
+        .args(["--order", "1", "--json"])
         .output()
         .unwrap();
     assert!(
@@ -121,7 +137,7 @@ fn fit(dir: &Path, text: &str) -> (Vec<(String, f64, Option<f64>)>, serde_json::
             )
         })
         .collect();
-    (coef, v["fourier"].clone())
+    (coef, v)
 }
 
 /// The location errors of the axis line, with their signs, from a head built with them.
@@ -186,4 +202,107 @@ fn a_radial_bar_read_the_other_way_is_not_a_head() {
     let rms_um = fourier["rms_residual_um"].as_f64().unwrap();
     eprintln!("RMS with the radial runs flipped: {rms_um:.3} µm");
     assert!(rms_um > 5.0 * NOISE_MM * 1e3, "RMS {rms_um} µm");
+}
+
+/// The paper's C installations (combination 1 at L1 = 100, H1 = 50 radial, tangential, axial;
+/// 2 at L2 = 150 radial, tangential; 3 at H3 = 100 radial, tangential), C from 0 to 350° in 10°
+/// steps, each run with its own zero and 0.1 µm noise.
+fn c_table_text(table: &CTable, seed: u64) -> String {
+    let runs = [
+        (1, 100.0, 50.0, Install::Radial, "radial"),
+        (1, 100.0, 50.0, Install::Tangential, "tangential"),
+        (1, 0.0, 50.0, Install::Axial, "axial"),
+        (2, 150.0, 50.0, Install::Radial, "radial"),
+        (2, 150.0, 50.0, Install::Tangential, "tangential"),
+        (3, 100.0, 100.0, Install::Radial, "radial"),
+        (3, 100.0, 100.0, Install::Tangential, "tangential"),
+    ];
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    let noise = Normal::new(0.0, NOISE_MM).unwrap();
+    let zeros: Vec<f64> = runs.iter().map(|_| rng.gen_range(-0.02..0.02)).collect();
+    let mut text = String::from("angle_deg");
+    for (c, _, _, _, k) in &runs {
+        text += &format!(",dl{c}_{k}_mm");
+    }
+    text += "\n";
+    for i in 0..36 {
+        let g_deg = 10.0 * i as f64;
+        text += &format!("{g_deg}");
+        for ((_, l, h, install, _), zero) in runs.iter().zip(&zeros) {
+            let r = table.reading_mm(*l, *h, *install, BAR_MM, g_deg.to_radians());
+            text += &format!(",{:.7}", r + zero + noise.sample(&mut rng));
+        }
+        text += "\n";
+    }
+    text
+}
+
+/// A C turntable whose axis line stands 9 µm toward −X and 14 µm toward +Y of where the
+/// controller thinks, leaning −25 µrad about X (toward +Y) and +35 µrad about Y (toward +X):
+/// `jdbb rotary --axis c` keeps the rotation sense as printed (the table turns right-handed
+/// about +Z, as eq. 6), and the Fourier fit's constants are the location errors with their
+/// signs, δx.const = −9, δy.const = +14 µm, εx.const = −2.5, εy.const = +3.5 (1e-5 rad), as for
+/// the head (δ = (I − R(γ))·o, ε = (I − R(γ))·t). The centring (the runs' common first
+/// harmonic) is the offset plus the runs' mean height times the lean, (−6.67, +15.67) µm.
+///
+/// What a flipped sign would do: C taken as turning the other way (the sense reversed) reads
+/// the offset's y with the other sign and fails by 28 µm; an offset taken as the table's own
+/// displacement flips every constant; the tilt's sign flipped fails by 5–7e-5 rad. The axial
+/// run cannot tell which way it reads here: an offset or tilt of the axis does not move a ball
+/// on the axis along it.
+#[test]
+fn c_table_axis_offset_and_tilt_are_found_with_their_signs() {
+    let table = CTable {
+        offset_mm: [-0.009, 0.014, 0.0],
+        tilt_x_rad: -25e-6,
+        tilt_y_rad: 35e-6,
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (coef, v) = rotary(
+        dir.path(),
+        &c_table_text(&table, 5),
+        &[
+            "--axis", "c", "--l1", "100", "--l2", "150", "--h1", "50", "--h3", "100",
+        ],
+    );
+    let context = format!("{:#}", v["fourier"]);
+    assert_eq!(v["model_angle_reversed"], false, "{:#}", v["centring"]);
+    assert_eq!(
+        v["centring"]["sense"].as_f64(),
+        Some(1.0),
+        "{:#}",
+        v["centring"]
+    );
+    // Each radial or tangential run's first harmonic is (δx + H·εy, δy − H·εx): the centring,
+    // their plain mean, is the offset plus the mean height (66.7 mm) times the lean.
+    let h_mean = (4.0 * 50.0 + 2.0 * 100.0) / 6.0;
+    for (key, want) in [
+        ("dx_um", -9.0 + h_mean * 35e-6 * 1e3),
+        ("dy_um", 14.0 + h_mean * 25e-6 * 1e3),
+    ] {
+        let got = v["centring"][key].as_f64().unwrap();
+        eprintln!("centring {key}: {got:.3} (truth {want:.3})");
+        assert!(
+            (got - want).abs() < 0.2,
+            "centring {key} {got}, want {want}: {:#}",
+            v["centring"]
+        );
+    }
+    for (name, want) in [
+        ("dx.const", -9.0),
+        ("dy.const", 14.0),
+        ("ex.const", -2.5),
+        ("ey.const", 3.5),
+    ] {
+        let (_, got, sigma) = coef
+            .iter()
+            .find(|(n, _, _)| n == name)
+            .unwrap_or_else(|| panic!("no {name}: {context}"))
+            .clone();
+        let sigma = sigma.unwrap_or_else(|| panic!("{name} not determined: {context}"));
+        eprintln!("{name}: {got:.3} ± {sigma:.3} (truth {want})");
+        planned::assert_unbiased(name, got, sigma, want, 0.3, &context);
+    }
+    let rms_um = v["fourier"]["rms_residual_um"].as_f64().unwrap();
+    assert!(rms_um < 1.5 * NOISE_MM * 1e3, "RMS {rms_um} µm: {context}");
 }
