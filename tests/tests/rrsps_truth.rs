@@ -103,8 +103,10 @@ fn the_paper_design_as_a_physical_table_gives_eq8s_bar_lengths() {
 
 /// Location errors hidden in a physical table and found by the joint identification of three
 /// tests (the spindle moved +0.2 and −0.2 mm along X between them, as the paper's M1–M3):
-/// the A axis 30 µm below where it should be, the C axis 25 µm to +Y of the A axis and leaning
-/// 0.05° toward +X, the table ball and the spindle ball set up a few tenths of a mm off. The
+/// the A axis 30 µm below where it should be and turned 0.3 mrad toward +Y, the C axis 25 µm to
+/// +Y of the A axis, leaning 0.05° toward +X and 0.03° toward −Y (which turns the common normal
+/// and with it the zeros of θA0 and θC0), the table ball and the spindle ball set up a few
+/// tenths of a mm off. The
 /// deviations from the design of a1 (+25 µm), α12 (+0.05°), θA0 and θC0 must come back unbiased
 /// (1 % of the deviation or 0.5 µm / 0.0005°, plus 3σ, and σ under 10 % of it), the spindle's
 /// moves as s0 changes of +0.2 and −0.2 mm the same way; the ball distances within 3σ.
@@ -117,9 +119,11 @@ fn location_errors_of_an_ac_table_are_found_with_their_signs() {
     let design = design();
     let lean = 0.05f64.to_radians();
     let mut built = nominal();
+    let lean_y = 0.03f64.to_radians();
     built.a_point = [0.0, 0.0, -0.030];
+    built.a_dir = [1.0, 0.0003, 0.0];
     built.c_point = [0.0, 0.025, 0.0];
-    built.c_dir = [lean.sin(), 0.0, lean.cos()];
+    built.c_dir = [lean.sin(), -lean_y.sin(), lean.cos() * lean_y.cos()];
     built.table_ball = [
         built.table_ball[0] + 0.3,
         built.table_ball[1] - 0.2,
@@ -180,8 +184,11 @@ fn location_errors_of_an_ac_table_are_found_with_their_signs() {
     }
     assert_eq!(strong, 4, "{context}");
     for (name, t, change, sigma) in &id.changes {
-        let want = if *t == 2 { 0.2 } else { -0.2 };
-        eprintln!("{name} change in test {t}: {change:+.5} ± {sigma:?}");
+        // Test t (1-based) moved the spindle +0.2 (t = 2) or −0.2 mm (t = 3) along X: along the
+        // A axis, turned 0.3 mrad from X, that is s0 ± 0.2·cos(0.3 mrad).
+        let want = truth[t - 1][0] - truth[0][0];
+        assert!((want - if *t == 2 { 0.2 } else { -0.2 }).abs() < 1e-6);
+        eprintln!("{name} change in test {t}: {change:+.5} ± {sigma:?} (truth {want:+.5})");
         planned::assert_unbiased(name, *change, sigma.unwrap(), want, 5e-4, &context);
     }
     assert!(
