@@ -1,8 +1,8 @@
 //! Closed-form physical truth for the rotary-axis tests (issue 21): a swinging head ([`BHead`])
 //! or a turntable ([`CTable`]) whose axis line is offset and tilted, a ball on the spindle and a
-//! ball on the table, and the ball bar's length between them. Written from the physics with its own rotations (Rodrigues' formula);
-//! it shares no code and no equation with the host's `rotary` model, whose six-error
-//! sensitivities it is meant to check.
+//! ball on the table, and the ball bar's length between them. Written from the physics with its
+//! own rotations (Rodrigues' formula); it shares no code and no equation with the host's `rotary`
+//! model, whose six-error sensitivities it is meant to check.
 //!
 //! The rest of this doc is the head's; the turntable's is at [`CTable`].
 //!
@@ -30,6 +30,7 @@
 //! - tangential: beside the spindle ball on the head's +X side at B = 0 (the side B's positive
 //!   turn moves away from): a ball displaced toward −X at B = 0 extends the bar.
 //! - axial: beside the spindle ball on its −Y side: a ball displaced toward +Y extends the bar.
+
 /// A swinging head about Y with its axis line off where the controller thinks it is.
 #[derive(Debug, Clone, Copy)]
 pub struct BHead {
