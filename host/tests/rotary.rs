@@ -1,5 +1,7 @@
 //! Seed 002 (six errors of a rotary axis): the paper's C-table data, synthetic round trips with
-//! hidden errors, and bad input through the CLI.
+//! hidden errors, and bad input through the CLI. The synthetic tests are round trips (the data
+//! made by `length_change`, the model they fit): they check the fits, not a sign; the signs are
+//! checked against a physical swinging head in `tests/tests/rotary_truth.rs` (issue 21).
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

@@ -1,5 +1,7 @@
 //! Seed 004 (RRSPS linkage): Table 2 motion ranges, hidden-parameter recovery, joint s0 moves,
-//! and bad input through the CLI.
+//! and bad input through the CLI. The hidden-parameter tests are round trips (the data made by
+//! the model they fit): they check the statistics and the selection, not a sign; the signs are
+//! checked against a physical A/C table in `tests/tests/rrsps_truth.rs` (issue 21).
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

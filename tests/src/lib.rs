@@ -2,7 +2,8 @@
 //! QEMU's `netduinoplus2` (STM32F405 model; the F411 image runs there, see the README);
 //! [`gmachine`], an independent simulator of a CNC machine running a ballbar G-code program with
 //! the J-DBB recording it; an independent model of the instrument as built ([`mechanism`]) and
-//! the data it gives ([`calibration_data`]); the `jdbb` binary ([`jdbb_bin`]).
+//! the data it gives ([`calibration_data`]); closed-form physical rotary axes ([`rotary_truth`])
+//! and A/C tables ([`rrsps_truth`]); the `jdbb` binary ([`jdbb_bin`]).
 pub mod gmachine;
 
 use std::io::{BufRead, BufReader, Read};
@@ -12,6 +13,8 @@ use std::time::{Duration, Instant};
 
 pub mod calibration_data;
 pub mod mechanism;
+pub mod rotary_truth;
+pub mod rrsps_truth;
 
 /// Root of the repository.
 pub fn repo_root() -> PathBuf {

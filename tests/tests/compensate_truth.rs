@@ -191,7 +191,11 @@ fn linuxcnc_comp_table_cancels_a_lead_error_about_another_origin() {
 /// Squareness: Y's slide leans towards +X (δ_x = s·y, s = 40 µm/m). LinuxCNC's matrixkins
 /// commands joint_x = x + C_xy·y, so the machine ends at x + (C_xy + s·10⁻⁶)·y: C_xy must be
 /// −s·10⁻⁶. Marlin's skew moves the planner to x' = x − y·xy: xy must be +s·10⁻⁶. Each within
-/// 1 % + 3σ of the machine's s; a flipped sign doubles the error instead.
+/// 1 % + 3σ of the machine's s; a flipped sign doubles the error instead. Klipper's
+/// `SET_SKEW XY=ac,bd,ad` triangle, turned into its factor and applied to each move with
+/// Klipper's own arithmetic (`calc_skew_factor`, `calc_skew`, written here from
+/// klippy/extras/skew_correction.py), must leave under 2 % of the lean on the tested circle, and
+/// the factor's other sign must leave twice the lean.
 #[test]
 fn the_skew_settings_cancel_a_leaning_slide() {
     let p = make_plan(&[90.0]);
@@ -243,6 +247,70 @@ fn the_skew_settings_cancel_a_leaning_slide() {
     // x' = x − y·xy on a machine that adds s·y: left (s − xy·10⁶)·y, zero when xy·10⁶ is s.
     let cancels = 1e6 * xy;
     assert_unbiased("M852 I (µm/m)", cancels, sigma, s_um_per_m, 0.3, &context);
+
+    // Klipper: the `SET_SKEW XY=ac,bd,ad` triangle `compensate` writes, through Klipper's own
+    // arithmetic (below), moves the machine; what is left of the slide's lean is measured on
+    // the tested circle.
+    let klipper = compensate_for(&doc, Controller::Klipper);
+    let lengths: Vec<f64> = klipper
+        .blocks
+        .iter()
+        .flat_map(|b| &b.lines)
+        .find_map(|l| l.trim().strip_prefix("SET_SKEW "))
+        .and_then(|rest| rest.split_whitespace().find_map(|w| w.strip_prefix("XY=")))
+        .expect("a SET_SKEW XY= line")
+        .split(',')
+        .map(|v| v.parse().unwrap())
+        .collect();
+    let xy_factor = klipper_calc_skew_factor(lengths[0], lengths[1], lengths[2]);
+    let left = klipper_residual_squareness(xy_factor, s_um_per_m, 90.0);
+    assert!(
+        left.abs() < 0.02 * s_um_per_m,
+        "Klipper SET_SKEW XY={lengths:?} (factor {xy_factor}) leaves {left} µm/m of {s_um_per_m}\n{context}"
+    );
+    // The other sign of the factor would double the lean instead of removing it.
+    let flipped = klipper_residual_squareness(-xy_factor, s_um_per_m, 90.0);
+    assert!(
+        (flipped / s_um_per_m - 2.0).abs() < 0.04,
+        "flipped: {flipped} µm/m"
+    );
+}
+
+/// Klipper's `calc_skew_factor(ac, bd, ad)` (klippy/extras/skew_correction.py, Klipper3d/klipper,
+/// a port of Marlin's planner.h skew), written again here from that file: the side of the square
+/// from the two diagonals, then the angle DAB from the law of cosines, the factor tan(90° − DAB).
+fn klipper_calc_skew_factor(ac: f64, bd: f64, ad: f64) -> f64 {
+    let side = (2.0 * ac * ac + 2.0 * bd * bd - 4.0 * ad * ad).sqrt() / 2.0;
+    (std::f64::consts::FRAC_PI_2 - ((ac * ac - side * side - ad * ad) / (2.0 * side * ad)).acos())
+        .tan()
+}
+
+/// Klipper's `calc_skew(pos)` (same file): the position a move is sent to the kinematics at,
+/// x − y·xy − z·(xz − xy·yz), y − z·yz, z; here with only the XY factor.
+fn klipper_calc_skew(pos: [f64; 3], xy: f64) -> [f64; 3] {
+    [pos[0] - pos[1] * xy, pos[1], pos[2]]
+}
+
+/// The squareness (µm/m) left on an XY circle of radius `r_mm` about the table ball when Klipper
+/// skews every move by `xy` on the G-code machine whose Y slide leans `s_um_per_m` towards +X
+/// (`gmachine::errors::Squareness`: δ_x = s·(y − ball_y) at the motor's y): the slope of the
+/// spindle's X error against Y over the circle (least squares; a constant shift moves the
+/// circle, not its shape).
+fn klipper_residual_squareness(xy: f64, s_um_per_m: f64, r_mm: f64) -> f64 {
+    let (mut sy, mut se, mut syy, mut sye, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for k in 0..360 {
+        let a = (k as f64).to_radians();
+        let cmd = [BALL[0] + r_mm * a.cos(), BALL[1] + r_mm * a.sin(), BALL[2]];
+        let motor = klipper_calc_skew(cmd, xy);
+        let actual_x = motor[0] + s_um_per_m * 1e-6 * (motor[1] - BALL[1]);
+        let (y, e) = (cmd[1] - BALL[1], actual_x - cmd[0]);
+        sy += y;
+        se += e;
+        syy += y * y;
+        sye += y * e;
+        n += 1.0;
+    }
+    1e6 * (n * sye - sy * se) / (n * syy - sy * sy)
 }
 
 /// Play: X's nut has 8 µm of clearance (the carriage stands still for the first 8 µm of the

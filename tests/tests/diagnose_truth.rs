@@ -386,6 +386,71 @@ fn a_lead_growing_along_the_screw_is_second_order_scale() {
     );
 }
 
+/// The vertical plane's 220° test (YZ, from −20°) of `radii` about the table ball.
+fn yz_arc_plan(radii: &[f64]) -> Plan {
+    let spec = PlanSpec::machine_test(
+        radii,
+        &[0.0],
+        Plane::Yz,
+        1000.0,
+        BALL,
+        PlanDialect::Linuxcnc,
+    )
+    .with_arc(220.0);
+    let spec = PlanSpec {
+        start_deg: -20.0,
+        ..spec
+    };
+    plan(&spec, &Calibration::DEFAULT).unwrap()
+}
+
+/// Interference on Z in a vertical plane (YZ, the 220° test from −20°): Z's read head reports
+/// late by τ(z) = 0.15 ms·sin(2π·z/6 mm + 0.7), so Z runs ahead of its command by v·τ(z) and
+/// `interference_z` is 0.15 µm per mm/s. The table ball stands at Z −20, a third of a pitch off
+/// (−20/6 = −3.33 pitches), so the truth against the position relative to the ball is turned by
+/// ψ = φ + 2π·(−20)/6. A reading taken as leading (the sign flipped) turns both components by
+/// π; a phase from the program origin instead of the ball turns them by 2π/3 (120°); either
+/// fails by more than the amplitude.
+#[test]
+fn interference_on_z_in_a_vertical_plane_keeps_its_sign_and_phase() {
+    let p = yz_arc_plan(&[90.0]);
+    let (b, pitch, phi) = (0.15, 6.0, 0.7);
+    let mut errors = MachineErrors::default();
+    errors.interference[2] = Interference {
+        latency_ms: b,
+        pitch_mm: pitch,
+        phase_rad: phi,
+    };
+    let d = run(&p, errors, 35, [None, None, Some(pitch)]);
+    let f = only(&d, "interference_z");
+    let s = summary(&d);
+    let psi = phi + std::f64::consts::TAU * BALL[2] / pitch;
+    let tol = 0.01 * b + 0.002;
+    let (sn, ss) = param(f, 0);
+    let (cs, sc) = param(f, 1);
+    assert_unbiased("interference_z sin", sn, ss, b * psi.cos(), tol, &s);
+    assert_unbiased("interference_z cos", cs, sc, b * psi.sin(), tol, &s);
+}
+
+/// A second-order scale on Z in a vertical plane (YZ, the 220° test from −20°, two radii about
+/// the table ball): Z's lead grows along its screw, δ_z = b·(z − o)² with b = −2000 µm/m² and
+/// the lead right at the ball's height (o = −20), so `scale2_z` = −2000 µm/m² is named alone.
+/// A flipped sign of b reports +2000; a second-order scale taken about the program origin
+/// instead of the ball would add a first-order scale of 2·b·20 mm = −80 µm/m, named with it.
+#[test]
+fn a_lead_growing_along_z_is_second_order_scale_in_a_vertical_plane() {
+    let p = yz_arc_plan(&[95.0, 85.0]);
+    let b = -2000.0;
+    let mut errors = MachineErrors::default();
+    errors.scale2[2] = Scale2 {
+        um_per_m2: b,
+        origin_mm: BALL[2],
+    };
+    let d = run(&p, errors, 36, [None; 3]);
+    let f = only(&d, "scale2_z");
+    assert_unbiased("scale2_z", f.value, f.sigma.unwrap(), b, 5.0, &summary(&d));
+}
+
 /// Z effects through several heights: XY circles of 84 and 92 mm at z = −30, 0, +30 mm about the
 /// table ball (the J-DBB's free bar length), Z's scale +30 µm/m and a column leaning towards
 /// +Z with X (δ_z = 40 µm/m·(x − x_ball)): `scale_z` = +30 and `squareness_zx` = +40, and the

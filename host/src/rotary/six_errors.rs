@@ -8,8 +8,19 @@
 //!   (−sin γ, cos γ, 0), axial (0, 0, 1) at L = 0 (eq. 11). This reproduces eq. (9) term by term.
 //! - B swinging head (about Y): the printed eq. (25) is garbled (P = (0 0 −L) becomes
 //!   (L sin β, 0, L cos β)) and eq. (26)-(33) are missing from the text, so it is derived again:
-//!   P(β) = R_y(β)(0, H, −L) = (−L sin β, H, −L cos β); radial (−sin β, 0, −cos β), tangential
+//!   P(β) = R_y(β)(0, H, −L) = (−L sin β, H, −L cos β); radial (sin β, 0, cos β), tangential
 //!   (−cos β, 0, sin β), axial (0, 1, 0).
+//!
+//! **Which way a run reads.** A bar reads its length change, + when it extends. A run's direction
+//! n above is the one along which a displacement of P extends the bar: the other ball sits at
+//! P − ℓ·n. C: the spindle ball inward of the table ball (radial), behind it in the sense of
+//! rotation (tangential); the axial run follows the paper's eq. (14), ΔZ = Δla (the spindle ball
+//! above the table ball would read −ΔZ). B: the table ball on the tool's axis beyond the spindle
+//! ball (the only place it can be: on the pivot side it would be inside the head), so a ball
+//! displaced along the tool toward the table shortens the bar and radial reads −ΔP·(−sin β, 0,
+//! −cos β); tangential with the table ball on the head's +X side at B = 0, axial on the spindle
+//! ball's −Y side. Until issue 21 the B radial direction was (−sin β, 0, −cos β), which a
+//! physical head's data cannot fit (`tests/tests/rotary_truth.rs`).
 //!
 //! **Runs**: C: combination 1 at (L1, H1) radial, tangential and axial; 2 at (L2, H1); 3 at
 //! (L1, H3). B: combination 1 at (L1, H1), 2 at (L2, H1), each radial, tangential, axial.
@@ -19,9 +30,13 @@
 //! t_j = L_j εz + cos γ (δy − H_j εx) − sin γ (δx + H_j εy), a = δz. Hence without numbers for
 //! L and H only δz(γ), (L2 − L1)·εz(γ) = t2 − t1 and (H3 − H1)·(εx, εy)(γ) (from r3 − r1,
 //! t3 − t1) are identifiable; δx, δy need H1 and εz needs L2 − L1. For B (H = 0):
-//! r = −sin β δx − cos β δz, t_j = L_j εy + sin β δz − cos β δx, a_j = δy + L_j(εx cos β − εz sin β):
+//! r = sin β δx + cos β δz, t_j = L_j εy + sin β δz − cos β δx, a_j = δy + L_j(εx cos β − εz sin β):
 //! per angle εx and εz enter only as εx cos β − εz sin β, so the paper's per-angle solution for B
-//! is rank-deficient; a Fourier fit over the swing range separates them in part.
+//! is rank-deficient; a Fourier fit over the swing range separates them in part. A δ or ε that
+//! turns with the head (δ = R_y(β)·v, v in the XZ plane) moves both balls the same in the head's
+//! frame and only shifts each run's zero: the Fourier fit reports those harmonic pairs as
+//! undetermined. An axis line offset by o (or tilted by t) gives δ = (I − R_y(β))·o: its
+//! constant term o is what the runs determine.
 //!
 //! **Setup terms.** Every re-installation of the bar has its own zero (a constant per run), and
 //! the centre of the circle the spindle ball describes is never exactly on the axis: a constant
@@ -107,7 +122,7 @@ pub fn sensitivity(axis: Axis, angle_rad: f64, kind: Kind, place: Placement) -> 
         Axis::B => {
             let p = [-l * s, h, -l * c];
             let dir = match kind {
-                Kind::Radial => [-s, 0.0, -c],
+                Kind::Radial => [s, 0.0, c],
                 Kind::Tangential => [-c, 0.0, s],
                 Kind::Axial => [0.0, 1.0, 0.0],
             };
