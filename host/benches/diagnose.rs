@@ -4,7 +4,7 @@
 //! `cargo bench -p jdbb --bench diagnose` times simulated tests of 20,000, 100,000 and 1,000,000
 //! samples (one circle ccw + cw at R = 50 mm, set-up offset, scale_x, backlash_y, cyclic_x,
 //! 0.3 µm noise, pitch x = y = 10 mm). `cargo bench -p jdbb --bench diagnose -- FILE [RUNS]`
-//! times the diagnosis of FILE instead, 51 runs unless RUNS says (bench/compare_diagnose.sh gives
+//! times the diagnosis of FILE instead (`sim:N`: the simulated test of N samples), 51 runs unless RUNS says (bench/compare_diagnose.sh gives
 //! the same file to bench/diagnose.py; one run under `valgrind --tool=callgrind` counts
 //! instructions, which a loaded machine does not disturb).
 //! Timed: everything from the samples in memory (nominal path + D) to the finished diagnosis —
@@ -72,8 +72,14 @@ fn main() {
         .filter(|a| !a.starts_with("--"))
         .collect();
     if let Some(file) = args.first() {
-        let pitch = parse_pitch("x=10,y=10").unwrap();
-        let (path, d) = read_samples(std::path::Path::new(file), pitch).expect("read samples");
+        let (path, d) = match file.strip_prefix("sim:") {
+            // `sim:N`: the simulated test of N samples (for one run under callgrind).
+            Some(n) => simulated(n.parse().expect("sim:N, N samples")),
+            None => {
+                let pitch = parse_pitch("x=10,y=10").unwrap();
+                read_samples(std::path::Path::new(file), pitch).expect("read samples")
+            }
+        };
         let reps = args.get(1).and_then(|r| r.parse().ok()).unwrap_or(51);
         let (med, min, names) = time(&path, &d, reps);
         println!(

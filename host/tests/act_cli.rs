@@ -2,24 +2,8 @@
 //! `jdbb history`, their bad inputs (exit 2 with `file:line:column` where it applies), and two
 //! `jdbb history add` processes writing one database at once.
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn jdbb(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_jdbb"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn ok(args: &[&str]) -> String {
-    let o = jdbb(args);
-    assert!(
-        o.status.success(),
-        "{args:?}: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    String::from_utf8(o.stdout).unwrap()
-}
+mod common;
+use common::{jdbb, ok};
 
 /// `args` exit 2 with `want` in stderr and no panic.
 fn bad(args: &[&str], want: &str) -> String {

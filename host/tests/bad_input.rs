@@ -2,21 +2,15 @@
 //! without bound, or answered absurd input with exit 0. Bad input exits 2 with a message that
 //! names the problem (and its limit); a runtime failure exits 1; nothing panics (exit 101).
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
-
-fn jdbb() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_jdbb"))
-}
-
-fn run(args: &[&str]) -> Output {
-    jdbb().args(args).output().unwrap()
-}
+mod common;
+use common::{command, jdbb};
 
 /// `args` fail with exit `code`, stderr containing `want`, and no panic.
 fn fails(args: &[&str], code: i32, want: &str) -> String {
     let t0 = Instant::now();
-    let o = run(args);
+    let o = jdbb(args);
     let err = String::from_utf8_lossy(&o.stderr).to_string();
     assert_eq!(o.status.code(), Some(code), "{args:?}: {err}");
     assert!(err.contains(want), "{args:?}: wanted `{want}` in `{err}`");
@@ -101,7 +95,7 @@ fn a_closed_pipe_or_a_full_disk_does_not_panic() {
     // `jdbb diagnose ... | true`: the reader is gone before anything is written.
     let (reader, writer) = std::io::pipe().unwrap();
     drop(reader);
-    let o = jdbb()
+    let o = command()
         .args(["diagnose", "--samples", &f])
         .stdout(Stdio::from(writer))
         .output()
@@ -116,7 +110,7 @@ fn a_closed_pipe_or_a_full_disk_does_not_panic() {
                 .write(true)
                 .open("/dev/full")
                 .unwrap();
-            let o = jdbb().args(&args).stdout(full).output().unwrap();
+            let o = command().args(&args).stdout(full).output().unwrap();
             let err = String::from_utf8_lossy(&o.stderr);
             assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
             assert!(err.contains("cannot write to standard output"), "{err}");
@@ -140,7 +134,7 @@ fn rotary_order_is_bounded_by_the_angles() {
         "--l1",
     );
     assert!(
-        run(&["rotary", "--axis", "c", "--table", t, "--order", "8"])
+        jdbb(&["rotary", "--axis", "c", "--table", t, "--order", "8"])
             .status
             .success()
     );
@@ -266,7 +260,7 @@ fn files_are_read_by_the_same_rules_everywhere() {
     // Excel's "CSV UTF-8": a byte-order mark and CRLF.
     let excel = format!("\u{feff}{}", circle_csv().replace('\n', "\r\n"));
     let excel = write(d, "excel.csv", excel.as_bytes());
-    let o = run(&["diagnose", "--samples", &excel, "--json"]);
+    let o = jdbb(&["diagnose", "--samples", &excel, "--json"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     // Not UTF-8: exit 2 at the line and column.
     let mut bytes = circle_csv().into_bytes();

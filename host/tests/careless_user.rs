@@ -7,35 +7,19 @@ use std::fs;
 use std::os::unix::fs::FileTypeExt;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Output, Stdio};
 use std::time::{Duration, Instant};
-
-fn jdbb() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_jdbb"))
-}
-
-fn run_in(dir: &Path, args: &[&str]) -> Output {
-    jdbb().current_dir(dir).args(args).output().unwrap()
-}
-
-fn err(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+mod common;
+use common::{command, jdbb_in, ok_in, stderr};
 
 /// `args` (run in `dir`) exit `code` with `want` in stderr and no panic.
 fn fails_in(dir: &Path, args: &[&str], code: i32, want: &str) -> String {
-    let o = run_in(dir, args);
-    let e = err(&o);
+    let o = jdbb_in(dir, args);
+    let e = stderr(&o);
     assert_eq!(o.status.code(), Some(code), "{args:?}: {e}");
     assert!(e.contains(want), "{args:?}: wanted `{want}` in `{e}`");
     assert!(!e.contains("panicked"), "{args:?}: {e}");
     e
-}
-
-fn ok_in(dir: &Path, args: &[&str]) -> String {
-    let o = run_in(dir, args);
-    assert!(o.status.success(), "{args:?}: {}", err(&o));
-    String::from_utf8_lossy(&o.stdout).into_owned()
 }
 
 fn data(name: &str) -> PathBuf {
@@ -438,7 +422,7 @@ fn nothing_is_replaced_without_force() {
 /// Run `args` in `dir` with files limited to `bytes` (RLIMIT_FSIZE, SIGXFSZ ignored): a write
 /// beyond fails as on a full disk.
 fn run_on_small_disk(dir: &Path, args: &[&str], bytes: u64) -> Output {
-    let mut c = jdbb();
+    let mut c = command();
     c.current_dir(dir).args(args);
     // SAFETY: async-signal-safe libc calls between fork and exec.
     unsafe {
@@ -478,13 +462,13 @@ fn a_full_disk_leaves_the_old_outputs_whole() {
     forced_plan.push("--force");
     forced_plan[2] = "95";
     let o = run_on_small_disk(d, &forced_plan, room);
-    assert_eq!(o.status.code(), Some(1), "{}", err(&o));
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert_eq!(fs::read(d.join("plan/plan.json")).unwrap(), old_json);
     assert_eq!(fs::read(d.join("plan/ballbar.ngc")).unwrap(), old_prog);
     let mut forced_sim = sim.to_vec();
     forced_sim.extend(["--force", "--radius", "70"]);
     let o = run_on_small_disk(d, &forced_sim, room);
-    assert_eq!(o.status.code(), Some(1), "{}", err(&o));
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert_eq!(fs::read(d.join("sim.csv")).unwrap(), old_sim);
     let o = run_on_small_disk(
         d,
@@ -500,7 +484,7 @@ fn a_full_disk_leaves_the_old_outputs_whole() {
         ],
         room,
     );
-    assert_eq!(o.status.code(), Some(1), "{}", err(&o));
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert_eq!(fs::read(d.join("rep/diagnosis.json")).unwrap(), old_report);
     assert_eq!(ls(&d.join("rep")), old_ls);
     let comp = [
@@ -518,7 +502,7 @@ fn a_full_disk_leaves_the_old_outputs_whole() {
         "--force",
     ];
     let o = run_on_small_disk(d, &comp, 300);
-    assert_eq!(o.status.code(), Some(1), "{}", err(&o));
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(
         !d.join("comp").exists() || ls(&d.join("comp")).is_empty(),
         "no torn table"
@@ -558,7 +542,7 @@ fn a_failing_standard_error_is_not_a_panic() {
         .write(true)
         .open("/dev/full")
         .unwrap();
-    let o = jdbb()
+    let o = command()
         .current_dir(d)
         .args(["diagnose", "--samples", "missing.csv"])
         .stderr(Stdio::from(full))
@@ -566,7 +550,7 @@ fn a_failing_standard_error_is_not_a_panic() {
         .unwrap();
     assert_eq!(o.status.code(), Some(2));
     // A closed pipe as standard error.
-    let mut child = jdbb()
+    let mut child = command()
         .current_dir(d)
         .args(["rotary", "--axis", "c", "--table", "missing.csv"])
         .stderr(Stdio::piped())
@@ -580,7 +564,7 @@ fn a_failing_standard_error_is_not_a_panic() {
         .write(true)
         .open("/dev/full")
         .unwrap();
-    let o = jdbb()
+    let o = command()
         .current_dir(d)
         .args([
             "rrsps",
@@ -604,13 +588,13 @@ fn a_failing_standard_error_is_not_a_panic() {
 
 #[test]
 fn a_panic_is_exit_1_with_a_bug_report() {
-    let o = jdbb()
+    let o = command()
         .args(["devices"])
         .env("JDBB_PANIC_FOR_TEST", "1")
         .output()
         .unwrap();
     assert_eq!(o.status.code(), Some(1));
-    let e = err(&o);
+    let e = stderr(&o);
     assert!(
         e.contains("internal error (a bug)") && e.contains("report it"),
         "{e}"
@@ -619,7 +603,7 @@ fn a_panic_is_exit_1_with_a_bug_report() {
         .write(true)
         .open("/dev/full")
         .unwrap();
-    let o = jdbb()
+    let o = command()
         .args(["devices"])
         .env("JDBB_PANIC_FOR_TEST", "1")
         .stderr(Stdio::from(full))
@@ -634,7 +618,7 @@ fn a_panic_is_exit_1_with_a_bug_report() {
 /// Run `args` in `dir` with the address space limited to 1 GiB (a reader that reads an endless
 /// input whole runs out of it and aborts).
 fn run_bounded(dir: &Path, args: &[&str]) -> Output {
-    let mut c = jdbb();
+    let mut c = command();
     c.current_dir(dir).args(args);
     // SAFETY: an async-signal-safe libc call between fork and exec.
     unsafe {
@@ -756,7 +740,7 @@ fn every_input_read_from_an_endless_file_stops_at_its_limit() {
     for args in &cases {
         let t0 = Instant::now();
         let o = run_bounded(d, args);
-        let e = err(&o);
+        let e = stderr(&o);
         assert_eq!(o.status.code(), Some(2), "{args:?}: {e}");
         assert!(
             e.contains("MiB") || e.contains("GiB"),
@@ -807,7 +791,7 @@ const HANG: Duration = Duration::from_secs(60);
 /// Start `args` in `dir`, send SIGINT after `after`; the exit code (None: still running after
 /// [`HANG`], then killed) and how long it took to end.
 fn interrupt(dir: &Path, args: &[&str], after: Duration) -> (Option<i32>, Duration) {
-    let mut child = jdbb()
+    let mut child = command()
         .current_dir(dir)
         .args(args)
         .stdout(Stdio::null())
@@ -1014,11 +998,11 @@ fn compensate_refuses_absurd_settings_and_another_controllers_file() {
     }
     fs::write(d.join("huge.json"), serde_json::to_string(&doc).unwrap()).unwrap();
     for c in ["grblhal", "linuxcnc", "marlin"] {
-        let o = run_in(
+        let o = jdbb_in(
             d,
             &["compensate", "--diagnosis", "huge.json", "--controller", c],
         );
-        let e = err(&o);
+        let e = stderr(&o);
         assert_eq!(
             o.status.code(),
             Some(2),
@@ -1136,7 +1120,7 @@ fn plan_json_circles_units_and_keys_are_checked_against_the_segments() {
 
 /// Run `args` in `dir` as user and group nobody (65534).
 fn run_as_nobody(dir: &Path, args: &[&str]) -> Output {
-    let mut c = jdbb();
+    let mut c = command();
     c.current_dir(dir).args(args);
     // SAFETY: async-signal-safe libc calls between fork and exec.
     unsafe {
@@ -1188,7 +1172,7 @@ fn history_reads_a_read_only_database_and_never_creates_one_by_mistake() {
         let mut args = vec!["history", "--db", "h.sqlite"];
         args.extend(cmd.iter().copied());
         let o = run_as_nobody(d, &args);
-        assert!(o.status.success(), "{cmd:?}: {}", err(&o));
+        assert!(o.status.success(), "{cmd:?}: {}", stderr(&o));
         assert!(String::from_utf8_lossy(&o.stdout).contains("m1"));
     }
     assert_eq!(fs::read(d.join("h.sqlite")).unwrap(), before);

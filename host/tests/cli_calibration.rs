@@ -7,7 +7,7 @@
 use std::fs::File;
 use std::io::{Read, Write};
 use std::os::fd::{AsRawFd, FromRawFd};
-use std::process::{Command as Proc, Output};
+use std::process::Output;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -19,8 +19,8 @@ use jdbb_core::protocol::{
     self, Board, Command, CommandError, Decoder, DeviceInfo, DeviceMsg, IndexStatus, Reference,
     ResetCause, MAX_FRAME_LEN,
 };
-
-const JDBB: &str = env!("CARGO_BIN_EXE_jdbb");
+mod common;
+use common::jdbb;
 
 /// How the fake device treats SetCalibration.
 #[derive(Clone, Copy, PartialEq)]
@@ -167,10 +167,6 @@ fn cal_file(dir: &tempfile::TempDir, cal: &Calibration) -> String {
     path.display().to_string()
 }
 
-fn run(args: &[&str]) -> Output {
-    Proc::new(JDBB).args(args).output().expect("run jdbb")
-}
-
 fn text(o: &Output) -> (String, String) {
     (
         String::from_utf8_lossy(&o.stdout).into_owned(),
@@ -184,7 +180,7 @@ fn send_writes_the_calibration_and_reads_it_back_identical() {
     let cal = example();
     let file = cal_file(&dir, &cal);
     let dev = FakeDevice::start(Behaviour::Keep);
-    let o = run(&[
+    let o = jdbb(&[
         "calibration",
         "send",
         "--port",
@@ -200,7 +196,7 @@ fn send_writes_the_calibration_and_reads_it_back_identical() {
     assert!(out.contains("eccentricity 40.000″"), "{out}");
     assert!(out.contains("zero at count 0 +60.000″"), "{out}");
     // `show` reads it from the same device.
-    let o = run(&["calibration", "show", "--port", &dev.slave_path]);
+    let o = jdbb(&["calibration", "show", "--port", &dev.slave_path]);
     let (shown, err) = text(&o);
     assert!(o.status.success(), "{shown}\n{err}");
     assert!(shown.contains("L1 50.023000 mm") && shown.contains("axes skew 90.000″"));
@@ -224,7 +220,7 @@ fn send_example_to(b: Behaviour) -> std::process::Output {
     let dir = tempfile::tempdir().unwrap();
     let file = cal_file(&dir, &example());
     let dev = FakeDevice::start(b);
-    let o = run(&[
+    let o = jdbb(&[
         "calibration",
         "send",
         "--port",
@@ -282,7 +278,7 @@ fn a_bad_file_is_refused_before_the_port_is_opened() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("bad.toml");
     std::fs::write(&path, "l1_mm = 50.0\n").unwrap();
-    let o = run(&[
+    let o = jdbb(&[
         "calibration",
         "send",
         "--port",

@@ -7,23 +7,17 @@ use std::fs::File;
 use std::io::{Read, Write};
 use std::os::fd::{AsRawFd, FromRawFd};
 use std::path::Path;
-use std::process::{Child, Command as Proc, Output, Stdio};
+use std::process::{Child, Command as Proc, Stdio};
 use std::time::{Duration, Instant};
 
 use jdbb_core::protocol::{
     self, Board, Command, Decoder, DeviceInfo, DeviceMsg, IndexStatus, Reference, ResetCause,
     Sample, SampleBatch, Status, BATCH_LEN, MAX_FRAME_LEN,
 };
+mod common;
+use common::{jdbb, stderr};
 
 const JDBB: &str = env!("CARGO_BIN_EXE_jdbb");
-
-fn jdbb(args: &[&str]) -> Output {
-    Proc::new(JDBB).args(args).output().expect("run jdbb")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
 
 /// A pseudo-terminal pair: the test plays the device on the master side, jdbb opens the slave
 /// path like QEMU's /dev/pts/N.

@@ -1,14 +1,8 @@
 //! `jdbb simulate` → `jdbb diagnose` through the binary: the documented JSON, the report files,
 //! the seed 002 real data, and bad input (clear error with file:line:column, exit code 2).
 use std::path::Path;
-use std::process::Command;
-
-fn jdbb(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_jdbb"))
-        .args(args)
-        .output()
-        .expect("run jdbb")
-}
+mod common;
+use common::jdbb;
 
 fn simulate(dir: &Path, name: &str, extra: &[&str]) -> String {
     let out = dir.join(name);

@@ -3,28 +3,11 @@
 //! what to do. Records come from `jdbb simulate --plan --machine`.
 use std::fs;
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn jdbb(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_jdbb"))
-        .current_dir(dir)
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn ok(dir: &Path, args: &[&str]) -> String {
-    let o = jdbb(dir, args);
-    assert!(
-        o.status.success(),
-        "{args:?}: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
+mod common;
+use common::{jdbb_in, ok_in};
 
 fn refused(dir: &Path, args: &[&str], want: &[&str]) -> String {
-    let o = jdbb(dir, args);
+    let o = jdbb_in(dir, args);
     let e = String::from_utf8_lossy(&o.stderr).into_owned();
     assert_eq!(o.status.code(), Some(2), "{args:?}: {e}");
     for w in want {
@@ -36,7 +19,7 @@ fn refused(dir: &Path, args: &[&str], want: &[&str]) -> String {
 
 /// A plan (upper-case plane and dialect are accepted) and a record of it on `machine` (TOML).
 fn plan_and_record(dir: &Path, machine: &str) {
-    ok(
+    ok_in(
         dir,
         &[
             "plan",
@@ -59,7 +42,7 @@ fn plan_and_record(dir: &Path, machine: &str) {
         format!("{machine}\n[instrument]\nsample_rate_hz = 250\nnoise_um = 0.2\n"),
     )
     .unwrap();
-    ok(
+    ok_in(
         dir,
         &[
             "simulate",
@@ -83,7 +66,7 @@ fn diagnose_reads_the_toml_calibration_and_history_takes_the_machine_from_it() {
         &["as `jdbb calibrate -o` writes it".into()],
     );
     fs::write(d.join("cal.toml"), cal).unwrap();
-    ok(
+    ok_in(
         d,
         &[
             "diagnose",
@@ -119,7 +102,7 @@ fn diagnose_reads_the_toml_calibration_and_history_takes_the_machine_from_it() {
         &["bad.toml:1:"],
     );
     // No --machine: the diagnosis names it.
-    let out = ok(
+    let out = ok_in(
         d,
         &[
             "history",
@@ -187,7 +170,7 @@ fn a_record_far_beyond_the_plans_feed_is_refused() {
     // 140 %: at 2100 mm/min the 2 mm feed-in never cruises and the fitted feed runs high (163 %
     // at 2800 mm/min); the refusal goes by the least feed the arcs' time allows, not by it.
     plan_and_record(d, "feed_override_pct = 140\n");
-    ok(
+    ok_in(
         d,
         &[
             "diagnose",
@@ -204,7 +187,7 @@ fn option_values_are_case_insensitive() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     // The same test written in capitals and in lower case is the same file.
-    let upper = ok(
+    let upper = ok_in(
         d,
         &[
             "simulate",
@@ -224,7 +207,7 @@ fn option_values_are_case_insensitive() {
             "Y=10",
         ],
     );
-    let lower = ok(
+    let lower = ok_in(
         d,
         &[
             "simulate",

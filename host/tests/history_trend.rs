@@ -2,20 +2,8 @@
 //! slope per month with its σ fitted only since the compensation changed, the change marked
 //! (filed with `history comp`, and stated by the diagnoses' `--compensation`), CSV export.
 use std::path::{Path, PathBuf};
-use std::process::Command;
-
-fn ok(args: &[&str]) -> String {
-    let o = Command::new(env!("CARGO_BIN_EXE_jdbb"))
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "jdbb {args:?}: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    String::from_utf8(o.stdout).unwrap()
-}
+mod common;
+use common::ok;
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()

@@ -6,7 +6,6 @@
 //! equal plan.json's segments. Coordinates are compared to 1e-4 mm: the crate reads numbers as
 //! f32 (7 digits; 2e-5 mm at a few hundred mm).
 use std::path::Path;
-use std::process::{Command, Output};
 
 use gcode::{Code, Value};
 use jdbb::circular::plan::{
@@ -14,6 +13,8 @@ use jdbb::circular::plan::{
     write_program, Dialect, LineRole, Plan, PlanSpec, Plane, Purpose, Segment, Sense,
 };
 use jdbb_core::calib::Calibration;
+mod common;
+use common::jdbb;
 
 const TOL_MM: f64 = 1e-4;
 
@@ -774,13 +775,6 @@ fn plan_json_round_trips_and_bad_files_name_the_place() {
 
 // ---------------------------------------------------------------------------------------------
 // The command.
-
-fn jdbb(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_jdbb"))
-        .args(args)
-        .output()
-        .unwrap()
-}
 
 #[test]
 fn command_writes_the_plan_and_program_of_every_dialect() {

@@ -5,19 +5,8 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
-
-fn jdbb(args: &[&str]) -> String {
-    let o = Command::new(env!("CARGO_BIN_EXE_jdbb"))
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(
-        o.status.success(),
-        "jdbb {args:?}: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    String::from_utf8(o.stdout).unwrap()
-}
+mod common;
+use common::ok;
 
 fn find_chromium() -> Option<PathBuf> {
     if let Ok(p) = std::env::var("JDBB_CHROMIUM") {
@@ -44,7 +33,7 @@ fn find_chromium() -> Option<PathBuf> {
 fn report_with(dir: &Path, extra: &[&str]) -> PathBuf {
     let csv = dir.join("t.csv");
     let rep = dir.join("rep");
-    jdbb(&[
+    ok(&[
         "simulate",
         "--radius",
         "50",
@@ -75,7 +64,7 @@ fn report_with(dir: &Path, extra: &[&str]) -> PathBuf {
         "2026-11-23",
     ];
     args.extend_from_slice(extra);
-    jdbb(&args);
+    ok(&args);
     rep.join("report.html")
 }
 
@@ -153,7 +142,7 @@ fn radial_deviation_f_is_from_the_nominal_radius_g_is_not() {
     // A bar 5 µm long everywhere: the plot and G remove the length offset, F must not.
     let dir = tempfile::tempdir().unwrap();
     let csv = dir.path().join("t.csv");
-    jdbb(&[
+    ok(&[
         "simulate",
         "--radius",
         "50",
@@ -170,7 +159,7 @@ fn radial_deviation_f_is_from_the_nominal_radius_g_is_not() {
         "-o",
         csv.to_str().unwrap(),
     ]);
-    let out = jdbb(&["diagnose", "--samples", csv.to_str().unwrap(), "--json"]);
+    let out = ok(&["diagnose", "--samples", csv.to_str().unwrap(), "--json"]);
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     let c = &v["circles"][0];
     for dir in ["ccw", "cw"] {
@@ -318,7 +307,7 @@ fn the_serial_the_device_reported_is_in_the_report() {
     )
     .unwrap();
     let plan = dir.path().join("plan");
-    jdbb(&[
+    ok(&[
         "plan",
         "--radius",
         "90",
@@ -330,7 +319,7 @@ fn the_serial_the_device_reported_is_in_the_report() {
         plan.to_str().unwrap(),
     ]);
     let rep = dir.path().join("rep");
-    jdbb(&[
+    ok(&[
         "diagnose",
         "--record",
         rec.to_str().unwrap(),

@@ -3,13 +3,14 @@
 //! made by `length_change`, the model they fit): they check the fits, not a sign; the signs are
 //! checked against a physical swinging head in `tests/tests/rotary_truth.rs` (issue 21).
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use jdbb::rotary::six_errors::{
     length_change, per_angle, placement, read_table, Axis, FourierProblem, Geometry, Kind, Table,
 };
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal};
+mod common;
+use common::jdbb;
 
 /// The paper's Table 1 (C turntable), as in ../shared/data/dbb_c_turntable_table1.csv: kept here
 /// so the test runs from a fresh clone.
@@ -39,13 +40,6 @@ fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
     let p = dir.join(name);
     std::fs::write(&p, text).unwrap();
     p
-}
-
-fn jdbb(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_jdbb"))
-        .args(args)
-        .output()
-        .expect("run jdbb")
 }
 
 fn json(out: &std::process::Output) -> serde_json::Value {

@@ -11,6 +11,8 @@ use jdbb::rrsps::io::{read_params, Samples};
 use jdbb::rrsps::simulate::simulate;
 use jdbb::rrsps::{Params, PARAM_NAMES};
 use rand::{Rng, SeedableRng};
+mod common;
+use common::jdbb;
 
 const D_MM: f64 = 300.0;
 /// The paper's residual level: Table 4 reports a largest deviation of ~1.6 µm; Gaussian noise of
@@ -27,13 +29,6 @@ fn table_file() -> PathBuf {
 
 fn design_neg() -> Params {
     read_params(&table_file(), Some("design_range_neg")).unwrap()
-}
-
-fn jdbb(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_jdbb"))
-        .args(args)
-        .output()
-        .expect("run jdbb")
 }
 
 fn json(out: &std::process::Output) -> serde_json::Value {

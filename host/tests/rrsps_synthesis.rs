@@ -1,7 +1,6 @@
 //! Saddle synthesis of the RRSS test linkage (seed 004, eq. 18-23, Table 2): every constraint
 //! met, local optimality against random feasible perturbations, the paper's design as the
 //! solution of the same programme restricted to its table ball, and the CLI.
-use std::process::Command;
 use std::sync::OnceLock;
 
 use jdbb::rrsps::design::design;
@@ -10,6 +9,8 @@ use jdbb::rrsps::saddle::{
 };
 use jdbb::rrsps::Params;
 use rand::{Rng, SeedableRng};
+mod common;
+use common::jdbb;
 
 fn table2() -> Params {
     Params::from_named_units(&[96.310, 352.114, -55.0, 80.0, 30.0, -161.592, 0.0, 270.0])
@@ -154,13 +155,6 @@ fn saddle_with_the_papers_table_ball_gives_table2() {
     );
     let (paper_obj, _) = evaluate(&table2(), 300.0, &lim).unwrap();
     assert!((sol.objective_deg - paper_obj).abs() < 0.01);
-}
-
-fn jdbb(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_jdbb"))
-        .args(args)
-        .output()
-        .expect("run jdbb")
 }
 
 /// `jdbb rrsps synthesize --json` (saddle by default) over the bar series 100, 300 mm: 100 mm is

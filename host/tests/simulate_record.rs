@@ -3,29 +3,12 @@
 //! `jdbb diagnose --record --plan` then names; and the mistakes around it.
 use std::fs;
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn jdbb(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_jdbb"))
-        .current_dir(dir)
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn ok(dir: &Path, args: &[&str]) -> String {
-    let o = jdbb(dir, args);
-    assert!(
-        o.status.success(),
-        "{args:?}: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
+mod common;
+use common::{jdbb_in, ok_in};
 
 /// `args` exit 2 with `want` in stderr, no panic; stderr.
 fn refused(dir: &Path, args: &[&str], want: &str) -> String {
-    let o = jdbb(dir, args);
+    let o = jdbb_in(dir, args);
     let e = String::from_utf8_lossy(&o.stderr).into_owned();
     assert_eq!(o.status.code(), Some(2), "{args:?}: {e}");
     assert!(e.contains(want), "{args:?}: wanted `{want}` in `{e}`");
@@ -35,7 +18,7 @@ fn refused(dir: &Path, args: &[&str], want: &str) -> String {
 
 /// A plan of two radii at 1500 mm/min, in `dir/plan`.
 fn plan(dir: &Path) {
-    ok(
+    ok_in(
         dir,
         &[
             "plan",
@@ -84,7 +67,7 @@ fn hidden_play_and_squareness_are_named_and_nothing_else() {
         ),
     )
     .unwrap();
-    ok(
+    ok_in(
         d,
         &[
             "simulate",
@@ -101,7 +84,7 @@ fn hidden_play_and_squareness_are_named_and_nothing_else() {
     assert!(lines.next().unwrap().starts_with("# plan_id: "));
     assert_eq!(lines.next().unwrap(), "seq,t_us,enc1,enc2,d_mm");
     assert!(lines.next().unwrap().starts_with("0,123456,"));
-    let json = ok(
+    let json = ok_in(
         d,
         &[
             "diagnose",
@@ -130,7 +113,7 @@ fn a_perfect_machine_names_nothing() {
     let d = dir.path();
     plan(d);
     fs::write(d.join("perfect.toml"), INSTRUMENT).unwrap();
-    ok(
+    ok_in(
         d,
         &[
             "simulate",
@@ -142,7 +125,7 @@ fn a_perfect_machine_names_nothing() {
             "rec.csv",
         ],
     );
-    let json = ok(
+    let json = ok_in(
         d,
         &[
             "diagnose",
@@ -160,12 +143,12 @@ fn a_perfect_machine_names_nothing() {
 fn the_example_machine_is_printed_and_reads() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let example = ok(d, &["simulate", "--machine"]);
+    let example = ok_in(d, &["simulate", "--machine"]);
     assert!(example.contains("[effects]") && example.contains("backlash_x"));
     fs::write(d.join("m.toml"), &example).unwrap();
     plan(d);
     // Written to stdout when there is no -o, header first.
-    let rec = ok(
+    let rec = ok_in(
         d,
         &[
             "simulate",
@@ -229,7 +212,7 @@ fn an_existing_record_is_kept_without_force() {
     assert_eq!(fs::read_to_string(d.join("rec.csv")).unwrap(), "precious\n");
     let mut forced = args.to_vec();
     forced.push("--force");
-    ok(d, &forced);
+    ok_in(d, &forced);
     assert!(fs::read_to_string(d.join("rec.csv"))
         .unwrap()
         .starts_with("# plan_id: "));
@@ -240,7 +223,7 @@ fn a_record_of_another_plan_is_refused_by_diagnose() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     plan(d);
-    ok(
+    ok_in(
         d,
         &[
             "plan",
@@ -255,7 +238,7 @@ fn a_record_of_another_plan_is_refused_by_diagnose() {
         ],
     );
     fs::write(d.join("m.toml"), INSTRUMENT).unwrap();
-    ok(
+    ok_in(
         d,
         &[
             "simulate",
@@ -286,7 +269,7 @@ fn a_plan_for_another_plane_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     for (plane, out) in [("xy", "xy"), ("zx", "zx")] {
-        ok(
+        ok_in(
             d,
             &[
                 "plan",
@@ -308,7 +291,7 @@ fn a_plan_for_another_plane_is_refused() {
         format!("{INSTRUMENT}[effects]\nbacklash_x = 8\n"),
     )
     .unwrap();
-    ok(
+    ok_in(
         d,
         &[
             "simulate",
@@ -350,7 +333,7 @@ fn the_machine_files_calibration_makes_the_counts() {
     )
     .unwrap();
     let rows = |machine: &str| -> Vec<(i64, f64)> {
-        let text = ok(
+        let text = ok_in(
             d,
             &["simulate", "--plan", "plan/plan.json", "--machine", machine],
         );
@@ -393,7 +376,7 @@ fn a_record_begun_after_cycle_start_is_said_to_be_late() {
     let d = dir.path();
     plan(d);
     fs::write(d.join("m.toml"), INSTRUMENT).unwrap();
-    ok(
+    ok_in(
         d,
         &[
             "simulate",

@@ -1,0 +1,48 @@
+//! What the host's integration tests share: running the `jdbb` binary they were built with.
+// Each test file is its own crate and uses some of these.
+#![allow(dead_code)]
+use std::path::Path;
+use std::process::{Command, Output};
+
+/// The `jdbb` binary of this build, to be given arguments.
+pub fn command() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_jdbb"))
+}
+
+/// `jdbb ARGS` in the current directory.
+pub fn jdbb(args: &[&str]) -> Output {
+    command().args(args).output().expect("run jdbb")
+}
+
+/// `jdbb ARGS` in `dir`.
+pub fn jdbb_in(dir: &Path, args: &[&str]) -> Output {
+    command()
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .expect("run jdbb")
+}
+
+/// Its standard error, as text.
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Its standard output, as text.
+pub fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// `jdbb ARGS`, which must succeed: its standard output.
+pub fn ok(args: &[&str]) -> String {
+    let o = jdbb(args);
+    assert!(o.status.success(), "jdbb {args:?}: {}", stderr(&o));
+    stdout(&o)
+}
+
+/// `jdbb ARGS` in `dir`, which must succeed: its standard output.
+pub fn ok_in(dir: &Path, args: &[&str]) -> String {
+    let o = jdbb_in(dir, args);
+    assert!(o.status.success(), "jdbb {args:?}: {}", stderr(&o));
+    stdout(&o)
+}
