@@ -73,13 +73,18 @@ pub fn minimum_zone(angle_rad: &[f64], dev_um: &[f64]) -> Result<MinimumZone> {
     // point of each 1° of angle, then add every point the zone does not hold and solve again
     // until it holds them all (the answer is that of all points; the subset only saves time).
     let n = dev_um.len();
-    let mut subset: Vec<usize> = if n > 4 * EDGE_BINS {
-        let mut hi_of = vec![usize::MAX; EDGE_BINS];
-        let mut lo_of = vec![usize::MAX; EDGE_BINS];
+    let binned = n > 4 * EDGE_BINS;
+    let width = std::f64::consts::TAU / EDGE_BINS as f64;
+    let bin_of =
+        |a: f64| ((a.rem_euclid(std::f64::consts::TAU) / width) as usize).min(EDGE_BINS - 1);
+    let mut bins: Vec<u16> = vec![];
+    let mut hi_of = vec![usize::MAX; EDGE_BINS];
+    let mut lo_of = vec![usize::MAX; EDGE_BINS];
+    let mut subset: Vec<usize> = if binned {
+        bins.reserve_exact(n);
         for (i, (&a, &d)) in angle_rad.iter().zip(dev_um).enumerate() {
-            let bin = ((a.rem_euclid(std::f64::consts::TAU) / std::f64::consts::TAU)
-                * EDGE_BINS as f64) as usize;
-            let bin = bin.min(EDGE_BINS - 1);
+            let bin = bin_of(a);
+            bins.push(bin as u16);
             if hi_of[bin] == usize::MAX || d > dev_um[hi_of[bin]] {
                 hi_of[bin] = i;
             }
@@ -88,8 +93,9 @@ pub fn minimum_zone(angle_rad: &[f64], dev_um: &[f64]) -> Result<MinimumZone> {
             }
         }
         let mut v: Vec<usize> = hi_of
-            .into_iter()
-            .chain(lo_of)
+            .iter()
+            .chain(&lo_of)
+            .copied()
             .filter(|&i| i != usize::MAX)
             .collect();
         v.sort_unstable();
@@ -98,17 +104,43 @@ pub fn minimum_zone(angle_rad: &[f64], dev_um: &[f64]) -> Result<MinimumZone> {
     } else {
         (0..n).collect()
     };
-    let trig: Vec<(f64, f64)> = angle_rad.iter().map(|a| a.sin_cos()).collect();
+    // sin, cos of the points' angles, made when a point is first needed (NaN until then): on a
+    // long trace most points lie in bins the zone holds whole and never need them.
+    let mut trig: Vec<(f64, f64)> = vec![(f64::NAN, f64::NAN); n];
+    for &i in &subset {
+        trig[i] = angle_rad[i].sin_cos();
+    }
     loop {
         let (p, t) = match exchange(angle_rad, &trig, dev_um, &subset) {
             Some(fit) => fit,
             None => chebyshev(&trig, dev_um, &subset)?,
         };
-        let held = |i: usize| {
+        let tol = t * (1.0 + 1e-9) + 1e-12;
+        // A bin is held whole when its highest and lowest points are held with room for the
+        // largest change of r₀ + a·cos θ + b·sin θ across the bin: |(a, b)|·(half a bin).
+        let slack = p[1].hypot(p[2]) * 0.5 * width;
+        let whole: Vec<bool> = (0..EDGE_BINS)
+            .map(|b| {
+                binned && hi_of[b] != usize::MAX && {
+                    let (s, c) = ((b as f64 + 0.5) * width).sin_cos();
+                    let m = p[0] + p[1] * c + p[2] * s;
+                    dev_um[hi_of[b]] - m + slack <= tol && m - dev_um[lo_of[b]] + slack <= tol
+                }
+            })
+            .collect();
+        let mut outside: Vec<usize> = vec![];
+        for i in 0..n {
+            if binned && whole[bins[i] as usize] {
+                continue;
+            }
+            if trig[i].0.is_nan() {
+                trig[i] = angle_rad[i].sin_cos();
+            }
             let (s, c) = trig[i];
-            (dev_um[i] - p[0] - p[1] * c - p[2] * s).abs() <= t * (1.0 + 1e-9) + 1e-12
-        };
-        let outside: Vec<usize> = (0..n).filter(|&i| !held(i)).collect();
+            if (dev_um[i] - p[0] - p[1] * c - p[2] * s).abs() > tol {
+                outside.push(i);
+            }
+        }
         if outside.is_empty() || subset.len() == n {
             return Ok(MinimumZone {
                 centre_um: [p[1], p[2]],
