@@ -54,6 +54,26 @@ fn synthetic(plan: &Plan) -> Vec<f64> {
     d
 }
 
+/// The recorder's batch of samples `d_mm` from sample `first` on, at 5 kHz.
+fn batch(d_mm: &[f64], first: usize) -> Vec<SeqSample> {
+    d_mm.iter()
+        .enumerate()
+        .map(|(i, &d_mm)| {
+            let seq = (first + i) as u64;
+            SeqSample {
+                seq,
+                sample: Sample {
+                    t_us: 200 * seq,
+                    enc1: 0,
+                    enc2: 0,
+                    d_mm,
+                    status: Status(0),
+                },
+            }
+        })
+        .collect()
+}
+
 fn main() {
     let spec = PlanSpec::machine_test(
         &[90.0],
@@ -75,23 +95,7 @@ fn main() {
     let base = Instant::now();
     let t0 = Instant::now();
     for (b, chunk) in d.chunks(50).enumerate() {
-        let batch: Vec<SeqSample> = chunk
-            .iter()
-            .enumerate()
-            .map(|(i, &d_mm)| {
-                let seq = (b * 50 + i) as u64;
-                SeqSample {
-                    seq,
-                    sample: Sample {
-                        t_us: 200 * seq,
-                        enc1: 0,
-                        enc2: 0,
-                        d_mm,
-                        status: Status(0),
-                    },
-                }
-            })
-            .collect();
+        let batch = batch(chunk, b * 50);
         stats.samples += batch.len() as u64;
         feed.samples(&batch);
         let now = base + Duration::from_micros(200 * stats.samples);
@@ -166,23 +170,7 @@ fn main() {
                 std::thread::sleep(w);
             }
         }
-        let batch: Vec<SeqSample> = chunk
-            .iter()
-            .enumerate()
-            .map(|(i, &d_mm)| {
-                let seq = (b * 50 + i) as u64;
-                SeqSample {
-                    seq,
-                    sample: Sample {
-                        t_us: 200 * seq,
-                        enc1: 0,
-                        enc2: 0,
-                        d_mm,
-                        status: Status(0),
-                    },
-                }
-            })
-            .collect();
+        let batch = batch(chunk, b * 50);
         stats.samples += batch.len() as u64;
         feed.samples(&batch);
         if sent_last_data.is_none() && t_s[b * 50 + chunk.len() - 1] >= last_data_s {

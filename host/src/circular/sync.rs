@@ -442,6 +442,62 @@ struct CirclePlan {
     dwell_before_s: f64,
 }
 
+/// A circle's feed-in and feed-out as the synchronisation reads them: their ends relative to the
+/// table ball (mm), their feeds (mm/min), D's levels at the feed-in start and on the circle, the
+/// direction and midpoint of the feed-in's crossing, and how far D may stray from a level (mm).
+struct Lines {
+    a_in: [f64; 3],
+    b_in: [f64; 3],
+    a_out: [f64; 3],
+    b_out: [f64; 3],
+    fi_feed: f64,
+    fo_feed: f64,
+    d_in: f64,
+    d_c: f64,
+    dir: f64,
+    mid: f64,
+    tol: f64,
+}
+
+impl CirclePlan {
+    fn lines(&self, plan: &Plan) -> Lines {
+        let (
+            Segment::Line {
+                from_mm: fi_from,
+                to_mm: fi_to,
+                feed_mm_min: fi_feed,
+                ..
+            },
+            Segment::Line {
+                from_mm: fo_from,
+                to_mm: fo_to,
+                feed_mm_min: fo_feed,
+                ..
+            },
+        ) = (&plan.segments[self.feed_in], &plan.segments[self.feed_out])
+        else {
+            unreachable!("circle_plans returns lines");
+        };
+        let c = plan.centre_mm;
+        let rel = |p: &[f64; 3]| [p[0] - c[0], p[1] - c[1], p[2] - c[2]];
+        let (a_in, b_in) = (rel(fi_from), rel(fi_to));
+        let (d_in, d_c) = (dist(&a_in, &[0.0; 3]), dist(&b_in, &[0.0; 3]));
+        Lines {
+            a_in,
+            b_in,
+            a_out: rel(fo_from),
+            b_out: rel(fo_to),
+            fi_feed: *fi_feed,
+            fo_feed: *fo_feed,
+            d_in,
+            d_c,
+            dir: (d_c - d_in).signum(),
+            mid: 0.5 * (d_in + d_c),
+            tol: LEVEL_TOLERANCE_MM.min(0.25 * (d_c - d_in).abs()),
+        }
+    }
+}
+
 fn circle_plans(plan: &Plan) -> Result<Vec<CirclePlan>> {
     let mut out: Vec<CirclePlan> = vec![];
     let mut dwell = 0.0;
@@ -758,9 +814,6 @@ pub struct Ruler<'a> {
 /// [`synchronise`], with the ramps read through `ruler` (the machine's errors along the feed-in
 /// a diagnosis found: a cyclic or scale error of its axis is printed on its ruler).
 pub fn synchronise_with(plan: &Plan, rec: &Record, ruler: Option<&Ruler>) -> Result<Sync> {
-    let centre = plan.centre_mm;
-    let rel = |p: [f64; 3]| [p[0] - centre[0], p[1] - centre[1], p[2] - centre[2]];
-    let norm = |p: [f64; 3]| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
     let err = |i: usize, msg: String| Error::Input {
         location: rec.location(i.min(rec.len().saturating_sub(1))),
         message: msg,
@@ -773,34 +826,25 @@ pub fn synchronise_with(plan: &Plan, rec: &Record, ruler: Option<&Ruler>) -> Res
     for cp in circle_plans(plan)? {
         let k = cp.circle;
         let what = describe_circle(plan, k);
-        let (
-            Segment::Line {
-                from_mm: fi_from,
-                to_mm: fi_to,
-                feed_mm_min: fi_feed,
-                ..
-            },
-            Segment::Line {
-                from_mm: fo_from,
-                to_mm: fo_to,
-                feed_mm_min: fo_feed,
-                ..
-            },
-        ) = (&plan.segments[cp.feed_in], &plan.segments[cp.feed_out])
-        else {
-            unreachable!("circle_plans returns lines");
-        };
-        let (a_in, b_in) = (rel(*fi_from), rel(*fi_to));
-        let (d_in, d_c) = (norm(a_in), norm(b_in));
+        let Lines {
+            a_in,
+            b_in,
+            a_out,
+            b_out,
+            fi_feed,
+            fo_feed,
+            d_in,
+            d_c,
+            dir,
+            mid,
+            tol,
+        } = cp.lines(plan);
         if (d_c - d_in).abs() < 0.05 {
             return Err(Error::Usage(format!(
                 "{what}: its feed-in changes D by only {:.3} mm; the synchronisation needs a feed-in that moves D (plan with a longer --feed-in-mm)",
                 (d_c - d_in).abs()
             )));
         }
-        let dir = (d_c - d_in).signum();
-        let mid = 0.5 * (d_in + d_c);
-        let tol = LEVEL_TOLERANCE_MM.min(0.25 * (d_c - d_in).abs());
         // 1. The feed-in: a crossing from a standstill at D_in to a plateau at D_c.
         let mut search = cursor;
         let (cross_in, ramp_in) = loop {
@@ -848,8 +892,8 @@ pub fn synchronise_with(plan: &Plan, rec: &Record, ruler: Option<&Ruler>) -> Res
         let ramp_out = fit_ramp(
             rec,
             cross_out,
-            rel(*fo_from),
-            rel(*fo_to),
+            a_out,
+            b_out,
             d_c,
             d_in,
             fo_feed / 60.0,
@@ -1083,30 +1127,19 @@ pub fn synchronise_running(plan: &Plan, rec: &Record, k: usize, before: &Sync) -
         )));
     };
     let what = describe_circle(plan, k);
-    let (
-        Segment::Line {
-            from_mm: fi_from,
-            to_mm: fi_to,
-            feed_mm_min: fi_feed,
-            ..
-        },
-        Segment::Line {
-            from_mm: fo_from,
-            to_mm: fo_to,
-            feed_mm_min: fo_feed,
-            ..
-        },
-    ) = (&plan.segments[cp.feed_in], &plan.segments[cp.feed_out])
-    else {
-        unreachable!("circle_plans returns lines");
-    };
-    let centre = plan.centre_mm;
-    let rel = |p: [f64; 3]| [p[0] - centre[0], p[1] - centre[1], p[2] - centre[2]];
-    let (a_in, b_in) = (rel(*fi_from), rel(*fi_to));
-    let (d_in, d_c) = (dist(&a_in, &[0.0; 3]), dist(&b_in, &[0.0; 3]));
-    let dir = (d_c - d_in).signum();
-    let mid = 0.5 * (d_in + d_c);
-    let tol = LEVEL_TOLERANCE_MM.min(0.25 * (d_c - d_in).abs());
+    let Lines {
+        a_in,
+        b_in,
+        a_out,
+        b_out,
+        fi_feed,
+        fo_feed,
+        d_in,
+        d_c,
+        dir,
+        mid,
+        tol,
+    } = cp.lines(plan);
     let Some(&t_last) = rec.t_s.last() else {
         return Ok(Running::Wait {
             until_s: RUNNING_RETRY_S,
@@ -1199,7 +1232,7 @@ pub fn synchronise_running(plan: &Plan, rec: &Record, k: usize, before: &Sync) -
     let feed_out = Ramp {
         profile: Profile {
             t0_s: t_end,
-            length_mm: dist(&rel(*fo_from), &rel(*fo_to)),
+            length_mm: dist(&a_out, &b_out),
             speed_mm_s: factor * fo_feed / 60.0,
             accel_mm_s2: ramp_in.profile.accel_mm_s2,
         },
