@@ -518,21 +518,42 @@ fn decay(x: f64) -> f64 {
     }
 }
 
+/// The ends of axis k's travel that the bow and the lost motion per end refer to (mm, relative
+/// to the table ball): ±h with h the farthest the path goes from the table ball along k, the
+/// points where a whole circle about the ball reverses k. On a full circle they are the path's
+/// lowest and highest positions. On a partial arc they are not where the data end: a 220° arc
+/// in yz records z from 0 to R only, and a bow or a gap referred to the data's own travel (mid
+/// R/2) would differ from a full circle's by a linear part, i.e. a squareness, or by an arc
+/// end's reversal outside the data (z = R·sin(−20°)) held at the end's gap. Referred to ±h, a
+/// bow of k is the same data as the other axis's second-order scale on every arc of the circle
+/// (k² = R² − j², the constant a set-up offset), as on a full circle, and the gaps are the ones
+/// at the reversals of a full circle about the same ball (docs/mechanisms.md).
+pub(crate) fn travel_ends_mm(path: &Path, k: usize) -> (f64, f64) {
+    let h = path.lo_mm[k].abs().max(path.hi_mm[k].abs());
+    if path.range_mm[k] > 0.0 {
+        (-h, h)
+    } else {
+        (0.0, 0.0)
+    }
+}
+
 /// The shape of a bow of axis i (see [`Effect::Straightness`]) at its position `x_mm`:
-/// 1 − 4·((x − mid)/L)² over the path's travel of i; 0 for an axis that does not move.
+/// 1 − 4·((x − mid)/L)² over the travel of i between its ends ([`travel_ends_mm`]); 0 for an
+/// axis that does not move.
 fn bow_shape(path: &Path, i: usize, x_mm: f64) -> f64 {
-    let len = path.hi_mm[i] - path.lo_mm[i];
+    let (lo, hi) = travel_ends_mm(path, i);
+    let len = hi - lo;
     if len <= 0.0 {
         return 0.0;
     }
-    let z = (x_mm - 0.5 * (path.hi_mm[i] + path.lo_mm[i])) / len;
+    let z = (x_mm - 0.5 * (hi + lo)) / len;
     1.0 - 4.0 * z * z
 }
 
 /// A dead band (play operator) between motor and carriage of axis k, evaluated from the nominal
 /// (motor) position: for each sample i0 + j, `f(j, δ_um, ∂δ/∂pos, ∂δ/∂neg)` with the gap g(x)
-/// growing linearly from `neg_um` at the low end of the path's travel of k to `pos_um` at the
-/// high end (equal for a uniform backlash). With s the direction since the last reversal (at x_r,
+/// growing linearly from `neg_um` at the low end of k's travel ([`travel_ends_mm`]) to `pos_um`
+/// at the high end (equal for a uniform backlash). With s the direction since the last reversal (at x_r,
 /// gap g_r there) and u = s·(x − x_r) ≥ 0 the motor's travel since: the carriage stood where the
 /// old direction left it, x_r + s·g_r/2, until the motor took the gap up, so
 /// δ = −s·g(x)/2 + s·max(0, g_r − u) for g_r > 0; a negative gap is a step (over-compensation).
@@ -546,7 +567,7 @@ pub(crate) fn for_each_dead_band(
     neg_um: f64,
     mut f: impl FnMut(usize, f64, f64, f64),
 ) {
-    let (lo, hi) = (path.lo_mm[k], path.hi_mm[k]);
+    let (lo, hi) = travel_ends_mm(path, k);
     let weight_pos = |x: f64| {
         if hi > lo {
             ((x - lo) / (hi - lo)).clamp(0.0, 1.0)
