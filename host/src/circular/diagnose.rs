@@ -21,7 +21,10 @@
 //!    Σ|β_c|·max|column_c|): with tens of thousands of samples, misfits of a few nanometres —
 //!    a backlash that is a dead zone rather than a step, a sample's timing off by a millisecond —
 //!    are significant, and would be named as a squareness of 0.1 µm/m. They are listed as below
-//!    the floor instead ([`Diagnosis::below_floor`]).
+//!    the floor instead ([`Diagnosis::below_floor`]). The floor is checked again on each effect
+//!    alone with its refitted parameters (step 6): where the exact model ties search columns
+//!    together (a servo mismatch's lag difference and common lag) the bound can pass while the
+//!    effect named does not.
 //! 5. Identifiability: columns that are linear combinations of others (rank test on the
 //!    column-scaled Gram matrix, singular values below 1e-7 of the largest) are never fitted
 //!    against each other. If the isotropic scale is confounded with the length offset (one radius),
@@ -822,7 +825,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         gaps_um = found;
         previous = Some(design);
     };
-    let below_floor: Vec<(String, f64)> = sel
+    let mut below_floor: Vec<(String, f64)> = sel
         .below_floor
         .iter()
         .map(|&(g, bound)| {
@@ -847,11 +850,18 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     // parameter (the servo delay's lag) at zero.
     // An effect whose value its own σ does not tell from zero (|value| < 2σ, possible only
     // where σ counts more than the fit's noise: a spike's height with the timing uncertainty) is
-    // dropped and the rest refitted.
+    // dropped and the rest refitted; so is one that, alone with its refitted parameters, moves D
+    // by less than the floor (listed below it).
     let mut kept: Vec<usize> = (0..sel.steps.len()).collect();
     let mut not_significant: Vec<NotSignificant> = vec![];
     let period_s = median_interval(&path.t_s);
-    let (final_set, theta, final_ssr, mut found) = loop {
+    // |p| of each sample (mm): D of the ideal machine, for an effect's peak and its share.
+    let r_mm: Vec<f64> = path
+        .p_mm
+        .iter()
+        .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
+        .collect();
+    let (final_set, theta, final_ssr, mut found, alone_mm) = loop {
         // The kept steps as effects with their start parameters; a backlash's uniform gap and
         // the difference of its ends (two steps) become one `BacklashEnds`.
         let mut chosen: Vec<Chosen> = vec![];
@@ -1021,14 +1031,49 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                 };
                 (ei, weak)
             });
-        match weak {
-            Some((ei, weak)) => {
-                not_significant.push(weak);
-                let drop = &chosen[ei - 2].steps;
-                kept.retain(|k| !drop.contains(k));
-            }
-            None => break (final_set, theta, final_ssr, found),
+        if let Some((ei, weak)) = weak {
+            not_significant.push(weak);
+            let drop = &chosen[ei - 2].steps;
+            kept.retain(|k| !drop.contains(k));
+            continue;
         }
+        // Each machine effect alone with its refitted parameters (D of the nominal path with it),
+        // for the floor here and its share below.
+        let alone_mm: Vec<Vec<f64>> = found
+            .iter()
+            .map(|f| {
+                if f.effect.is_setup() {
+                    vec![]
+                } else {
+                    EffectSet::new(vec![f.effect]).distances_mm(path, &f.params)
+                }
+            })
+            .collect();
+        // The floor again, on the refitted value: the search's bound is that of its linear
+        // columns, and where the exact model ties them (a servo mismatch's second column, the
+        // lag difference times the common lag, is free in the search and takes up a
+        // scale-mismatch-shaped misfit there: cos 2θ·v²/R on a circle) the named effect can
+        // move D by less than the floor.
+        let peak_um = |ei: usize| {
+            1e3 * r_mm
+                .iter()
+                .zip(&alone_mm[ei])
+                .map(|(r, d)| (d - r).abs())
+                .fold(0.0, f64::max)
+        };
+        let low = (2..found.len())
+            .map(|ei| (ei, peak_um(ei)))
+            .filter(|&(_, peak)| peak < opts.select.min_peak)
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        if let Some((ei, peak)) = low {
+            let name = found[ei].effect.name();
+            below_floor.retain(|(n, _)| *n != name);
+            below_floor.push((name, peak));
+            let drop = &chosen[ei - 2].steps;
+            kept.retain(|k| !drop.contains(k));
+            continue;
+        }
+        break (final_set, theta, final_ssr, found, alone_mm);
     };
     let final_rms_um = (final_ssr / m as f64).sqrt();
     let candidates_tried: Vec<String> = {
@@ -1094,12 +1139,14 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     let setup_chol = setup_normal.cholesky().ok_or_else(|| {
         Error::Numerics("the set-up fit is singular: the path does not determine it".into())
     })?;
-    for f in found.iter_mut().filter(|f| !f.effect.is_setup()) {
-        let alone = EffectSet::new(vec![f.effect]).distances_mm(path, &f.params);
+    for (f, alone) in found
+        .iter_mut()
+        .zip(&alone_mm)
+        .filter(|(f, _)| !f.effect.is_setup())
+    {
         let mut jtr = nalgebra::DVector::<f64>::zeros(setup_free.len());
         let mut rr = 0.0;
-        for (p, d) in path.p_mm.iter().zip(&alone) {
-            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+        for ((p, d), &r) in path.p_mm.iter().zip(alone).zip(&r_mm) {
             let res = 1e3 * (d - r);
             rr += res * res;
             let column = [-p[0] / r, -p[1] / r, -p[2] / r, 1.0];

@@ -336,8 +336,9 @@ impl Effect {
             Effect::Straightness(a, b) => {
                 let (i, j) = (a.index(), b.index());
                 let w = 1e-3 * theta[0];
+                let ends = travel_ends_mm(path, i);
                 for (qk, pk) in q.iter_mut().zip(p) {
-                    qk[j] += w * bow_shape(path, i, pk[i]);
+                    qk[j] += w * bow_shape(ends, pk[i]);
                 }
             }
             Effect::LateralPlay(a, b) => {
@@ -537,11 +538,10 @@ pub(crate) fn travel_ends_mm(path: &Path, k: usize) -> (f64, f64) {
     }
 }
 
-/// The shape of a bow of axis i (see [`Effect::Straightness`]) at its position `x_mm`:
-/// 1 − 4·((x − mid)/L)² over the travel of i between its ends ([`travel_ends_mm`]); 0 for an
-/// axis that does not move.
-fn bow_shape(path: &Path, i: usize, x_mm: f64) -> f64 {
-    let (lo, hi) = travel_ends_mm(path, i);
+/// The shape of a bow (see [`Effect::Straightness`]) at the bowed axis's position `x_mm`:
+/// 1 − 4·((x − mid)/L)² over its travel between its ends `(lo, hi)` ([`travel_ends_mm`]); 0 for
+/// an axis that does not move.
+fn bow_shape((lo, hi): (f64, f64), x_mm: f64) -> f64 {
     let len = hi - lo;
     if len <= 0.0 {
         return 0.0;
@@ -786,8 +786,9 @@ impl Candidate {
             }
             Effect::Straightness(a, b) => {
                 let (i, jx) = (a.index(), b.index());
+                let ends = travel_ends_mm(path, i);
                 for (j, o) in rows.enumerate() {
-                    out[o] = u[j][jx] * bow_shape(path, i, p[j][i]);
+                    out[o] = u[j][jx] * bow_shape(ends, p[j][i]);
                 }
             }
             Effect::LateralPlay(a, b) => {
