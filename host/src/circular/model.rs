@@ -42,14 +42,16 @@ pub enum Effect {
     /// compensation jumps the motor through the gap), which is seed 000 eq. 14 with f = −b.
     Backlash(Axis),
     /// Lost motion that differs along the travel (a worn screw): the gap grows linearly from
-    /// `neg_um` at the low end of the test's travel to `pos_um` at the high end, each taken up as
+    /// `neg_um` at the low end of the axis's travel to `pos_um` at the high end (the circle's ends,
+    /// ±R about the table ball: [`travel_ends_mm`]), each taken up as
     /// a dead band as in [`Effect::Backlash`]; the ballbar's backlash at the negative and the
     /// positive reversal. Reported under the same name (`backlash_k`), value (pos + neg)/2.
     BacklashEnds(Axis),
     /// A bowed axis i (straightness): moving along i, axis j is displaced by
-    /// δ_j = w·(1 − 4·((i − i_mid)/L)²), w in µm: the bow of the middle of the tested travel L
-    /// (centre i_mid) relative to the line through its ends, positive towards +j. On one circle
-    /// i² = R² − j², so it is the same data as `scale2_j` with a set-up offset.
+    /// δ_j = w·(1 − 4·((i − i_mid)/L)²), w in µm: the bow of the middle of the travel L of i
+    /// between the circle's ends (±R about the table ball, [`travel_ends_mm`]; i_mid the ball)
+    /// relative to the line through them, positive towards +j. On one circle, and on every arc of
+    /// it, i² = R² − j², so it is the same data as `scale2_j` with a set-up offset.
     Straightness(Axis, Axis),
     /// Lateral play of axis i in direction j (a guideway clearance across its travel): when i
     /// reverses, friction turns and the carriage shifts across the clearance, so
