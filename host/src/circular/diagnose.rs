@@ -203,13 +203,12 @@ pub struct WeakOnArc {
     pub free_fraction: f64,
 }
 
-/// An effect of the exact refit and the selection steps it came from (two for a backlash whose
-/// ends differ).
+/// An effect of the exact refit, with the statistics of the selection step it came from (the
+/// later of two for a backlash whose ends differ).
 struct Chosen {
     effect: Effect,
     start: Vec<f64>,
     held_lag: bool,
-    steps: Vec<usize>,
     rms_after: f64,
     rms_ratio: f64,
     delta_bic: f64,
@@ -511,6 +510,12 @@ pub fn candidate_effects(path: &Path) -> Vec<Effect> {
     }
     v.push(Effect::Drift);
     v
+}
+
+/// Whether search candidate `b` is (part of) the named effect `a`: itself, or a backlash of the
+/// same axis (a uniform gap and the difference of its ends are named as one).
+fn same_effect(a: Effect, b: Effect) -> bool {
+    a == b || backlash_axis(a).is_some_and(|k| backlash_axis(b) == Some(k))
 }
 
 /// The search forms of `effect`: one, a spike at each trial decay time, or a backlash with the
@@ -852,7 +857,6 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     // where σ counts more than the fit's noise: a spike's height with the timing uncertainty) is
     // dropped and the rest refitted; so is one that, alone with its refitted parameters, moves D
     // by less than the floor (listed below it).
-    let mut kept: Vec<usize> = (0..sel.steps.len()).collect();
     let mut not_significant: Vec<NotSignificant> = vec![];
     let period_s = median_interval(&path.t_s);
     // |p| of each sample (mm): D of the ideal machine, for an effect's peak and its share.
@@ -861,14 +865,20 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         .iter()
         .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
         .collect();
+    // Effects taken out after the refit (not significant, or under the floor): one effect, not
+    // its whole step (the plane's two scales are one step where the radii separate them).
+    let mut left_out: Vec<Effect> = vec![];
     let (final_set, theta, final_ssr, mut found, alone_mm) = loop {
-        // The kept steps as effects with their start parameters; a backlash's uniform gap and
-        // the difference of its ends (two steps) become one `BacklashEnds`.
+        // The selection's steps (less what was left out) as effects with their start parameters;
+        // a backlash's uniform gap and the difference of its ends (two steps) become one
+        // `BacklashEnds`.
         let mut chosen: Vec<Chosen> = vec![];
-        for &k in &kept {
-            let st = &sel.steps[k];
+        for st in &sel.steps {
             for &c in &group_cands[st.group] {
                 let cand = design.cands[c];
+                if left_out.iter().any(|&e| same_effect(e, cand.effect)) {
+                    continue;
+                }
                 let coef: Vec<f64> = design.cols_of(c).into_iter().map(coef_of).collect();
                 let start = cand.start(&coef);
                 let held_lag = matches!(cand.effect, Effect::ServoMismatch(_)) && st.cols.len() < 2;
@@ -890,7 +900,6 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                             ch.effect = Effect::BacklashEnds(a);
                         }
                         ch.start = vec![b + 0.5 * d, b - 0.5 * d];
-                        ch.steps.push(k);
                         ch.rms_after = st.rms_after;
                         ch.rms_ratio *= st.rms_ratio;
                         ch.delta_bic += st.delta_bic;
@@ -899,7 +908,6 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                         effect: cand.effect,
                         start,
                         held_lag,
-                        steps: vec![k],
                         rms_after: st.rms_after,
                         rms_ratio: st.rms_ratio,
                         delta_bic: st.delta_bic,
@@ -1033,8 +1041,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
             });
         if let Some((ei, weak)) = weak {
             not_significant.push(weak);
-            let drop = &chosen[ei - 2].steps;
-            kept.retain(|k| !drop.contains(k));
+            left_out.push(found[ei].effect);
             continue;
         }
         // Each machine effect alone with its refitted parameters (D of the nominal path with it),
@@ -1069,8 +1076,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
             let name = found[ei].effect.name();
             below_floor.retain(|(n, _)| *n != name);
             below_floor.push((name, peak));
-            let drop = &chosen[ei - 2].steps;
-            kept.retain(|k| !drop.contains(k));
+            left_out.push(found[ei].effect);
             continue;
         }
         break (final_set, theta, final_ssr, found, alone_mm);
@@ -1490,6 +1496,42 @@ mod tests {
 
     fn ev(effect: Effect, params: Vec<f64>) -> super::super::simulate::EffectValue {
         super::super::simulate::EffectValue { effect, params }
+    }
+
+    #[test]
+    fn one_of_the_planes_two_scales_under_the_floor_leaves_the_other_named() {
+        // Two radii separate the isotropic scale, and the search offers the plane's two scales
+        // as one step. Scale y comes out of the refit at nothing (under the floor): it leaves,
+        // scale x stays (taking the whole step out dropped scale x too).
+        use super::super::simulate::{distances_mm, nominal_path, PathSpec};
+        let spec = PathSpec {
+            radii_mm: vec![40.0, 70.0],
+            heights_mm: vec![0.0],
+            plane: (0, 1, 2),
+            feed_mm_min: 1000.0,
+            rate_hz: 50.0,
+        };
+        let (t, p) = nominal_path(&spec);
+        let path = Path::new(t, p, [None; 3]);
+        let d = distances_mm(
+            &path,
+            &[
+                ev(Effect::Scale(Axis::X), vec![30.0]),
+                ev(Effect::Backlash(Axis::X), vec![-6.0]),
+            ],
+        )
+        .unwrap();
+        let r = diagnose(&path, &d, &Options::default()).unwrap();
+        let named: Vec<String> = r
+            .effects
+            .iter()
+            .filter(|f| !f.effect.is_setup())
+            .map(|f| f.effect.name())
+            .collect();
+        assert_eq!(named, ["backlash_x", "scale_x"], "{:?}", r.below_floor);
+        let f = r.effects.iter().find(|f| f.effect.name() == "scale_x");
+        assert!((f.unwrap().value - 30.0).abs() < 1e-3);
+        assert!(r.below_floor.iter().any(|(n, _)| n == "scale_y"));
     }
 
     #[test]
