@@ -42,10 +42,10 @@ pub enum Effect {
     /// compensation jumps the motor through the gap), which is seed 000 eq. 14 with f = −b.
     Backlash(Axis),
     /// Lost motion that differs along the travel (a worn screw): the gap grows linearly from
-    /// `neg_um` at the low end of the axis's travel to `pos_um` at the high end (the circle's ends,
-    /// ±R about the table ball: [`travel_ends_mm`]), each taken up as
-    /// a dead band as in [`Effect::Backlash`]; the ballbar's backlash at the negative and the
-    /// positive reversal. Reported under the same name (`backlash_k`), value (pos + neg)/2.
+    /// `neg_um` at the low end of the axis's travel to `pos_um` at the high end (the circle's
+    /// ends, ±R about the table ball: [`travel_ends_mm`]), each taken up as a dead band as in
+    /// [`Effect::Backlash`]; the ballbar's backlash at the negative and the positive reversal.
+    /// Reported under the same name (`backlash_k`), value (pos + neg)/2: the gap at the ball.
     BacklashEnds(Axis),
     /// A bowed axis i (straightness): moving along i, axis j is displaced by
     /// δ_j = w·(1 − 4·((i − i_mid)/L)²), w in µm: the bow of the middle of the travel L of i
@@ -555,9 +555,9 @@ fn bow_shape((lo, hi): (f64, f64), x_mm: f64) -> f64 {
 /// A dead band (play operator) between motor and carriage of axis k, evaluated from the nominal
 /// (motor) position: for each sample i0 + j, `f(j, δ_um, ∂δ/∂pos, ∂δ/∂neg)` with the gap g(x)
 /// growing linearly from `neg_um` at the low end of k's travel ([`travel_ends_mm`]) to `pos_um`
-/// at the high end (equal for a uniform backlash). With s the direction since the last reversal (at x_r,
-/// gap g_r there) and u = s·(x − x_r) ≥ 0 the motor's travel since: the carriage stood where the
-/// old direction left it, x_r + s·g_r/2, until the motor took the gap up, so
+/// at the high end (equal for a uniform backlash). With s the direction since the last reversal
+/// (at x_r, gap g_r there) and u = s·(x − x_r) ≥ 0 the motor's travel since: the carriage stood
+/// where the old direction left it, x_r + s·g_r/2, until the motor took the gap up, so
 /// δ = −s·g(x)/2 + s·max(0, g_r − u) for g_r > 0; a negative gap is a step (over-compensation).
 /// Before the first reversal the held direction of the path is used, the gap taken up.
 pub(crate) fn for_each_dead_band(
