@@ -214,6 +214,34 @@ struct Chosen {
     delta_bic: f64,
 }
 
+/// A machine effect alone with its refitted parameters, from one pass over the samples: the
+/// most it moves D (µm), and its residual D − |p| (µm) as rᵀr and Jᵀr against the set-up's free
+/// columns (−u, 1), which its share needs.
+struct Alone {
+    peak_um: f64,
+    rr: f64,
+    jtr: nalgebra::DVector<f64>,
+}
+
+impl Alone {
+    fn of(path: &Path, f: &Found, setup_free: &[usize]) -> Alone {
+        let d = EffectSet::new(vec![f.effect]).distances_mm(path, &f.params);
+        let mut jtr = nalgebra::DVector::<f64>::zeros(setup_free.len());
+        let (mut rr, mut peak_um) = (0.0, 0.0f64);
+        for (p, d) in path.p_mm.iter().zip(&d) {
+            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+            let res = 1e3 * (d - r);
+            rr += res * res;
+            peak_um = peak_um.max(res.abs());
+            let column = [-p[0] / r, -p[1] / r, -p[2] / r, 1.0];
+            for (a, &c) in setup_free.iter().enumerate() {
+                jtr[a] += column[c] * res;
+            }
+        }
+        Alone { peak_um, rr, jtr }
+    }
+}
+
 /// The axis of a backlash (uniform or by ends).
 fn backlash_axis(e: Effect) -> Option<Axis> {
     match e {
@@ -859,16 +887,10 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     // by less than the floor (listed below it).
     let mut not_significant: Vec<NotSignificant> = vec![];
     let period_s = median_interval(&path.t_s);
-    // |p| of each sample (mm): D of the ideal machine, for an effect's peak and its share.
-    let r_mm: Vec<f64> = path
-        .p_mm
-        .iter()
-        .map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt())
-        .collect();
     // Effects taken out after the refit (not significant, or under the floor): one effect, not
     // its whole step (the plane's two scales are one step where the radii separate them).
     let mut left_out: Vec<Effect> = vec![];
-    let (final_set, theta, final_ssr, mut found, alone_mm) = loop {
+    let (final_set, theta, final_ssr, mut found, alone) = loop {
         // The selection's steps (less what was left out) as effects with their start parameters;
         // a backlash's uniform gap and the difference of its ends (two steps) become one
         // `BacklashEnds`.
@@ -1044,30 +1066,18 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
             left_out.push(found[ei].effect);
             continue;
         }
-        // Each machine effect alone with its refitted parameters (D of the nominal path with it),
-        // for the floor here and its share below.
-        let alone_mm: Vec<Vec<f64>> = found
+        // Each machine effect alone with its refitted parameters: its peak on D for the floor
+        // here, its set-up projection for its share below (one pass each, nothing kept).
+        let alone: Vec<Option<Alone>> = found
             .iter()
-            .map(|f| {
-                if f.effect.is_setup() {
-                    vec![]
-                } else {
-                    EffectSet::new(vec![f.effect]).distances_mm(path, &f.params)
-                }
-            })
+            .map(|f| (!f.effect.is_setup()).then(|| Alone::of(path, f, &setup_free)))
             .collect();
         // The floor again, on the refitted value: the search's bound is that of its linear
         // columns, and where the exact model ties them (a servo mismatch's second column, the
         // lag difference times the common lag, is free in the search and takes up a
         // scale-mismatch-shaped misfit there: cos 2θ·v²/R on a circle) the named effect can
         // move D by less than the floor.
-        let peak_um = |ei: usize| {
-            1e3 * r_mm
-                .iter()
-                .zip(&alone_mm[ei])
-                .map(|(r, d)| (d - r).abs())
-                .fold(0.0, f64::max)
-        };
+        let peak_um = |ei: usize| alone[ei].as_ref().map_or(f64::INFINITY, |a| a.peak_um);
         let low = (2..found.len())
             .map(|ei| (ei, peak_um(ei)))
             .filter(|&(_, peak)| peak < opts.select.min_peak)
@@ -1079,7 +1089,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
             left_out.push(found[ei].effect);
             continue;
         }
-        break (final_set, theta, final_ssr, found, alone_mm);
+        break (final_set, theta, final_ssr, found, alone);
     };
     let final_rms_um = (final_ssr / m as f64).sqrt();
     let candidates_tried: Vec<String> = {
@@ -1145,22 +1155,11 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     let setup_chol = setup_normal.cholesky().ok_or_else(|| {
         Error::Numerics("the set-up fit is singular: the path does not determine it".into())
     })?;
-    for (f, alone) in found
-        .iter_mut()
-        .zip(&alone_mm)
-        .filter(|(f, _)| !f.effect.is_setup())
-    {
-        let mut jtr = nalgebra::DVector::<f64>::zeros(setup_free.len());
-        let mut rr = 0.0;
-        for ((p, d), &r) in path.p_mm.iter().zip(alone).zip(&r_mm) {
-            let res = 1e3 * (d - r);
-            rr += res * res;
-            let column = [-p[0] / r, -p[1] / r, -p[2] / r, 1.0];
-            for (a, &c) in setup_free.iter().enumerate() {
-                jtr[a] += column[c] * res;
-            }
-        }
-        let its_setup = setup_chol.solve(&jtr);
+    for (f, a) in found.iter_mut().zip(&alone) {
+        let Some(Alone { rr, jtr, .. }) = a else {
+            continue;
+        };
+        let its_setup = setup_chol.solve(jtr);
         let ms = (rr - jtr.dot(&its_setup)).max(0.0) / m as f64;
         f.contribution_rms_um = ms.sqrt();
     }
