@@ -21,7 +21,10 @@
 //!    Σ|β_c|·max|column_c|): with tens of thousands of samples, misfits of a few nanometres —
 //!    a backlash that is a dead zone rather than a step, a sample's timing off by a millisecond —
 //!    are significant, and would be named as a squareness of 0.1 µm/m. They are listed as below
-//!    the floor instead ([`Diagnosis::below_floor`]).
+//!    the floor instead ([`Diagnosis::below_floor`]). The floor is checked again on each effect
+//!    alone with its refitted parameters (step 6): where the exact model ties search columns
+//!    together (a servo mismatch's lag difference and common lag) the bound can pass while the
+//!    effect named does not.
 //! 5. Identifiability: columns that are linear combinations of others (rank test on the
 //!    column-scaled Gram matrix, singular values below 1e-7 of the largest) are never fitted
 //!    against each other. If the isotropic scale is confounded with the length offset (one radius),
@@ -200,16 +203,43 @@ pub struct WeakOnArc {
     pub free_fraction: f64,
 }
 
-/// An effect of the exact refit and the selection steps it came from (two for a backlash whose
-/// ends differ).
+/// An effect of the exact refit, with the statistics of the selection step it came from (the
+/// later of two for a backlash whose ends differ).
 struct Chosen {
     effect: Effect,
     start: Vec<f64>,
     held_lag: bool,
-    steps: Vec<usize>,
     rms_after: f64,
     rms_ratio: f64,
     delta_bic: f64,
+}
+
+/// A machine effect alone with its refitted parameters, from one pass over the samples: the
+/// most it moves D (µm), and its residual D − |p| (µm) as rᵀr and Jᵀr against the set-up's free
+/// columns (−u, 1), which its share needs.
+struct Alone {
+    peak_um: f64,
+    rr: f64,
+    jtr: nalgebra::DVector<f64>,
+}
+
+impl Alone {
+    fn of(path: &Path, f: &Found, setup_free: &[usize]) -> Alone {
+        let d = EffectSet::new(vec![f.effect]).distances_mm(path, &f.params);
+        let mut jtr = nalgebra::DVector::<f64>::zeros(setup_free.len());
+        let (mut rr, mut peak_um) = (0.0, 0.0f64);
+        for (p, d) in path.p_mm.iter().zip(&d) {
+            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+            let res = 1e3 * (d - r);
+            rr += res * res;
+            peak_um = peak_um.max(res.abs());
+            let column = [-p[0] / r, -p[1] / r, -p[2] / r, 1.0];
+            for (a, &c) in setup_free.iter().enumerate() {
+                jtr[a] += column[c] * res;
+            }
+        }
+        Alone { peak_um, rr, jtr }
+    }
 }
 
 /// The axis of a backlash (uniform or by ends).
@@ -508,6 +538,12 @@ pub fn candidate_effects(path: &Path) -> Vec<Effect> {
     }
     v.push(Effect::Drift);
     v
+}
+
+/// Whether search candidate `b` is (part of) the named effect `a`: itself, or a backlash of the
+/// same axis (a uniform gap and the difference of its ends are named as one).
+fn same_effect(a: Effect, b: Effect) -> bool {
+    a == b || backlash_axis(a).is_some_and(|k| backlash_axis(b) == Some(k))
 }
 
 /// The search forms of `effect`: one, a spike at each trial decay time, or a backlash with the
@@ -822,7 +858,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         gaps_um = found;
         previous = Some(design);
     };
-    let below_floor: Vec<(String, f64)> = sel
+    let mut below_floor: Vec<(String, f64)> = sel
         .below_floor
         .iter()
         .map(|&(g, bound)| {
@@ -847,18 +883,24 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     // parameter (the servo delay's lag) at zero.
     // An effect whose value its own σ does not tell from zero (|value| < 2σ, possible only
     // where σ counts more than the fit's noise: a spike's height with the timing uncertainty) is
-    // dropped and the rest refitted.
-    let mut kept: Vec<usize> = (0..sel.steps.len()).collect();
+    // dropped and the rest refitted; so is one that, alone with its refitted parameters, moves D
+    // by less than the floor (listed below it).
     let mut not_significant: Vec<NotSignificant> = vec![];
     let period_s = median_interval(&path.t_s);
-    let (final_set, theta, final_ssr, mut found) = loop {
-        // The kept steps as effects with their start parameters; a backlash's uniform gap and
-        // the difference of its ends (two steps) become one `BacklashEnds`.
+    // Effects taken out after the refit (not significant, or under the floor): one effect, not
+    // its whole step (the plane's two scales are one step where the radii separate them).
+    let mut left_out: Vec<Effect> = vec![];
+    let (final_set, theta, final_ssr, mut found, alone) = loop {
+        // The selection's steps (less what was left out) as effects with their start parameters;
+        // a backlash's uniform gap and the difference of its ends (two steps) become one
+        // `BacklashEnds`.
         let mut chosen: Vec<Chosen> = vec![];
-        for &k in &kept {
-            let st = &sel.steps[k];
+        for st in &sel.steps {
             for &c in &group_cands[st.group] {
                 let cand = design.cands[c];
+                if left_out.iter().any(|&e| same_effect(e, cand.effect)) {
+                    continue;
+                }
                 let coef: Vec<f64> = design.cols_of(c).into_iter().map(coef_of).collect();
                 let start = cand.start(&coef);
                 let held_lag = matches!(cand.effect, Effect::ServoMismatch(_)) && st.cols.len() < 2;
@@ -880,7 +922,6 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                             ch.effect = Effect::BacklashEnds(a);
                         }
                         ch.start = vec![b + 0.5 * d, b - 0.5 * d];
-                        ch.steps.push(k);
                         ch.rms_after = st.rms_after;
                         ch.rms_ratio *= st.rms_ratio;
                         ch.delta_bic += st.delta_bic;
@@ -889,7 +930,6 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                         effect: cand.effect,
                         start,
                         held_lag,
-                        steps: vec![k],
                         rms_after: st.rms_after,
                         rms_ratio: st.rms_ratio,
                         delta_bic: st.delta_bic,
@@ -1021,14 +1061,35 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                 };
                 (ei, weak)
             });
-        match weak {
-            Some((ei, weak)) => {
-                not_significant.push(weak);
-                let drop = &chosen[ei - 2].steps;
-                kept.retain(|k| !drop.contains(k));
-            }
-            None => break (final_set, theta, final_ssr, found),
+        if let Some((ei, weak)) = weak {
+            not_significant.push(weak);
+            left_out.push(found[ei].effect);
+            continue;
         }
+        // Each machine effect alone with its refitted parameters: its peak on D for the floor
+        // here, its set-up projection for its share below (one pass each, nothing kept).
+        let alone: Vec<Option<Alone>> = found
+            .iter()
+            .map(|f| (!f.effect.is_setup()).then(|| Alone::of(path, f, &setup_free)))
+            .collect();
+        // The floor again, on the refitted value: the search's bound is that of its linear
+        // columns, and where the exact model ties them (a servo mismatch's second column, the
+        // lag difference times the common lag, is free in the search and takes up a
+        // scale-mismatch-shaped misfit there: cos 2θ·v²/R on a circle) the named effect can
+        // move D by less than the floor.
+        let peak_um = |ei: usize| alone[ei].as_ref().map_or(f64::INFINITY, |a| a.peak_um);
+        let low = (2..found.len())
+            .map(|ei| (ei, peak_um(ei)))
+            .filter(|&(_, peak)| peak < opts.select.min_peak)
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        if let Some((ei, peak)) = low {
+            let name = found[ei].effect.name();
+            below_floor.retain(|(n, _)| *n != name);
+            below_floor.push((name, peak));
+            left_out.push(found[ei].effect);
+            continue;
+        }
+        break (final_set, theta, final_ssr, found, alone);
     };
     let final_rms_um = (final_ssr / m as f64).sqrt();
     let candidates_tried: Vec<String> = {
@@ -1094,20 +1155,11 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     let setup_chol = setup_normal.cholesky().ok_or_else(|| {
         Error::Numerics("the set-up fit is singular: the path does not determine it".into())
     })?;
-    for f in found.iter_mut().filter(|f| !f.effect.is_setup()) {
-        let alone = EffectSet::new(vec![f.effect]).distances_mm(path, &f.params);
-        let mut jtr = nalgebra::DVector::<f64>::zeros(setup_free.len());
-        let mut rr = 0.0;
-        for (p, d) in path.p_mm.iter().zip(&alone) {
-            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-            let res = 1e3 * (d - r);
-            rr += res * res;
-            let column = [-p[0] / r, -p[1] / r, -p[2] / r, 1.0];
-            for (a, &c) in setup_free.iter().enumerate() {
-                jtr[a] += column[c] * res;
-            }
-        }
-        let its_setup = setup_chol.solve(&jtr);
+    for (f, a) in found.iter_mut().zip(&alone) {
+        let Some(Alone { rr, jtr, .. }) = a else {
+            continue;
+        };
+        let its_setup = setup_chol.solve(jtr);
         let ms = (rr - jtr.dot(&its_setup)).max(0.0) / m as f64;
         f.contribution_rms_um = ms.sqrt();
     }
@@ -1443,6 +1495,42 @@ mod tests {
 
     fn ev(effect: Effect, params: Vec<f64>) -> super::super::simulate::EffectValue {
         super::super::simulate::EffectValue { effect, params }
+    }
+
+    #[test]
+    fn one_of_the_planes_two_scales_under_the_floor_leaves_the_other_named() {
+        // Two radii separate the isotropic scale, and the search offers the plane's two scales
+        // as one step. Scale y comes out of the refit at nothing (under the floor): it leaves,
+        // scale x stays (taking the whole step out dropped scale x too).
+        use super::super::simulate::{distances_mm, nominal_path, PathSpec};
+        let spec = PathSpec {
+            radii_mm: vec![40.0, 70.0],
+            heights_mm: vec![0.0],
+            plane: (0, 1, 2),
+            feed_mm_min: 1000.0,
+            rate_hz: 50.0,
+        };
+        let (t, p) = nominal_path(&spec);
+        let path = Path::new(t, p, [None; 3]);
+        let d = distances_mm(
+            &path,
+            &[
+                ev(Effect::Scale(Axis::X), vec![30.0]),
+                ev(Effect::Backlash(Axis::X), vec![-6.0]),
+            ],
+        )
+        .unwrap();
+        let r = diagnose(&path, &d, &Options::default()).unwrap();
+        let named: Vec<String> = r
+            .effects
+            .iter()
+            .filter(|f| !f.effect.is_setup())
+            .map(|f| f.effect.name())
+            .collect();
+        assert_eq!(named, ["backlash_x", "scale_x"], "{:?}", r.below_floor);
+        let f = r.effects.iter().find(|f| f.effect.name() == "scale_x");
+        assert!((f.unwrap().value - 30.0).abs() < 1e-3);
+        assert!(r.below_floor.iter().any(|(n, _)| n == "scale_y"));
     }
 
     #[test]

@@ -42,14 +42,16 @@ pub enum Effect {
     /// compensation jumps the motor through the gap), which is seed 000 eq. 14 with f = −b.
     Backlash(Axis),
     /// Lost motion that differs along the travel (a worn screw): the gap grows linearly from
-    /// `neg_um` at the low end of the test's travel to `pos_um` at the high end, each taken up as
-    /// a dead band as in [`Effect::Backlash`]; the ballbar's backlash at the negative and the
-    /// positive reversal. Reported under the same name (`backlash_k`), value (pos + neg)/2.
+    /// `neg_um` at the low end of the axis's travel to `pos_um` at the high end (the circle's
+    /// ends, ±R about the table ball: [`travel_ends_mm`]), each taken up as a dead band as in
+    /// [`Effect::Backlash`]; the ballbar's backlash at the negative and the positive reversal.
+    /// Reported under the same name (`backlash_k`), value (pos + neg)/2: the gap at the ball.
     BacklashEnds(Axis),
     /// A bowed axis i (straightness): moving along i, axis j is displaced by
-    /// δ_j = w·(1 − 4·((i − i_mid)/L)²), w in µm: the bow of the middle of the tested travel L
-    /// (centre i_mid) relative to the line through its ends, positive towards +j. On one circle
-    /// i² = R² − j², so it is the same data as `scale2_j` with a set-up offset.
+    /// δ_j = w·(1 − 4·((i − i_mid)/L)²), w in µm: the bow of the middle of the travel L of i
+    /// between the circle's ends (±R about the table ball, [`travel_ends_mm`]; i_mid the ball)
+    /// relative to the line through them, positive towards +j. On one circle, and on every arc of
+    /// it, i² = R² − j², so it is the same data as `scale2_j` with a set-up offset.
     Straightness(Axis, Axis),
     /// Lateral play of axis i in direction j (a guideway clearance across its travel): when i
     /// reverses, friction turns and the carriage shifts across the clearance, so
@@ -336,8 +338,9 @@ impl Effect {
             Effect::Straightness(a, b) => {
                 let (i, j) = (a.index(), b.index());
                 let w = 1e-3 * theta[0];
+                let ends = travel_ends_mm(path, i);
                 for (qk, pk) in q.iter_mut().zip(p) {
-                    qk[j] += w * bow_shape(path, i, pk[i]);
+                    qk[j] += w * bow_shape(ends, pk[i]);
                 }
             }
             Effect::LateralPlay(a, b) => {
@@ -524,23 +527,43 @@ fn decay(x: f64) -> f64 {
     }
 }
 
-/// The shape of a bow of axis i (see [`Effect::Straightness`]) at its position `x_mm`:
-/// 1 − 4·((x − mid)/L)² over the path's travel of i; 0 for an axis that does not move.
-fn bow_shape(path: &Path, i: usize, x_mm: f64) -> f64 {
-    let len = path.hi_mm[i] - path.lo_mm[i];
+/// The ends of axis k's travel that the bow and the lost motion per end refer to (mm, relative
+/// to the table ball): ±h with h the farthest the path goes from the table ball along k, the
+/// points where a whole circle about the ball reverses k. On a full circle they are the path's
+/// lowest and highest positions. On a partial arc they are not where the data end: a 220° arc
+/// in yz records z from 0 to R only, and a bow or a gap referred to the data's own travel (mid
+/// R/2) would differ from a full circle's by a linear part, i.e. a squareness, or by an arc
+/// end's reversal outside the data (z = R·sin(−20°)) held at the end's gap. Referred to ±h, a
+/// bow of k is the same data as the other axis's second-order scale on every arc of the circle
+/// (k² = R² − j², the constant a set-up offset), as on a full circle, and the gaps are the ones
+/// at the reversals of a full circle about the same ball (docs/mechanisms.md).
+pub(crate) fn travel_ends_mm(path: &Path, k: usize) -> (f64, f64) {
+    let h = path.lo_mm[k].abs().max(path.hi_mm[k].abs());
+    if path.range_mm[k] > 0.0 {
+        (-h, h)
+    } else {
+        (0.0, 0.0)
+    }
+}
+
+/// The shape of a bow (see [`Effect::Straightness`]) at the bowed axis's position `x_mm`:
+/// 1 − 4·((x − mid)/L)² over its travel between its ends `(lo, hi)` ([`travel_ends_mm`]); 0 for
+/// an axis that does not move.
+fn bow_shape((lo, hi): (f64, f64), x_mm: f64) -> f64 {
+    let len = hi - lo;
     if len <= 0.0 {
         return 0.0;
     }
-    let z = (x_mm - 0.5 * (path.hi_mm[i] + path.lo_mm[i])) / len;
+    let z = (x_mm - 0.5 * (hi + lo)) / len;
     1.0 - 4.0 * z * z
 }
 
 /// A dead band (play operator) between motor and carriage of axis k, evaluated from the nominal
 /// (motor) position: for each sample i0 + j, `f(j, δ_um, ∂δ/∂pos, ∂δ/∂neg)` with the gap g(x)
-/// growing linearly from `neg_um` at the low end of the path's travel of k to `pos_um` at the
-/// high end (equal for a uniform backlash). With s the direction since the last reversal (at x_r,
-/// gap g_r there) and u = s·(x − x_r) ≥ 0 the motor's travel since: the carriage stood where the
-/// old direction left it, x_r + s·g_r/2, until the motor took the gap up, so
+/// growing linearly from `neg_um` at the low end of k's travel ([`travel_ends_mm`]) to `pos_um`
+/// at the high end (equal for a uniform backlash). With s the direction since the last reversal
+/// (at x_r, gap g_r there) and u = s·(x − x_r) ≥ 0 the motor's travel since: the carriage stood
+/// where the old direction left it, x_r + s·g_r/2, until the motor took the gap up, so
 /// δ = −s·g(x)/2 + s·max(0, g_r − u) for g_r > 0; a negative gap is a step (over-compensation).
 /// Before the first reversal the held direction of the path is used, the gap taken up.
 pub(crate) fn for_each_dead_band(
@@ -552,7 +575,7 @@ pub(crate) fn for_each_dead_band(
     neg_um: f64,
     mut f: impl FnMut(usize, f64, f64, f64),
 ) {
-    let (lo, hi) = (path.lo_mm[k], path.hi_mm[k]);
+    let (lo, hi) = travel_ends_mm(path, k);
     let weight_pos = |x: f64| {
         if hi > lo {
             ((x - lo) / (hi - lo)).clamp(0.0, 1.0)
@@ -771,8 +794,9 @@ impl Candidate {
             }
             Effect::Straightness(a, b) => {
                 let (i, jx) = (a.index(), b.index());
+                let ends = travel_ends_mm(path, i);
                 for (j, o) in rows.enumerate() {
-                    out[o] = u[j][jx] * bow_shape(path, i, p[j][i]);
+                    out[o] = u[j][jx] * bow_shape(ends, p[j][i]);
                 }
             }
             Effect::LateralPlay(a, b) => {

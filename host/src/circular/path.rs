@@ -170,8 +170,9 @@ pub struct Path {
     pub pitch_mm: [Option<f64>; 3],
     /// Travel range (max − min) per axis, mm.
     pub range_mm: [f64; 3],
-    /// Lowest and highest position per axis on the path (mm, relative to the table ball): the
-    /// ends of the travel where the lost motion of the two reversals is reported.
+    /// Lowest and highest position per axis on the path (mm, relative to the table ball); the
+    /// ends that a bow and the lost motion per end refer to are derived from them
+    /// (`model::travel_ends_mm`).
     pub lo_mm: [f64; 3],
     pub hi_mm: [f64; 3],
     /// See [`Path::pitch_phase`].
