@@ -1,13 +1,14 @@
-//! The live page's HTTP server, on [`axum`] (hyper and tokio): `GET /` the page (HTML, script
-//! and style in one, embedded in the binary: no CDN, nothing fetched from elsewhere), `GET
-//! /events` the state as server-sent events (`text/event-stream`: `retry: 1000` first, then one
-//! `data:` line of JSON per event, looked for every [`EVENT_INTERVAL`] and sent only when the
-//! state changed, a comment line after each second without one), `GET /state` the latest state
-//! once (JSON; with `?poll=1` the page reads it ten times a second instead of the stream, for
-//! headless browsers and proxies that hold streams back). Anything but GET is refused (405): the
-//! page only reads. Bound to a loopback address, anyone on this computer may read it; bound to
-//! another address, every request must carry `?token=` with the random token the server was
-//! started with (printed with the URL), else 403.
+//! The live page's HTTP server, on [`axum`] (hyper and tokio: the maintained mainstream of the Rust
+//! ecosystem, in place of the unmaintained tiny_http; docs/live.md): `GET /` the page (HTML, script
+//! and style in one, embedded in the binary: no CDN, nothing fetched from elsewhere), `GET /events`
+//! the state as server-sent events (`text/event-stream`: `retry: 1000` first, then one `data:` line
+//! of JSON per event, looked for every [`EVENT_INTERVAL`] and sent only when the state changed, a
+//! comment line after each second without one), `GET /state` the latest state once (JSON; with
+//! `?poll=1` the page reads it ten times a second instead of the stream, for headless browsers and
+//! proxies that hold streams back). Anything but GET is refused (405): the page only reads. Bound
+//! to a loopback address, anyone on this computer may read it; bound to another address, every
+//! request must carry `?token=` with the random token the server was started with (printed with the
+//! URL), else 403.
 //!
 //! The server runs on a thread of its own with its own single-threaded tokio runtime: the
 //! recorder never waits for it. The handlers read the [`Board`] by cloning an `Arc` under its
