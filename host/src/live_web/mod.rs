@@ -8,7 +8,7 @@
 //!   [`feed::Board`] without ever waiting for the page.
 //! - [`worker`]: the diagnosis of the circles completed so far, in a thread of its own.
 //! - [`end`]: the end-of-test diagnosis, as `jdbb diagnose --record --plan` gives it.
-//! - [`server`]: the HTTP server (tiny_http) serving the page and the event stream, read-only,
+//! - [`server`]: the HTTP server (axum) serving the page and the event stream, read-only,
 //!   on localhost unless told otherwise (then with a token).
 //!
 //! May use: [`crate::circular`] (the plan, the synchronisation, the diagnosis and its summary),

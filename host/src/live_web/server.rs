@@ -1,23 +1,42 @@
-//! The live page's HTTP server ([`tiny_http`]): `GET /` the page (HTML, script and style in
-//! one, embedded in the binary: no CDN, nothing fetched from elsewhere), `GET /events` the state
-//! as server-sent events (`text/event-stream`, one `data:` line of JSON per event, at most every
-//! [`EVENT_INTERVAL`] and only when the state changed, a comment line each second otherwise),
-//! `GET /state` the latest state once (JSON; with `?poll=1` the page reads it ten times a second
-//! instead of the stream, for headless browsers and proxies that hold streams back). Anything but GET is refused (405): the page only
-//! reads. Bound to a loopback address, anyone on this computer may read it; bound to another
-//! address, every request must carry `?token=` with the random token the server was started
-//! with (printed with the URL), else 403.
+//! The live page's HTTP server, on [`axum`] (hyper and tokio: the maintained mainstream of the Rust
+//! ecosystem, in place of the unmaintained tiny_http; docs/live.md): `GET /` the page (HTML, script
+//! and style in one, embedded in the binary: no CDN, nothing fetched from elsewhere), `GET /events`
+//! the state as server-sent events (`text/event-stream`: `retry: 1000` first, then one `data:` line
+//! of JSON per event, looked for every [`EVENT_INTERVAL`] and sent only when the state changed, a
+//! comment line after each second without one), `GET /state` the latest state once (JSON; with
+//! `?poll=1` the page reads it ten times a second instead of the stream, for headless browsers and
+//! proxies that hold streams back). Anything but GET is refused (405): the page only reads. Bound
+//! to a loopback address, anyone on this computer may read it; bound to another address, every
+//! request must carry `?token=` with the random token the server was started with (printed with the
+//! URL), else 403.
 //!
-//! The event stream is written on the request's connection (`Request::into_writer`) after a
-//! fixed response head, because tiny_http's own responses buffer a body of unknown length in 8 kB
-//! chunks, which would hold events back. Each page's stream runs on its own thread, which reads
-//! the [`Board`] (cloning an `Arc` under the lock) and never touches the recorder.
-use std::io::Write;
+//! The server runs on a thread of its own with its own single-threaded tokio runtime: the
+//! recorder never waits for it. The handlers read the [`Board`] by cloning an `Arc` under its
+//! lock, never holding the lock across an `.await`. A page that stops reading leaves its
+//! connection's task waiting for the socket (hyper stops polling the stream once its buffer is
+//! full): it costs no thread, no board read and no sample. Dropping the [`LiveServer`] stops it
+//! gracefully: no new connection, the event streams end within [`EVENT_INTERVAL`], the thread is
+//! joined; a connection still not done after [`SHUTDOWN_LIMIT`] (a page that stopped reading) is
+//! dropped.
+use std::convert::Infallible;
+use std::future::IntoFuture;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::Duration;
+
+use axum::body::Bytes;
+use axum::extract::{Request, State};
+use axum::http::header::{ALLOW, CACHE_CONTROL, CONTENT_TYPE};
+use axum::http::{Method, StatusCode};
+use axum::middleware::{self, Next};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::get;
+use axum::Router;
+use futures_util::stream::{self, Stream, StreamExt};
+use tokio::sync::watch;
 
 use super::feed::Board;
 use crate::{Error, Result};
@@ -35,6 +54,14 @@ pub const LAST_STATE_GRACE: Duration = Duration::from_millis(250);
 
 /// Most pages streaming at once; more get 503.
 pub const MAX_STREAMS: usize = 16;
+
+/// The longest a stopping server waits for its connections to finish (a page that stopped
+/// reading never does); then they are dropped.
+pub const SHUTDOWN_LIMIT: Duration = Duration::from_secs(1);
+
+/// An event stream sends a comment after this long without an event: it keeps proxies from
+/// closing the stream and finds a closed page.
+const KEEP_ALIVE: Duration = Duration::from_secs(1);
 
 /// The page: HTML with its script and style put in ([`page`]).
 const PAGE_HTML: &str = include_str!("page/index.html");
@@ -66,11 +93,11 @@ fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
-/// A running server; dropping it stops it (the streams end at their next event).
+/// A running server; dropping it stops it (module docs).
 pub struct LiveServer {
     addr: SocketAddr,
     token: Option<String>,
-    stop: Arc<AtomicBool>,
+    stop: watch::Sender<bool>,
     thread: Option<JoinHandle<()>>,
 }
 
@@ -78,29 +105,36 @@ impl LiveServer {
     /// Listen on `addr` (port 0: any free port) and serve `board`. A non-loopback address gets
     /// a random token (128 bits, hex).
     pub fn start(addr: SocketAddr, board: Board) -> Result<LiveServer> {
-        let server = tiny_http::Server::http(addr).map_err(|e| Error::WebServer {
+        let failed = |e: std::io::Error| Error::WebServer {
             addr: addr.to_string(),
             message: e.to_string(),
-        })?;
-        let bound = server
-            .server_addr()
-            .to_ip()
-            .ok_or_else(|| Error::WebServer {
-                addr: addr.to_string(),
-                message: "not an IP address".into(),
-            })?;
-        let token = (!addr.ip().is_loopback()).then(|| format!("{:032x}", rand::random::<u128>()));
-        let stop = Arc::new(AtomicBool::new(false));
-        let thread = {
-            let (stop, token) = (stop.clone(), token.clone());
-            std::thread::Builder::new()
-                .name("jdbb-web".into())
-                .spawn(move || serve(server, board, token, stop))
-                .map_err(|e| Error::WebServer {
-                    addr: addr.to_string(),
-                    message: e.to_string(),
-                })?
         };
+        // Bound here, so that an address in use is said before anything else starts.
+        let std_listener = std::net::TcpListener::bind(addr).map_err(failed)?;
+        std_listener.set_nonblocking(true).map_err(failed)?;
+        let bound = std_listener.local_addr().map_err(failed)?;
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_io()
+            .enable_time()
+            .build()
+            .map_err(failed)?;
+        let listener = {
+            let _in_runtime = runtime.enter();
+            tokio::net::TcpListener::from_std(std_listener).map_err(failed)?
+        };
+        let token = (!addr.ip().is_loopback()).then(|| format!("{:032x}", rand::random::<u128>()));
+        let (stop, stopped) = watch::channel(false);
+        let shared = Shared {
+            board,
+            token: token.clone(),
+            page: Bytes::from(page()),
+            streams: Arc::new(AtomicUsize::new(0)),
+            stopped: stopped.clone(),
+        };
+        let thread = std::thread::Builder::new()
+            .name("jdbb-web".into())
+            .spawn(move || serve(runtime, listener, router(shared), stopped))
+            .map_err(failed)?;
         Ok(LiveServer {
             addr: bound,
             token,
@@ -130,122 +164,178 @@ impl LiveServer {
 
 impl Drop for LiveServer {
     fn drop(&mut self) {
-        self.stop.store(true, Ordering::SeqCst);
+        self.stop.send_replace(true);
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
     }
 }
 
-fn header(k: &str, v: &str) -> tiny_http::Header {
-    // The names and values here are fixed ASCII.
-    tiny_http::Header::from_bytes(k.as_bytes(), v.as_bytes()).expect("ASCII header")
+/// What every handler reads.
+#[derive(Clone)]
+struct Shared {
+    board: Board,
+    token: Option<String>,
+    /// The page, made once.
+    page: Bytes,
+    /// Event streams open now.
+    streams: Arc<AtomicUsize>,
+    /// Becomes true when the server stops.
+    stopped: watch::Receiver<bool>,
 }
 
-fn text(code: u16, body: &str) -> tiny_http::Response<std::io::Cursor<Vec<u8>>> {
-    tiny_http::Response::from_string(body)
-        .with_status_code(code)
-        .with_header(header("Content-Type", "text/plain; charset=utf-8"))
-}
-
-/// Answer requests until `stop`.
-fn serve(server: tiny_http::Server, board: Board, token: Option<String>, stop: Arc<AtomicBool>) {
-    let streams = Arc::new(AtomicUsize::new(0));
-    while !stop.load(Ordering::SeqCst) {
-        let req = match server.recv_timeout(Duration::from_millis(100)) {
-            Ok(Some(r)) => r,
-            Ok(None) => continue,
-            Err(_) => break,
-        };
-        // A client that went away while being answered is no error of the server.
-        let _ = answer(req, &board, token.as_deref(), &stop, &streams);
-    }
-}
-
-fn answer(
-    req: tiny_http::Request,
-    board: &Board,
-    token: Option<&str>,
-    stop: &Arc<AtomicBool>,
-    streams: &Arc<AtomicUsize>,
-) -> std::io::Result<()> {
-    if *req.method() != tiny_http::Method::Get {
-        return req.respond(
-            text(405, "the live page only reads: GET only\n").with_header(header("Allow", "GET")),
+/// Run the server on this thread until `stopped`, then stop it gracefully, dropping what is
+/// still open after [`SHUTDOWN_LIMIT`] (with the runtime).
+fn serve(
+    runtime: tokio::runtime::Runtime,
+    listener: tokio::net::TcpListener,
+    app: Router,
+    mut stopped: watch::Receiver<bool>,
+) {
+    runtime.block_on(async move {
+        let mut signal = stopped.clone();
+        let server = tokio::spawn(
+            axum::serve(listener, app)
+                .with_graceful_shutdown(async move {
+                    // An error: the LiveServer is gone, which also means stop.
+                    let _ = signal.wait_for(|s| *s).await;
+                })
+                .into_future(),
         );
+        let _ = stopped.wait_for(|s| *s).await;
+        let _ = tokio::time::timeout(SHUTDOWN_LIMIT, server).await;
+    });
+}
+
+/// The routes, behind the rules that hold for every request ([`guard`]).
+fn router(shared: Shared) -> Router {
+    Router::new()
+        .route("/", get(index))
+        .route("/index.html", get(index))
+        .route("/state", get(state))
+        .route("/events", get(events))
+        .fallback(not_found)
+        .layer(middleware::from_fn_with_state(shared.clone(), guard))
+        .with_state(shared)
+}
+
+/// GET only (405 otherwise), and the token when there is one (403 without it).
+async fn guard(State(shared): State<Shared>, req: Request, next: Next) -> Response {
+    if req.method() != Method::GET {
+        return (
+            StatusCode::METHOD_NOT_ALLOWED,
+            [(ALLOW, "GET")],
+            "the live page only reads: GET only\n",
+        )
+            .into_response();
     }
-    if !authorised(req.url(), token) {
-        return req.respond(text(
-            403,
+    let url = req.uri().path_and_query().map_or("/", |pq| pq.as_str());
+    if !authorised(url, shared.token.as_deref()) {
+        return (
+            StatusCode::FORBIDDEN,
             "this page needs the token jdbb printed with its URL: add ?token=...\n",
-        ));
+        )
+            .into_response();
     }
-    let path = req.url().split('?').next().unwrap_or("/").to_string();
-    match path.as_str() {
-        "/" | "/index.html" => req.respond(
-            tiny_http::Response::from_string(page())
-                .with_header(header("Content-Type", "text/html; charset=utf-8"))
-                .with_header(header("Cache-Control", "no-store")),
-        ),
-        "/state" => {
-            let json = board.lock().unwrap_or_else(|p| p.into_inner()).json.clone();
-            req.respond(
-                tiny_http::Response::from_string(json.as_str())
-                    .with_header(header("Content-Type", "application/json"))
-                    .with_header(header("Cache-Control", "no-store")),
-            )
+    next.run(req).await
+}
+
+async fn index(State(shared): State<Shared>) -> Response {
+    ([(CACHE_CONTROL, "no-store")], Html(shared.page.clone())).into_response()
+}
+
+async fn state(State(shared): State<Shared>) -> Response {
+    let json = latest(&shared.board).1;
+    (
+        [
+            (CONTENT_TYPE, "application/json"),
+            (CACHE_CONTROL, "no-store"),
+        ],
+        json.as_str().to_owned(),
+    )
+        .into_response()
+}
+
+async fn not_found() -> Response {
+    (StatusCode::NOT_FOUND, "not found: the live page is at /\n").into_response()
+}
+
+/// The board's version and JSON (an `Arc` cloned under the lock).
+fn latest(board: &Board) -> (u64, Arc<String>) {
+    let b = board.lock().unwrap_or_else(|p| p.into_inner());
+    (b.version, b.json.clone())
+}
+
+async fn events(State(shared): State<Shared>) -> Response {
+    let Some(slot) = StreamSlot::take(&shared.streams) else {
+        return (
+            StatusCode::SERVICE_UNAVAILABLE,
+            "too many pages open; close one\n",
+        )
+            .into_response();
+    };
+    let sse = Sse::new(event_stream(shared.board, shared.stopped, slot))
+        .keep_alive(KeepAlive::new().interval(KEEP_ALIVE).text("idle"));
+    // Replaces the no-cache axum sets.
+    ([(CACHE_CONTROL, "no-store")], sse).into_response()
+}
+
+/// One of the [`MAX_STREAMS`] places of an open event stream, given back when dropped (when the
+/// stream ends or its connection closes).
+struct StreamSlot(Arc<AtomicUsize>);
+
+impl StreamSlot {
+    fn take(streams: &Arc<AtomicUsize>) -> Option<StreamSlot> {
+        if streams.fetch_add(1, Ordering::SeqCst) >= MAX_STREAMS {
+            streams.fetch_sub(1, Ordering::SeqCst);
+            return None;
         }
-        "/events" => {
-            if streams.fetch_add(1, Ordering::SeqCst) >= MAX_STREAMS {
-                streams.fetch_sub(1, Ordering::SeqCst);
-                return req.respond(text(503, "too many pages open; close one\n"));
-            }
-            let (board, stop, streams) = (board.clone(), stop.clone(), streams.clone());
-            let spawned = std::thread::Builder::new()
-                .name("jdbb-web-events".into())
-                .spawn(move || {
-                    let _ = stream_events(req.into_writer(), &board, &stop);
-                    streams.fetch_sub(1, Ordering::SeqCst);
-                });
-            spawned.map(|_| ())
-        }
-        _ => req.respond(text(404, "not found: the live page is at /\n")),
+        Some(StreamSlot(streams.clone()))
     }
 }
 
-/// Write the event stream until the client goes away or the server stops.
-fn stream_events(
-    mut w: Box<dyn Write + Send>,
-    board: &Board,
-    stop: &AtomicBool,
-) -> std::io::Result<()> {
-    w.write_all(
-        b"HTTP/1.1 200 OK\r\nContent-Type: text/event-stream\r\nCache-Control: no-store\r\nConnection: close\r\n\r\nretry: 1000\n\n",
-    )?;
-    w.flush()?;
-    let mut sent = None;
-    let mut last_write = Instant::now();
-    while !stop.load(Ordering::SeqCst) {
-        let (version, json) = {
-            let b = board.lock().unwrap_or_else(|p| p.into_inner());
-            (b.version, b.json.clone())
-        };
-        if sent != Some(version) {
-            sent = Some(version);
-            w.write_all(b"data: ")?;
-            w.write_all(json.as_bytes())?;
-            w.write_all(b"\n\n")?;
-            w.flush()?;
-            last_write = Instant::now();
-        } else if last_write.elapsed() >= Duration::from_secs(1) {
-            // A comment: keeps proxies from closing, and finds a closed page.
-            w.write_all(b": idle\n\n")?;
-            w.flush()?;
-            last_write = Instant::now();
-        }
-        std::thread::sleep(EVENT_INTERVAL);
+impl Drop for StreamSlot {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::SeqCst);
     }
-    Ok(())
+}
+
+/// What an event stream follows.
+struct Follow {
+    board: Board,
+    stopped: watch::Receiver<bool>,
+    /// The version last sent.
+    sent: Option<u64>,
+    _slot: StreamSlot,
+}
+
+/// `retry: 1000`, then the board's JSON each time its version changed, looked for every
+/// [`EVENT_INTERVAL`], until the server stops.
+fn event_stream(
+    board: Board,
+    stopped: watch::Receiver<bool>,
+    slot: StreamSlot,
+) -> impl Stream<Item = std::result::Result<Event, Infallible>> + Send + 'static {
+    let follow = Follow {
+        board,
+        stopped,
+        sent: None,
+        _slot: slot,
+    };
+    let retry = Event::default().retry(Duration::from_millis(1000));
+    stream::once(std::future::ready(Ok(retry))).chain(stream::unfold(follow, |mut f| async move {
+        loop {
+            if *f.stopped.borrow() {
+                return None;
+            }
+            let (version, json) = latest(&f.board);
+            if f.sent != Some(version) {
+                f.sent = Some(version);
+                return Some((Ok(Event::default().data(json.as_str())), f));
+            }
+            tokio::time::sleep(EVENT_INTERVAL).await;
+        }
+    }))
 }
 
 #[cfg(test)]
