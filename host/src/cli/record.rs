@@ -17,7 +17,7 @@ use crate::link::record::{
 use crate::link::stream::{describe_info, interrupt_flag, Stream};
 use crate::link::stream::{SeqSample, Stats};
 use crate::live_web::end::diagnose_record;
-use crate::live_web::feed::{new_board, LiveFeed};
+use crate::live_web::feed::{new_board, LiveFeed, PUBLISH_INTERVAL};
 use crate::live_web::server::LAST_STATE_GRACE;
 use crate::{Error, Result};
 
@@ -196,7 +196,22 @@ pub fn run(args: &RecordArgs) -> Result<()> {
         &placed,
         matches!(end, End::NotStarted(_)),
     ) {
-        match diagnose_record(plan, &args.out, args.tolerance_um) {
+        // The end-of-test diagnosis in its own thread, while circles the worker diagnoses in
+        // the meantime still reach the page.
+        let result = std::thread::scope(|scope| {
+            let job = scope.spawn(|| diagnose_record(plan, &args.out, args.tolerance_um));
+            while !job.is_finished() {
+                f.publish_new_diagnoses(stream.stats());
+                std::thread::sleep(PUBLISH_INTERVAL);
+            }
+            job.join()
+        })
+        .unwrap_or_else(|_| {
+            Err(Error::Usage(
+                "the end-of-test diagnosis failed unexpectedly (a bug: please report it)".into(),
+            ))
+        });
+        match result {
             Ok(text) => {
                 print(&text)?;
                 f.diagnosis(stream.stats(), &text);
@@ -218,6 +233,9 @@ pub fn run(args: &RecordArgs) -> Result<()> {
                 s.url()
             ));
             while !interrupted.load(std::sync::atomic::Ordering::SeqCst) {
+                if let Some(f) = feed.as_mut() {
+                    f.publish_new_diagnoses(stream.stats());
+                }
                 std::thread::sleep(std::time::Duration::from_millis(100));
             }
         }

@@ -123,6 +123,20 @@ impl LiveFeed {
         self.publish_now(stats, Instant::now());
     }
 
+    /// After the recording: publish at once if the worker has diagnosed another circle since the
+    /// last publication (a debug build, or a long last circle, can take longer than the record).
+    pub fn publish_new_diagnoses(&mut self, stats: &Stats) {
+        let new = self
+            .diagnoser
+            .as_ref()
+            .map(Diagnoser::results)
+            .unwrap_or_default();
+        if !new.is_empty() {
+            self.state.circle_diagnoses.extend(new);
+            self.publish_now(stats, Instant::now());
+        }
+    }
+
     /// Publish the end-of-test diagnosis summary (waits for the board: the recording is over).
     pub fn diagnosis(&mut self, stats: &Stats, text: &str) {
         self.state.diagnosis = Some(text.to_string());
