@@ -6,7 +6,7 @@
 //!   followed from D ([`state::Tracker`]).
 //! - [`feed`]: the recorder's side: takes the samples, publishes the state into a shared
 //!   [`feed::Board`] without ever waiting for the page.
-//! - [`worker`]: the diagnosis of the circles completed so far, in a thread of its own.
+//! - [`worker`]: each circle's diagnosis while recording, in a thread of its own.
 //! - [`end`]: the end-of-test diagnosis, as `jdbb diagnose --record --plan` gives it.
 //! - [`server`]: the HTTP server (axum) serving the page and the event stream, read-only,
 //!   on localhost unless told otherwise (then with a token).
