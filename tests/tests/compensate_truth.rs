@@ -318,9 +318,11 @@ fn klipper_residual_squareness(xy: f64, s_um_per_m: f64, r_mm: f64) -> f64 {
 /// `calc_skew`, cross term `z·(xz − xy·yz)` included, to the machine. What the ball bar would
 /// see of each lean afterwards (the squareness of the plane, `G_ij + G_ji` of a least-squares
 /// fit of the error over the arc) must be under 2 % of the lean, and with that plane's factor's
-/// sign flipped twice the lean. XY and YZ are large (3 and −2.5 mm/m, a printer's gantry) so
-/// that their product, 7.5 µm/m, is 19 % of the XZ lean: without the cross term XZ is not
-/// cancelled, which is checked too, so the term is exercised rather than merely written.
+/// sign flipped twice the lean. XY and YZ are large (±1.5 mm/m, a printer's gantry; the
+/// synchronisation takes D within 0.1 mm of the radius, about 2 mm/m at R 90 mm) so that their
+/// product, 2.25 µm/m, is 15 % of the XZ lean:
+/// without the cross term −xy·yz of it is left, which is checked too, so the term is exercised
+/// rather than merely written.
 #[test]
 fn klipper_skew_cancels_the_vertical_planes_with_the_cross_term() {
     let (s_xy, s_yz, s_xz) = (1500.0, -1500.0, 15.0);
