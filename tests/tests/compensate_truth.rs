@@ -285,12 +285,6 @@ fn klipper_calc_skew_factor(ac: f64, bd: f64, ad: f64) -> f64 {
         .tan()
 }
 
-/// Klipper's `calc_skew(pos)` (same file): the position a move is sent to the kinematics at,
-/// x − y·xy − z·(xz − xy·yz), y − z·yz, z; here with only the XY factor.
-fn klipper_calc_skew(pos: [f64; 3], xy: f64) -> [f64; 3] {
-    [pos[0] - pos[1] * xy, pos[1], pos[2]]
-}
-
 /// The squareness (µm/m) left on an XY circle of radius `r_mm` about the table ball when Klipper
 /// skews every move by `xy` on the G-code machine whose Y slide leans `s_um_per_m` towards +X
 /// (`gmachine::errors::Squareness`: δ_x = s·(y − ball_y) at the motor's y): the slope of the
@@ -301,7 +295,7 @@ fn klipper_residual_squareness(xy: f64, s_um_per_m: f64, r_mm: f64) -> f64 {
     for k in 0..360 {
         let a = (k as f64).to_radians();
         let cmd = [BALL[0] + r_mm * a.cos(), BALL[1] + r_mm * a.sin(), BALL[2]];
-        let motor = klipper_calc_skew(cmd, xy);
+        let motor = klipper_calc_skew(cmd, [xy, 0.0, 0.0], true);
         let actual_x = motor[0] + s_um_per_m * 1e-6 * (motor[1] - BALL[1]);
         let (y, e) = (cmd[1] - BALL[1], actual_x - cmd[0]);
         sy += y;
@@ -311,6 +305,204 @@ fn klipper_residual_squareness(xy: f64, s_um_per_m: f64, r_mm: f64) -> f64 {
         n += 1.0;
     }
     1e6 * (n * sye - sy * se) / (n * syy - sy * sy)
+}
+
+/// The three planes at once, as on a printer whose gantry is skewed in XY and whose column
+/// leans in YZ and XZ: one machine (`gmachine`, every lean in Klipper's own form: δ_x = s_xy·y +
+/// s_xz·z, δ_y = s_yz·z, motor positions about the table ball) runs the XY test (full circle)
+/// and the YZ (G19) and ZX (G18) tests (220° from −20°, as `diagnose_truth.rs` runs them); each
+/// diagnosis goes through its file to `compensate --controller klipper`, which must write
+/// `SET_SKEW` for that plane only (`XY=`, `YZ=`, `XZ=` from `squareness_zx`). The three
+/// triangles, through Klipper's `calc_skew_factor`, set the factors together (a later
+/// `SET_SKEW YZ=…` keeps XY), and every move of the three tested arcs goes through Klipper's
+/// `calc_skew`, cross term `z·(xz − xy·yz)` included, to the machine. What the ball bar would
+/// see of each lean afterwards (the squareness of the plane, `G_ij + G_ji` of a least-squares
+/// fit of the error over the arc) must be under 2 % of the lean, and with that plane's factor's
+/// sign flipped twice the lean. XY and YZ are large (±1.5 mm/m, a printer's gantry; the
+/// synchronisation takes D within 0.1 mm of the radius, about 2 mm/m at R 90 mm) so that their
+/// product, 2.25 µm/m, is 15 % of the XZ lean:
+/// without the cross term −xy·yz of it is left, which is checked too, so the term is exercised
+/// rather than merely written.
+#[test]
+fn klipper_skew_cancels_the_vertical_planes_with_the_cross_term() {
+    let (s_xy, s_yz, s_xz) = (1500.0, -1500.0, 15.0);
+    let errors = MachineErrors {
+        squareness: vec![
+            Squareness {
+                axis: Axis::X,
+                by: Axis::Y,
+                um_per_m: s_xy,
+            },
+            Squareness {
+                axis: Axis::Y,
+                by: Axis::Z,
+                um_per_m: s_yz,
+            },
+            Squareness {
+                axis: Axis::X,
+                by: Axis::Z,
+                um_per_m: s_xz,
+            },
+        ],
+        ..MachineErrors::default()
+    };
+    // (plane, the diagnosis' effect, the SET_SKEW word, seed)
+    let tests = [
+        (Plane::Xy, "squareness_xy", "XY", 45),
+        (Plane::Yz, "squareness_yz", "YZ", 46),
+        (Plane::Zx, "squareness_zx", "XZ", 47),
+    ];
+    let mut factors = [0.0; 3];
+    let mut context = String::new();
+    for (k, (plane, effect, word, seed)) in tests.into_iter().enumerate() {
+        let p = plane_plan(plane);
+        let (diag, doc) = diagnosed(&p, errors.clone(), seed, [None; 3]);
+        assert!(
+            machine_names(&diag).iter().any(|n| n == effect),
+            "{plane:?}: no {effect}\n{}",
+            summary(&diag)
+        );
+        context.push_str(&summary(&diag));
+        let klipper = compensate_for(&doc, Controller::Klipper);
+        let rendered = compensate::render(&klipper, None);
+        let set: Vec<&str> = klipper
+            .blocks
+            .iter()
+            .flat_map(|b| &b.lines)
+            .filter_map(|l| l.trim().strip_prefix("SET_SKEW "))
+            .flat_map(str::split_whitespace)
+            .collect();
+        assert_eq!(set.len(), 1, "{plane:?}: one plane set\n{rendered}");
+        let lengths: Vec<f64> = set[0]
+            .strip_prefix(&format!("{word}="))
+            .unwrap_or_else(|| panic!("{plane:?}: SET_SKEW {word}= expected\n{rendered}"))
+            .split(',')
+            .map(|v| v.parse().unwrap())
+            .collect();
+        assert_eq!(lengths.len(), 3, "{rendered}");
+        factors[k] = klipper_calc_skew_factor(lengths[0], lengths[1], lengths[2]);
+    }
+    let [xy, yz, xz] = factors;
+    let lean = [s_xy, s_yz, s_xz];
+    let on = |f: [f64; 3], cross: bool| {
+        [Plane::Xy, Plane::Yz, Plane::Zx]
+            .map(|plane| seen_squareness(plane, &errors, |p| klipper_calc_skew(p, f, cross)))
+    };
+    let left = on([xy, xz, yz], true);
+    for k in 0..3 {
+        assert!(
+            left[k].abs() < 0.02 * lean[k].abs(),
+            "factors xy {xy} xz {xz} yz {yz}: left {left:?} µm/m of {lean:?}\n{context}"
+        );
+    }
+    // Each plane's factor flipped doubles that plane's lean.
+    let flipped = [
+        on([-xy, xz, yz], true)[0],
+        on([xy, xz, -yz], true)[1],
+        on([xy, -xz, yz], true)[2],
+    ];
+    for k in 0..3 {
+        assert!(
+            (flipped[k] / lean[k] - 2.0).abs() < 0.04,
+            "flipped: {flipped:?} µm/m of {lean:?}"
+        );
+    }
+    // Without the cross term the XZ lean is not cancelled: −xy·yz is left (x' lacks z·xy·yz).
+    let no_cross = on([xy, xz, yz], false)[2];
+    assert!(
+        (no_cross + 1e-6 * s_xy * s_yz).abs() < 0.02 * s_xz.abs()
+            && no_cross.abs() > 0.1 * s_xz.abs(),
+        "without the cross term: {no_cross} µm/m"
+    );
+}
+
+/// The plane's test as `diagnose_truth.rs` runs it: XY a full circle, a vertical plane (YZ,
+/// ZX) 220° from −20°; radius 90 mm about the table ball.
+fn plane_plan(plane: Plane) -> Plan {
+    let spec = PlanSpec::machine_test(&[90.0], &[0.0], plane, 1000.0, BALL, PlanDialect::Linuxcnc);
+    let spec = match plane {
+        Plane::Xy => spec,
+        _ => PlanSpec {
+            start_deg: -20.0,
+            ..spec.with_arc(220.0)
+        },
+    };
+    plan(&spec, &Calibration::DEFAULT).unwrap()
+}
+
+/// Klipper's `calc_skew(pos)` (klippy/extras/skew_correction.py, written again here): the
+/// position a move is sent to the kinematics at with the factors `[xy, xz, yz]`:
+/// x − y·xy − z·(xz − xy·yz), y − z·yz, z. `cross` false drops the `xy·yz` term (only to
+/// show that it matters).
+fn klipper_calc_skew(pos: [f64; 3], [xy, xz, yz]: [f64; 3], cross: bool) -> [f64; 3] {
+    let xz_eff = if cross { xz - xy * yz } else { xz };
+    [
+        pos[0] - pos[1] * xy - pos[2] * xz_eff,
+        pos[1] - pos[2] * yz,
+        pos[2],
+    ]
+}
+
+/// The squareness (µm/m) a ball bar sees on `plane`'s tested arc (radius 90 mm about the table
+/// ball, XY full, YZ and ZX 220° from −20°) when each commanded point goes through `skew` to the
+/// motors of a machine with `errors`' squareness (δ_i = s·(motor_j − ball_j)): the error
+/// e = actual − command fitted as a + G·p over the arc (least squares, for each of the plane's
+/// two axes), reported as G_ij + G_ji, the part of the lean a rotation does not take away.
+fn seen_squareness(
+    plane: Plane,
+    errors: &MachineErrors,
+    skew: impl Fn([f64; 3]) -> [f64; 3],
+) -> f64 {
+    let (i, j, _) = plane.axes();
+    let (start, sweep) = match plane {
+        Plane::Xy => (0.0, 360.0),
+        _ => (-20.0, 220.0),
+    };
+    // Normal equations of e_m = a + b·p_i + c·p_j for m = i, j.
+    let mut ata = [[0.0; 3]; 3];
+    let mut atb = [[0.0; 3]; 2];
+    for k in 0..=440 {
+        let a = (start + sweep * k as f64 / 440.0_f64).to_radians();
+        let mut cmd = BALL;
+        cmd[i] += 90.0 * a.cos();
+        cmd[j] += 90.0 * a.sin();
+        let motor = skew(cmd);
+        let mut actual = motor;
+        for s in &errors.squareness {
+            let (m, n) = (s.axis.index(), s.by.index());
+            actual[m] += 1e-6 * s.um_per_m * (motor[n] - BALL[n]);
+        }
+        let row = [1.0, cmd[i] - BALL[i], cmd[j] - BALL[j]];
+        for r in 0..3 {
+            for c in 0..3 {
+                ata[r][c] += row[r] * row[c];
+            }
+            for (m, axis) in [i, j].into_iter().enumerate() {
+                atb[m][r] += row[r] * (actual[axis] - cmd[axis]);
+            }
+        }
+    }
+    let ei = solve3(ata, atb[0]);
+    let ej = solve3(ata, atb[1]);
+    // G_ij = ∂e_i/∂p_j, G_ji = ∂e_j/∂p_i.
+    1e6 * (ei[2] + ej[1])
+}
+
+/// `A·u = b` for a 3×3 system (Cramer's rule; the normal equations here are well conditioned).
+fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> [f64; 3] {
+    let det = |m: [[f64; 3]; 3]| {
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    };
+    let d = det(a);
+    [0, 1, 2].map(|c| {
+        let mut m = a;
+        for r in 0..3 {
+            m[r][c] = b[r];
+        }
+        det(m) / d
+    })
 }
 
 /// Play: X's nut has 8 µm of clearance (the carriage stands still for the first 8 µm of the
