@@ -505,6 +505,213 @@ fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> [f64; 3] {
     })
 }
 
+/// The `M852` words `compensate --controller marlin` writes in `plan`: (letter, factor).
+fn m852_words(p: &compensate::Plan) -> Vec<(char, f64)> {
+    p.blocks
+        .iter()
+        .flat_map(|b| &b.lines)
+        .filter_map(|l| l.trim().strip_prefix("M852 "))
+        .flat_map(str::split_whitespace)
+        .map(|w| {
+            let mut c = w.chars();
+            let letter = c.next().unwrap();
+            (letter, c.as_str().parse().unwrap())
+        })
+        .collect()
+}
+
+/// Marlin's `M852 I J K` in all three planes on the machine of the Klipper test above (XY 1500,
+/// YZ −1500, XZ 15 µm/m): each plane's test (XY full circle, YZ and ZX 220° from −20°) is
+/// diagnosed, goes through its file to `compensate --controller marlin`, which must write
+/// `M852` with that plane's word only (`I` for `squareness_xy`, `K` for `squareness_yz`, `J` for
+/// `squareness_zx`: `M852.cpp` reads I, J, K into `skew_factor.xy`, `.xz`, `.yz`). The three
+/// factors are applied together with Marlin's `Planner::skew()` (MarlinFirmware/Marlin
+/// `Marlin/src/module/planner.h`: `sx = cx − cy·xy − cz·(xz − xy·yz)`, `sy = cy − cz·yz`, the
+/// same arithmetic as Klipper's `calc_skew`, so `klipper_calc_skew` is that function). What the
+/// ball bar would see of each lean afterwards must be under 2 % of it, and twice it with that
+/// plane's factor's sign flipped. Measured: 0.11 of 1500, 2.1 of −1500 and 0.05 of 15 µm/m
+/// left; 3000, −2998 and 29.9 flipped.
+#[test]
+fn marlin_m852_cancels_the_vertical_planes() {
+    let (s_xy, s_yz, s_xz) = (1500.0, -1500.0, 15.0);
+    let errors = MachineErrors {
+        squareness: vec![
+            Squareness {
+                axis: Axis::X,
+                by: Axis::Y,
+                um_per_m: s_xy,
+            },
+            Squareness {
+                axis: Axis::Y,
+                by: Axis::Z,
+                um_per_m: s_yz,
+            },
+            Squareness {
+                axis: Axis::X,
+                by: Axis::Z,
+                um_per_m: s_xz,
+            },
+        ],
+        ..MachineErrors::default()
+    };
+    // (plane, the diagnosis' effect, the M852 word, index in [xy, xz, yz], seed)
+    let tests = [
+        (Plane::Xy, "squareness_xy", 'I', 0, 45),
+        (Plane::Yz, "squareness_yz", 'K', 2, 46),
+        (Plane::Zx, "squareness_zx", 'J', 1, 47),
+    ];
+    // Marlin's skew_factor: [xy, xz, yz].
+    let mut factor = [0.0; 3];
+    let mut context = String::new();
+    for (plane, effect, word, k, seed) in tests {
+        let (diag, doc) = diagnosed(&plane_plan(plane), errors.clone(), seed, [None; 3]);
+        assert!(
+            machine_names(&diag).iter().any(|n| n == effect),
+            "{plane:?}: no {effect}\n{}",
+            summary(&diag)
+        );
+        context.push_str(&summary(&diag));
+        let marlin = compensate_for(&doc, Controller::Marlin);
+        let rendered = compensate::render(&marlin, None);
+        let words = m852_words(&marlin);
+        assert_eq!(words.len(), 1, "{plane:?}: one M852 word\n{rendered}");
+        assert_eq!(
+            words[0].0, word,
+            "{plane:?}: M852 {word} expected\n{rendered}"
+        );
+        factor[k] = words[0].1;
+    }
+    let lean = [s_xy, s_yz, s_xz];
+    let on = |f: [f64; 3]| {
+        [Plane::Xy, Plane::Yz, Plane::Zx]
+            .map(|plane| seen_squareness(plane, &errors, |p| klipper_calc_skew(p, f, true)))
+    };
+    let left = on(factor);
+    for k in 0..3 {
+        assert!(
+            left[k].abs() < 0.02 * lean[k].abs(),
+            "M852 factors [xy, xz, yz] {factor:?}: left {left:?} µm/m of {lean:?}\n{context}"
+        );
+    }
+    let [xy, xz, yz] = factor;
+    let flipped = [
+        on([-xy, xz, yz])[0],
+        on([xy, xz, -yz])[1],
+        on([xy, -xz, yz])[2],
+    ];
+    for k in 0..3 {
+        assert!(
+            (flipped[k] / lean[k] - 2.0).abs() < 0.04,
+            "flipped: {flipped:?} µm/m of {lean:?}"
+        );
+    }
+}
+
+/// LinuxCNC's matrixkins inverse kinematics (`src/emc/kinematics/matrixkins.c`, LinuxCNC
+/// 2.10/master; man page matrixkins(9); LinuxCNC/linuxcnc `tests/matrixkins/test-ui.py` checks
+/// joint_x = x + C_xy·y + C_xz·z, joint_y = y + C_yx·x + C_yz·z, joint_z = z + C_zx·x + C_zy·y):
+/// the joint positions for a commanded point, with `c[i][j]` = C_ij off the diagonal (the
+/// diagonal is 1).
+fn matrixkins_inverse(pos: [f64; 3], c: [[f64; 3]; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|i| {
+        pos[i]
+            + (0..3)
+                .filter(|&j| j != i)
+                .map(|j| c[i][j] * pos[j])
+                .sum::<f64>()
+    })
+}
+
+/// LinuxCNC's vertical planes on a machine tool whose column leans (YZ −60, XZ 45 µm/m, δ_y =
+/// s·z and δ_x = s·z at the motors): the YZ and ZX 220° tests are each diagnosed and go through
+/// their file to `compensate --controller linuxcnc`, which must write one `setp matrixkins.C_ij`
+/// for that plane (`C_yz` for `squareness_yz`, `C_zx` for `squareness_zx`: Z's joint takes
+/// C_zx·x, which a ball bar cannot tell from X taking z). Both applied together through
+/// matrixkins' `joint = C·pos` (about machine zero, so the ball's position only adds a shift)
+/// must leave under 2 % of each lean as the ball bar sees it, and twice it with that
+/// parameter's sign flipped. matrixkins has no cross term like Marlin's: its product of two
+/// leans (here 0.003 µm/m) is left, far below anything a machine tool's leans make. Measured:
+/// C_yz 5.988e-5, C_zx −4.505e-5; 0.12 of −60 and 0.05 of 45 µm/m left, −119.9 and 90.1 flipped.
+#[test]
+fn linuxcnc_matrixkins_cancels_the_vertical_planes() {
+    let (s_yz, s_xz) = (-60.0, 45.0);
+    let errors = MachineErrors {
+        squareness: vec![
+            Squareness {
+                axis: Axis::Y,
+                by: Axis::Z,
+                um_per_m: s_yz,
+            },
+            Squareness {
+                axis: Axis::X,
+                by: Axis::Z,
+                um_per_m: s_xz,
+            },
+        ],
+        ..MachineErrors::default()
+    };
+    // (plane, the diagnosis' effect, the HAL parameter, its (row, column), seed)
+    let tests = [
+        (Plane::Yz, "squareness_yz", "C_yz", (1, 2), 48),
+        (Plane::Zx, "squareness_zx", "C_zx", (2, 0), 49),
+    ];
+    let mut c = [[0.0; 3]; 3];
+    let mut context = String::new();
+    for (plane, effect, name, (i, j), seed) in tests {
+        let (diag, doc) = diagnosed(&plane_plan(plane), errors.clone(), seed, [None; 3]);
+        assert!(
+            machine_names(&diag).iter().any(|n| n == effect),
+            "{plane:?}: no {effect}\n{}",
+            summary(&diag)
+        );
+        context.push_str(&summary(&diag));
+        let linuxcnc = compensate_for(&doc, Controller::LinuxCnc);
+        let rendered = compensate::render(&linuxcnc, None);
+        let set: Vec<(&str, f64)> = linuxcnc
+            .blocks
+            .iter()
+            .flat_map(|b| &b.lines)
+            .filter_map(|l| l.trim().strip_prefix("setp matrixkins."))
+            .map(|rest| {
+                let (k, v) = rest.split_once(' ').unwrap();
+                (k, v.trim().parse().unwrap())
+            })
+            .collect();
+        assert_eq!(
+            set.len(),
+            1,
+            "{plane:?}: one matrixkins parameter\n{rendered}"
+        );
+        assert_eq!(set[0].0, name, "{plane:?}: {name} expected\n{rendered}");
+        c[i][j] = set[0].1;
+    }
+    let lean = [s_yz, s_xz];
+    let planes = [Plane::Yz, Plane::Zx];
+    let on = |c: [[f64; 3]; 3]| {
+        planes.map(|plane| seen_squareness(plane, &errors, |p| matrixkins_inverse(p, c)))
+    };
+    let left = on(c);
+    for k in 0..2 {
+        assert!(
+            left[k].abs() < 0.02 * lean[k].abs(),
+            "C_yz {} C_zx {}: left {left:?} µm/m of {lean:?}\n{context}",
+            c[1][2],
+            c[2][0]
+        );
+    }
+    let mut flip_yz = c;
+    flip_yz[1][2] = -c[1][2];
+    let mut flip_zx = c;
+    flip_zx[2][0] = -c[2][0];
+    let flipped = [on(flip_yz)[0], on(flip_zx)[1]];
+    for k in 0..2 {
+        assert!(
+            (flipped[k] / lean[k] - 2.0).abs() < 0.04,
+            "flipped: {flipped:?} µm/m of {lean:?}"
+        );
+    }
+}
+
 /// Play: X's nut has 8 µm of clearance (the carriage stands still for the first 8 µm of the
 /// motor's travel after each reversal). Each controller's backlash compensation adds its
 /// setting B to the motor's travel at a reversal, so what is left is b − B: LinuxCNC's
