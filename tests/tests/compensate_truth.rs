@@ -326,26 +326,11 @@ fn klipper_residual_squareness(xy: f64, s_um_per_m: f64, r_mm: f64) -> f64 {
 #[test]
 fn klipper_skew_cancels_the_vertical_planes_with_the_cross_term() {
     let (s_xy, s_yz, s_xz) = (1500.0, -1500.0, 15.0);
-    let errors = MachineErrors {
-        squareness: vec![
-            Squareness {
-                axis: Axis::X,
-                by: Axis::Y,
-                um_per_m: s_xy,
-            },
-            Squareness {
-                axis: Axis::Y,
-                by: Axis::Z,
-                um_per_m: s_yz,
-            },
-            Squareness {
-                axis: Axis::X,
-                by: Axis::Z,
-                um_per_m: s_xz,
-            },
-        ],
-        ..MachineErrors::default()
-    };
+    let errors = leaning(&[
+        (Axis::X, Axis::Y, s_xy),
+        (Axis::Y, Axis::Z, s_yz),
+        (Axis::X, Axis::Z, s_xz),
+    ]);
     // (plane, the diagnosis' effect, the SET_SKEW word, seed)
     let tests = [
         (Plane::Xy, "squareness_xy", "XY", 45),
@@ -355,14 +340,7 @@ fn klipper_skew_cancels_the_vertical_planes_with_the_cross_term() {
     let mut factors = [0.0; 3];
     let mut context = String::new();
     for (k, (plane, effect, word, seed)) in tests.into_iter().enumerate() {
-        let p = plane_plan(plane);
-        let (diag, doc) = diagnosed(&p, errors.clone(), seed, [None; 3]);
-        assert!(
-            machine_names(&diag).iter().any(|n| n == effect),
-            "{plane:?}: no {effect}\n{}",
-            summary(&diag)
-        );
-        context.push_str(&summary(&diag));
+        let doc = plane_diagnosed(plane, &errors, seed, effect, &mut context);
         let klipper = compensate_for(&doc, Controller::Klipper);
         let rendered = compensate::render(&klipper, None);
         let set: Vec<&str> = klipper
@@ -388,25 +366,19 @@ fn klipper_skew_cancels_the_vertical_planes_with_the_cross_term() {
         [Plane::Xy, Plane::Yz, Plane::Zx]
             .map(|plane| seen_squareness(plane, &errors, |p| klipper_calc_skew(p, f, cross)))
     };
-    let left = on([xy, xz, yz], true);
-    for k in 0..3 {
-        assert!(
-            left[k].abs() < 0.02 * lean[k].abs(),
-            "factors xy {xy} xz {xz} yz {yz}: left {left:?} µm/m of {lean:?}\n{context}"
-        );
-    }
     // Each plane's factor flipped doubles that plane's lean.
     let flipped = [
         on([-xy, xz, yz], true)[0],
         on([xy, xz, -yz], true)[1],
         on([xy, -xz, yz], true)[2],
     ];
-    for k in 0..3 {
-        assert!(
-            (flipped[k] / lean[k] - 2.0).abs() < 0.04,
-            "flipped: {flipped:?} µm/m of {lean:?}"
-        );
-    }
+    assert_cancels(
+        &lean,
+        &on([xy, xz, yz], true),
+        &flipped,
+        &format!("factors xy {xy} xz {xz} yz {yz}"),
+        &context,
+    );
     // Without the cross term the XZ lean is not cancelled: −xy·yz is left (x' lacks z·xy·yz).
     let no_cross = on([xy, xz, yz], false)[2];
     assert!(
@@ -414,6 +386,52 @@ fn klipper_skew_cancels_the_vertical_planes_with_the_cross_term() {
             && no_cross.abs() > 0.1 * s_xz.abs(),
         "without the cross term: {no_cross} µm/m"
     );
+}
+
+/// A machine whose axes lean: each (axis, by, µm/m) moves `axis` by that much per metre of `by`.
+fn leaning(leans: &[(Axis, Axis, f64)]) -> MachineErrors {
+    MachineErrors {
+        squareness: leans
+            .iter()
+            .map(|&(axis, by, um_per_m)| Squareness { axis, by, um_per_m })
+            .collect(),
+        ..MachineErrors::default()
+    }
+}
+
+/// `plane`'s test ([`plane_plan`]) run on a machine with `errors` and diagnosed, which must name
+/// `effect`; the diagnosis's summary is added to `context` (for the messages) and its file
+/// returned, for `compensate`.
+fn plane_diagnosed(
+    plane: Plane,
+    errors: &MachineErrors,
+    seed: u64,
+    effect: &str,
+    context: &mut String,
+) -> DiagnosisDoc {
+    let (diag, doc) = diagnosed(&plane_plan(plane), errors.clone(), seed, [None; 3]);
+    assert!(
+        machine_names(&diag).iter().any(|n| n == effect),
+        "{plane:?}: no {effect}\n{}",
+        summary(&diag)
+    );
+    context.push_str(&summary(&diag));
+    doc
+}
+
+/// Each lean as the ball bar sees it after the compensation (`left`, µm/m) is under 2 % of the
+/// machine's (`lean`), and about twice it with that plane's setting's sign flipped (`flipped`).
+fn assert_cancels(lean: &[f64], left: &[f64], flipped: &[f64], settings: &str, context: &str) {
+    for k in 0..lean.len() {
+        assert!(
+            left[k].abs() < 0.02 * lean[k].abs(),
+            "{settings}: left {left:?} µm/m of {lean:?}\n{context}"
+        );
+        assert!(
+            (flipped[k] / lean[k] - 2.0).abs() < 0.04,
+            "{settings} flipped: {flipped:?} µm/m of {lean:?}"
+        );
+    }
 }
 
 /// The plane's test as `diagnose_truth.rs` runs it: XY a full circle, a vertical plane (YZ,
@@ -534,26 +552,11 @@ fn m852_words(p: &compensate::Plan) -> Vec<(char, f64)> {
 #[test]
 fn marlin_m852_cancels_the_vertical_planes() {
     let (s_xy, s_yz, s_xz) = (1500.0, -1500.0, 15.0);
-    let errors = MachineErrors {
-        squareness: vec![
-            Squareness {
-                axis: Axis::X,
-                by: Axis::Y,
-                um_per_m: s_xy,
-            },
-            Squareness {
-                axis: Axis::Y,
-                by: Axis::Z,
-                um_per_m: s_yz,
-            },
-            Squareness {
-                axis: Axis::X,
-                by: Axis::Z,
-                um_per_m: s_xz,
-            },
-        ],
-        ..MachineErrors::default()
-    };
+    let errors = leaning(&[
+        (Axis::X, Axis::Y, s_xy),
+        (Axis::Y, Axis::Z, s_yz),
+        (Axis::X, Axis::Z, s_xz),
+    ]);
     // (plane, the diagnosis' effect, the M852 word, index in [xy, xz, yz], seed)
     let tests = [
         (Plane::Xy, "squareness_xy", 'I', 0, 45),
@@ -564,13 +567,7 @@ fn marlin_m852_cancels_the_vertical_planes() {
     let mut factor = [0.0; 3];
     let mut context = String::new();
     for (plane, effect, word, k, seed) in tests {
-        let (diag, doc) = diagnosed(&plane_plan(plane), errors.clone(), seed, [None; 3]);
-        assert!(
-            machine_names(&diag).iter().any(|n| n == effect),
-            "{plane:?}: no {effect}\n{}",
-            summary(&diag)
-        );
-        context.push_str(&summary(&diag));
+        let doc = plane_diagnosed(plane, &errors, seed, effect, &mut context);
         let marlin = compensate_for(&doc, Controller::Marlin);
         let rendered = compensate::render(&marlin, None);
         let words = m852_words(&marlin);
@@ -586,25 +583,19 @@ fn marlin_m852_cancels_the_vertical_planes() {
         [Plane::Xy, Plane::Yz, Plane::Zx]
             .map(|plane| seen_squareness(plane, &errors, |p| klipper_calc_skew(p, f, true)))
     };
-    let left = on(factor);
-    for k in 0..3 {
-        assert!(
-            left[k].abs() < 0.02 * lean[k].abs(),
-            "M852 factors [xy, xz, yz] {factor:?}: left {left:?} µm/m of {lean:?}\n{context}"
-        );
-    }
     let [xy, xz, yz] = factor;
     let flipped = [
         on([-xy, xz, yz])[0],
         on([xy, xz, -yz])[1],
         on([xy, -xz, yz])[2],
     ];
-    for k in 0..3 {
-        assert!(
-            (flipped[k] / lean[k] - 2.0).abs() < 0.04,
-            "flipped: {flipped:?} µm/m of {lean:?}"
-        );
-    }
+    assert_cancels(
+        &lean,
+        &on(factor),
+        &flipped,
+        &format!("M852 factors [xy, xz, yz] {factor:?}"),
+        &context,
+    );
 }
 
 /// LinuxCNC's matrixkins inverse kinematics (`src/emc/kinematics/matrixkins.c`, LinuxCNC
@@ -635,21 +626,7 @@ fn matrixkins_inverse(pos: [f64; 3], c: [[f64; 3]; 3]) -> [f64; 3] {
 #[test]
 fn linuxcnc_matrixkins_cancels_the_vertical_planes() {
     let (s_yz, s_xz) = (-60.0, 45.0);
-    let errors = MachineErrors {
-        squareness: vec![
-            Squareness {
-                axis: Axis::Y,
-                by: Axis::Z,
-                um_per_m: s_yz,
-            },
-            Squareness {
-                axis: Axis::X,
-                by: Axis::Z,
-                um_per_m: s_xz,
-            },
-        ],
-        ..MachineErrors::default()
-    };
+    let errors = leaning(&[(Axis::Y, Axis::Z, s_yz), (Axis::X, Axis::Z, s_xz)]);
     // (plane, the diagnosis' effect, the HAL parameter, its (row, column), seed)
     let tests = [
         (Plane::Yz, "squareness_yz", "C_yz", (1, 2), 48),
@@ -658,13 +635,7 @@ fn linuxcnc_matrixkins_cancels_the_vertical_planes() {
     let mut c = [[0.0; 3]; 3];
     let mut context = String::new();
     for (plane, effect, name, (i, j), seed) in tests {
-        let (diag, doc) = diagnosed(&plane_plan(plane), errors.clone(), seed, [None; 3]);
-        assert!(
-            machine_names(&diag).iter().any(|n| n == effect),
-            "{plane:?}: no {effect}\n{}",
-            summary(&diag)
-        );
-        context.push_str(&summary(&diag));
+        let doc = plane_diagnosed(plane, &errors, seed, effect, &mut context);
         let linuxcnc = compensate_for(&doc, Controller::LinuxCnc);
         let rendered = compensate::render(&linuxcnc, None);
         let set: Vec<(&str, f64)> = linuxcnc
@@ -690,26 +661,18 @@ fn linuxcnc_matrixkins_cancels_the_vertical_planes() {
     let on = |c: [[f64; 3]; 3]| {
         planes.map(|plane| seen_squareness(plane, &errors, |p| matrixkins_inverse(p, c)))
     };
-    let left = on(c);
-    for k in 0..2 {
-        assert!(
-            left[k].abs() < 0.02 * lean[k].abs(),
-            "C_yz {} C_zx {}: left {left:?} µm/m of {lean:?}\n{context}",
-            c[1][2],
-            c[2][0]
-        );
-    }
     let mut flip_yz = c;
     flip_yz[1][2] = -c[1][2];
     let mut flip_zx = c;
     flip_zx[2][0] = -c[2][0];
     let flipped = [on(flip_yz)[0], on(flip_zx)[1]];
-    for k in 0..2 {
-        assert!(
-            (flipped[k] / lean[k] - 2.0).abs() < 0.04,
-            "flipped: {flipped:?} µm/m of {lean:?}"
-        );
-    }
+    assert_cancels(
+        &lean,
+        &on(c),
+        &flipped,
+        &format!("C_yz {} C_zx {}", c[1][2], c[2][0]),
+        &context,
+    );
 }
 
 /// Play: X's nut has 8 µm of clearance (the carriage stands still for the first 8 µm of the
