@@ -83,6 +83,7 @@ fn hidden_play_and_squareness_are_named_and_nothing_else() {
     let mut lines = rec.lines();
     assert!(lines.next().unwrap().starts_with("# plan_id: "));
     assert_eq!(lines.next().unwrap(), "seq,t_us,enc1,enc2,d_mm");
+    assert!(lines.next().unwrap().starts_with("# instrument_serial: "));
     assert!(lines.next().unwrap().starts_with("0,123456,"));
     let json = ok_in(
         d,
@@ -159,6 +160,43 @@ fn the_example_machine_is_printed_and_reads() {
         ],
     );
     assert!(rec.starts_with("# plan_id: "));
+    // The serial line `jdbb record` writes after the header, before the samples; the report
+    // names it as the instrument.
+    let lines: Vec<&str> = rec.lines().take(3).collect();
+    assert_eq!(lines[1], "seq,t_us,enc1,enc2,d_mm");
+    assert_eq!(lines[2], "# instrument_serial: 000000000000000000000000");
+    fs::write(
+        d.join("s.toml"),
+        "[instrument]\nserial = \"0a1b2c3d4e5f60718293a4b5\"\n",
+    )
+    .unwrap();
+    let args = [
+        "simulate",
+        "--plan",
+        "plan/plan.json",
+        "--machine",
+        "s.toml",
+        "-o",
+        "rec.csv",
+    ];
+    ok_in(d, &args);
+    ok_in(
+        d,
+        &[
+            "diagnose",
+            "--record",
+            "rec.csv",
+            "--plan",
+            "plan/plan.json",
+            "--report",
+            "rep",
+        ],
+    );
+    let page = fs::read_to_string(d.join("rep/report.html")).unwrap();
+    assert!(
+        page.contains("0A1B2C3D4E5F60718293A4B5"),
+        "serial not in the report"
+    );
 }
 
 #[test]
@@ -185,6 +223,7 @@ fn bad_machine_files_name_file_line_and_column() {
         ("controler = \"grbl\"\n", "m.toml:1:1"),
         ("[effects]\ncyclic_x = 3\n", "needs the pitch"),
         ("[effects\n", "m.toml:1:"),
+        ("[instrument]\nserial = \"12zz\"\n", "m.toml:2:"),
     ] {
         fs::write(d.join("m.toml"), text).unwrap();
         refused(d, &args, want);
@@ -338,7 +377,8 @@ fn the_machine_files_calibration_makes_the_counts() {
             &["simulate", "--plan", "plan/plan.json", "--machine", machine],
         );
         text.lines()
-            .skip(2)
+            .filter(|l| !l.starts_with('#'))
+            .skip(1)
             .map(|l| {
                 let f: Vec<&str> = l.split(',').collect();
                 (f[2].parse().unwrap(), f[4].parse().unwrap())

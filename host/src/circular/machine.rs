@@ -42,6 +42,8 @@ noise_um = 0.2                 # example (default 0): Gaussian noise on D, µm (
 lean_deg = 17.0                # the bars' lean about the ball-to-ball line, deg
 t0_us = 0                      # the device's t_us at the first sample
 seed = 1                       # seed of the noise
+serial = "000000000000000000000000"   # the serial the device reports (24 hex digits: its
+                                    # chip ID), written on the record's # instrument_serial: line
 # calibration = "instrument.toml"   # the calibration in force (default: the nominal J-DBB);
                                     # a path relative to this file
 
@@ -91,6 +93,9 @@ pub struct RecordingInstrument {
     pub lean_rad: f64,
     pub t0_us: u64,
     pub seed: u64,
+    /// The serial the simulated device reports (24 upper-case hex digits, as `jdbb record`
+    /// writes a real one on the record's `# instrument_serial:` line).
+    pub serial: String,
     /// The calibration in force (counts are made with it and D is computed with it): the
     /// nominal J-DBB unless the caller reads `calibration_file` into it.
     pub calibration: Calibration,
@@ -127,6 +132,7 @@ struct InstrumentToml {
     lean_deg: Option<toml::Spanned<f64>>,
     t0_us: Option<u64>,
     seed: Option<u64>,
+    serial: Option<toml::Spanned<String>>,
     calibration: Option<toml::Spanned<PathBuf>>,
 }
 
@@ -230,6 +236,19 @@ impl Machine {
             path.parent()
                 .map_or_else(|| c.get_ref().clone(), |d| d.join(c.get_ref()))
         });
+        let serial = match ins.and_then(|i| i.serial.as_ref()) {
+            None => "0".repeat(24),
+            Some(s) => {
+                let v = s.get_ref();
+                if v.len() != 24 || !v.chars().all(|c| c.is_ascii_hexdigit()) {
+                    return Err(at(
+                        s.span(),
+                        format!("serial = \"{v}\": give 24 hex digits (the device's chip ID)"),
+                    ));
+                }
+                v.to_ascii_uppercase()
+            }
+        };
         let instrument = RecordingInstrument {
             sample_rate_hz: num(
                 &g(|i| &i.sample_rate_hz),
@@ -260,6 +279,7 @@ impl Machine {
             lean_rad: num(&g(|i| &i.lean_deg), "lean_deg", 17.0, -90.0, 90.0, "deg")?.to_radians(),
             t0_us: ins.and_then(|i| i.t0_us).unwrap_or(0),
             seed: ins.and_then(|i| i.seed).unwrap_or(1),
+            serial,
             calibration: Calibration::DEFAULT,
             calibration_file,
         };

@@ -146,7 +146,7 @@ fn caption(d: &Diagnosis, view: &View) -> Vec<String> {
             um(s[0]), um(s[1]), um(s[2]), um(s[3])
         ),
         "G: radial width of the minimum zone of one circle in one direction (ISO 230-4, minimum-zone centre); H: largest ccw − cw difference in a 1° bin".to_string(),
-        "Dot: where a run (one direction of a circle) starts; arrowhead: the direction it runs".to_string(),
+        "Ringed dot: where a run (one direction of a circle) starts; arrow outside the rings: from its start angle, the direction it runs".to_string(),
     ];
     if view.circle.is_none() {
         let normal = ['x', 'y', 'z'][3 - d.plane.0 - d.plane.1];
@@ -307,37 +307,52 @@ where
             .draw_series(LineSeries::new(pts, colour))
             .map_err(plot_err)?;
     }
-    // Where each run starts (a dot) and which way it goes (an arrowhead a little way in).
-    for (run, pts) in run_points(d, view, &d.measured_dev_um, rad) {
-        if pts.len() < 3 {
-            continue;
-        }
-        let colour = run_colour(n_circles, run.circle, run.ccw);
-        chart
-            .draw_series(std::iter::once(Circle::new(pts[0], 5, colour.filled())))
-            .map_err(plot_err)?;
-        let k = (pts.len() / 12).clamp(1, pts.len() - 2);
-        let ahead = (k + (pts.len() / 50).max(1)).min(pts.len() - 1);
-        let (p, q) = (pts[k], pts[ahead]);
-        let (dx, dy) = (q.0 - p.0, q.1 - p.1);
-        let len = (dx * dx + dy * dy).sqrt();
-        if len > 0.0 {
-            let (ux, uy) = (dx / len, dy / len);
-            let (s, w) = (0.05, 0.025);
-            let tip = (p.0 + ux * s, p.1 + uy * s);
-            let left = (p.0 - uy * w, p.1 + ux * w);
-            let right = (p.0 + uy * w, p.1 - ux * w);
-            chart
-                .draw_series(std::iter::once(Polygon::new(
-                    vec![tip, left, right],
-                    colour.filled(),
-                )))
-                .map_err(plot_err)?;
-        }
-    }
     for (_, pts) in run_points(d, view, &d.model_dev_um, rad) {
         chart
             .draw_series(LineSeries::new(pts, MODEL.stroke_width(2)))
+            .map_err(plot_err)?;
+    }
+    // On top of everything: where each run starts (a white dot ringed in its colour, on the
+    // trace) and which way it runs (an arrow outside the rings, from the start angle 15° along
+    // the run's direction). Drawn under the traces they were lost in a noisy trace.
+    for (run, pts) in run_points(d, view, &d.measured_dev_um, rad) {
+        let Some(&first) = pts.first() else { continue };
+        let colour = run_colour(n_circles, run.circle, run.ccw);
+        let a0 = d.angle_rad[run.range.start];
+        let turn = if run.ccw { 1.0 } else { -1.0 };
+        let r_arrow = 1.03;
+        let sweep = 15f64.to_radians();
+        let arc: Vec<(f64, f64)> = (0..=12)
+            .map(|k| {
+                let a = a0 + turn * sweep * k as f64 / 12.0;
+                (r_arrow * a.cos(), r_arrow * a.sin())
+            })
+            .collect();
+        chart
+            .draw_series(LineSeries::new(arc, colour.stroke_width(3)))
+            .map_err(plot_err)?;
+        let a1 = a0 + turn * sweep;
+        let (tx, ty) = (-a1.sin() * turn, a1.cos() * turn); // unit tangent, the way it runs
+        let (nx, ny) = (a1.cos(), a1.sin()); // outward normal
+        let (s, w) = (0.045, 0.025);
+        let base = (r_arrow * nx, r_arrow * ny);
+        let head = vec![
+            (base.0 + tx * s, base.1 + ty * s),
+            (base.0 + nx * w, base.1 + ny * w),
+            (base.0 - nx * w, base.1 - ny * w),
+        ];
+        chart
+            .draw_series(std::iter::once(Polygon::new(head, colour.filled())))
+            .map_err(plot_err)?;
+        chart
+            .draw_series(std::iter::once(Circle::new(first, 6, WHITE.filled())))
+            .map_err(plot_err)?;
+        chart
+            .draw_series(std::iter::once(Circle::new(
+                first,
+                6,
+                colour.stroke_width(3),
+            )))
             .map_err(plot_err)?;
     }
     // On top of the traces: deviation labels of the inner, zero and outer rings along the 105° direction (between spokes).

@@ -84,6 +84,15 @@ fn run_plan(
     }
     let (samples, truth) = record(&plan, &machine)?;
     let mut text = header(&[(PLAN_ID_KEY, plan.id())]).into_bytes();
+    // As `jdbb record` writes it: the serial the device reported, before the samples.
+    text.extend_from_slice(
+        format!(
+            "# {}: {}\n",
+            crate::table::INSTRUMENT_SERIAL,
+            machine.instrument.serial
+        )
+        .as_bytes(),
+    );
     let seq: Vec<SeqSample> = samples
         .iter()
         .enumerate()
