@@ -229,4 +229,72 @@ fn option_values_are_case_insensitive() {
     );
     assert_eq!(upper, lower);
     assert!(upper.lines().count() > 100);
+    // Axes in capitals, as G-code writes them, in every per-axis option, and effect names.
+    std::fs::write(d.join("s.csv"), &upper).unwrap();
+    for (case, ball, travel, effect) in [
+        (
+            "upper",
+            "X=250,Y=120,Z=-300",
+            "X=0:500,Y=0:400",
+            "BACKLASH_Y",
+        ),
+        (
+            "lower",
+            "x=250,y=120,z=-300",
+            "x=0:500,y=0:400",
+            "backlash_y",
+        ),
+    ] {
+        ok_in(
+            d,
+            &[
+                "diagnose",
+                "--samples",
+                "s.csv",
+                "--machine",
+                "m",
+                "--date",
+                "2026-09-01",
+                "--table-ball",
+                ball,
+                "--report",
+                case,
+            ],
+        );
+        let page = std::fs::read_to_string(d.join(case).join("report.html")).unwrap();
+        assert!(page.contains("x = 250.000 mm, y = 120.000 mm, z = -300.000 mm"));
+        let diagnosis = format!("{case}/diagnosis.json");
+        let comp = ok_in(
+            d,
+            &[
+                "compensate",
+                "--diagnosis",
+                &diagnosis,
+                "--controller",
+                "LinuxCNC",
+                "--travel",
+                travel,
+            ],
+        );
+        assert!(comp.contains("BACKLASH"), "{comp}");
+        let db = format!("{case}.sqlite");
+        ok_in(
+            d,
+            &["history", "add", "--db", &db, "--diagnosis", &diagnosis],
+        );
+        let trend = ok_in(
+            d,
+            &[
+                "history",
+                "trend",
+                "--db",
+                &db,
+                "--machine",
+                "m",
+                "--effect",
+                effect,
+            ],
+        );
+        assert!(trend.contains("backlash_y"), "{trend}");
+    }
 }

@@ -299,11 +299,12 @@ fn the_serial_the_device_reported_is_in_the_report() {
     let dir = tempfile::tempdir().unwrap();
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let text = std::fs::read_to_string(root.join("data/examples/ballbar-backlash.csv")).unwrap();
-    let (header, rows) = text.split_once('\n').unwrap();
+    let header_end = text.find("seq,t_us,enc1,enc2,d_mm\n").unwrap() + 24;
+    let (header, rows) = text.split_at(header_end);
     let rec = dir.path().join("rec.csv");
     std::fs::write(
         &rec,
-        format!("{header}\n# instrument_serial: 3F0029000851383235363438\n{rows}"),
+        format!("{header}# instrument_serial: 3F0029000851383235363438\n{rows}"),
     )
     .unwrap();
     let plan = dir.path().join("plan");

@@ -349,6 +349,32 @@ fn a_plan_for_another_plane_is_refused() {
         "made for another plan",
     );
     assert!(e.contains("wrong axes"), "{e}");
+    // A record without its plan_id line (`jdbb record` without --plan, or older) cannot be
+    // checked: it is diagnosed, with a warning that says so and names the plan's plane, and a
+    // record that has the line gets no such warning.
+    let rec = fs::read_to_string(d.join("rec.csv")).unwrap();
+    let bare: String = rec
+        .lines()
+        .filter(|l| !l.starts_with("# plan_id:"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    fs::write(d.join("bare.csv"), bare).unwrap();
+    let o = jdbb_in(
+        d,
+        &["diagnose", "--record", "bare.csv", "--plan", "zx/plan.json"],
+    );
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{e}");
+    assert!(
+        e.contains("has no `# plan_id:` line") && e.contains("plane ZX"),
+        "{e}"
+    );
+    let o = jdbb_in(
+        d,
+        &["diagnose", "--record", "rec.csv", "--plan", "xy/plan.json"],
+    );
+    assert!(o.status.success());
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("plan_id"));
 }
 
 #[test]

@@ -7,7 +7,7 @@
 //! cargo run --release -p jdbb-tests --example gmachine_record -- \
 //!   --program out/plan1/ballbar.ngc --centre 100,50,-20 --rate 200 --backlash-x-um 6 \
 //!   --feed-override-pct 98 --clock-ppm 37 --noise-um 0.2 --start-delay-s 4 --seed 3 \
-//!   --out data/examples/ballbar-backlash.csv
+//!   --plan-id 354e9a61645853a2 --out data/examples/ballbar-backlash.csv
 //! ```
 //!
 //! Options (each `--name value`): `--program FILE` (LinuxCNC dialect; required), `--centre X,Y,Z`
@@ -16,7 +16,8 @@
 //! `scripts/qemu-run.sh --scenario`; one of the two is required),
 //! `--rate` (Hz, 1000), `--backlash-x-um`, `--backlash-y-um`, `--squareness-xy-um-per-m`,
 //! `--drift-um-per-min`, `--setup-offset-um X,Y,Z`, `--feed-override-pct` (100), `--clock-ppm`,
-//! `--noise-um`, `--start-delay-s` (3), `--seed`. It prints the truth (cycle start, feed) on
+//! `--noise-um`, `--start-delay-s` (3), `--seed`, `--plan-id ID` (the plan's id, which
+//! `jdbb simulate --plan` prints, written as the `# plan_id:` line `jdbb record --plan` writes). It prints the truth (cycle start, feed) on
 //! stderr.
 use std::collections::HashMap;
 use std::io::Write;
@@ -114,6 +115,10 @@ fn run() -> Result<(), String> {
     let out = need("out")?;
     let mut f =
         std::io::BufWriter::new(std::fs::File::create(out).map_err(|e| format!("{out}: {e}"))?);
+    if let Some(id) = opt.get("plan-id") {
+        // The line `jdbb record --plan` writes first, which `jdbb diagnose` checks the plan by.
+        writeln!(f, "# plan_id: {id}").map_err(|e| format!("{out}: {e}"))?;
+    }
     f.write_all(CSV_HEADER.as_bytes())
         .map_err(|e| format!("{out}: {e}"))?;
     let mut n = 0u64;

@@ -89,7 +89,7 @@ pub fn per_axis<T>(
         let (k, v) = part.split_once('=').ok_or_else(|| {
             crate::Error::Usage(format!("{option}: `{part}` should look like {form}"))
         })?;
-        let axis = match k.trim() {
+        let axis = match k.trim().to_ascii_lowercase().as_str() {
             "x" => 0,
             "y" => 1,
             "z" => 2,

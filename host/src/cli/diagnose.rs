@@ -189,8 +189,19 @@ fn add_run_facts(
 }
 
 /// Refuse a record made for another plan (its `# plan_id:` line names another id). A record
-/// without the line (made before plan ids, or by hand) is taken as it is.
+/// without the line (made by `jdbb record` without `--plan`, before plan ids, or by hand) is
+/// taken as it is, with a warning: D alone cannot tell the plane, so a plan for another plane
+/// would name the wrong axes unseen.
 fn check_plan_id(rec: &Record, plan: &Plan, plan_file: &std::path::Path) -> Result<()> {
+    if rec.plan_id.is_none() {
+        super::output::note(&format!(
+            "warning: {} has no `# plan_id:` line, so nothing ties it to {} (plane {}, plan_id {}): D alone cannot tell the plane, and a plan for another plane names the wrong axes (X play as Z play). Check that this is the plan the test ran; `jdbb record --plan` writes the line",
+            rec.path.display(),
+            plan_file.display(),
+            plan.plane.name().to_ascii_uppercase(),
+            plan.id()
+        ));
+    }
     match &rec.plan_id {
         Some(id) if *id != plan.id() => Err(Error::Input {
             location: rec.path.display().to_string(),

@@ -230,7 +230,11 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             let marks = trend::compensation_marks(&runs, &h.compensations(machine)?);
             let trends = match figure {
                 Some(f) => trend::figure_trend(&runs, f),
-                None => trend::trend(&runs, effect.as_deref())?,
+                // Effect names are lower case (`backlash_x`), whatever case they are typed in.
+                None => trend::trend(
+                    &runs,
+                    effect.as_deref().map(str::to_ascii_lowercase).as_deref(),
+                )?,
             };
             let mut s = trend::render(machine, &runs, &trends, &marks, *tolerance_um);
             if let Some(file) = plot {
