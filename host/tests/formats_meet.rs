@@ -170,7 +170,7 @@ fn a_record_far_beyond_the_plans_feed_is_refused() {
     // 140 %: at 2100 mm/min the 2 mm feed-in never cruises and the fitted feed runs high (163 %
     // at 2800 mm/min); the refusal goes by the least feed the arcs' time allows, not by it.
     plan_and_record(d, "feed_override_pct = 140\n");
-    ok_in(
+    let out = ok_in(
         d,
         &[
             "diagnose",
@@ -179,6 +179,29 @@ fn a_record_far_beyond_the_plans_feed_is_refused() {
             "--plan",
             "plan/plan.json",
         ],
+    );
+    // ... with a warning that the override was not at 100 % (servo effects change with feed).
+    assert!(
+        out.contains("warning: the arcs ran at 1") && out.contains("run it at 100 % override"),
+        "{out}"
+    );
+    // At 98 % (within a controller's own feed accuracy) there is no such warning.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    plan_and_record(d, "feed_override_pct = 98\n");
+    let out = ok_in(
+        d,
+        &[
+            "diagnose",
+            "--record",
+            "rec.csv",
+            "--plan",
+            "plan/plan.json",
+        ],
+    );
+    assert!(
+        out.contains("feed on the arcs 98.") && !out.contains("override"),
+        "{out}"
     );
 }
 

@@ -197,6 +197,35 @@ fn the_example_machine_is_printed_and_reads() {
         page.contains("0A1B2C3D4E5F60718293A4B5"),
         "serial not in the report"
     );
+    // A machine whose controller is not the plan's dialect runs it, and says so.
+    fs::write(d.join("g.toml"), "controller = \"GRBL\"\n").unwrap();
+    let o = jdbb_in(
+        d,
+        &[
+            "simulate",
+            "--plan",
+            "plan/plan.json",
+            "--machine",
+            "g.toml",
+        ],
+    );
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{e}");
+    assert!(
+        e.contains("written for linuxcnc") && e.contains("its controller is grbl"),
+        "{e}"
+    );
+    let o = jdbb_in(
+        d,
+        &[
+            "simulate",
+            "--plan",
+            "plan/plan.json",
+            "--machine",
+            "m.toml",
+        ],
+    );
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("warning"));
 }
 
 #[test]

@@ -12,6 +12,8 @@ use std::path::{Path as FsPath, PathBuf};
 use jdbb_core::calib::Calibration;
 use serde::Deserialize;
 
+use super::model::Effect;
+use super::path::{Axis, Pair};
 use super::plan::Dialect;
 use super::simulate::{parse_effect, EffectValue};
 use crate::{Error, Result};
@@ -22,7 +24,7 @@ pub const EXAMPLE: &str = r#"# A machine for `jdbb simulate --plan plan.json --m
 # See docs/simulate.md for what each key does.
 
 name = "example mill"          # example: for the messages only
-controller = "linuxcnc"        # linuxcnc, grbl, fanuc or marlin (default: the plan's dialect);
+# controller = "linuxcnc"      # linuxcnc, grbl, fanuc or marlin (default: the plan's dialect);
                                # marlin draws arcs as chords of arc_segment_mm
 arc_segment_mm = 1.0           # marlin's MM_PER_ARC_SEGMENT
 feed_override_pct = 98.0       # example (default 100): the feed override knob, % (not dwells)
@@ -54,6 +56,115 @@ squareness_xy = 30.0           # example: X and Y out of square, µm/m
 # cyclic_x = "3@45"            # amplitude µm @ phase deg (needs pitch_mm)
 # setup_offset = [5.0, -3.0, 0.0]   # all parameters as an array, in the effect's units
 "#;
+
+/// One family of effects for [`effect_list`]: a representative (axis x, pair xy), and what it is
+/// on the machine in a few words.
+const FAMILIES: [(Effect, &str); 14] = [
+    (
+        Effect::SetupOffset,
+        "the table ball is not where the plan says (set-up)",
+    ),
+    (
+        Effect::LengthOffset,
+        "the bar is longer than its calibrated length (set-up)",
+    ),
+    (Effect::Scale(Axis::X), "k's scale (pitch or thermal) error"),
+    (
+        Effect::Scale2(Axis::X),
+        "k's second-order scale error (about the table ball)",
+    ),
+    (
+        Effect::Backlash(Axis::X),
+        "k's lost motion at reversal, a dead band; negative: over-compensated",
+    ),
+    (
+        Effect::BacklashEnds(Axis::X),
+        "k's lost motion, different at the two ends of the travel",
+    ),
+    (
+        Effect::Cyclic(Axis::X),
+        "k's ball-screw cyclic error, once per pitch (needs pitch_mm)",
+    ),
+    (
+        Effect::Interference(Axis::X),
+        "k's cyclic error growing with speed (needs pitch_mm)",
+    ),
+    (
+        Effect::Squareness(Pair::Xy),
+        "i moves by this per metre of j: i and j out of square",
+    ),
+    (
+        Effect::ServoMismatch(Pair::Xy),
+        "i follows its command later than j (servo mismatch)",
+    ),
+    (
+        Effect::ReversalSpike(Axis::X),
+        "k sticks at reversal and catches up (height, decay time)",
+    ),
+    (
+        Effect::Straightness(Axis::X, Axis::Y),
+        "k is bowed along j (bow at mid travel)",
+    ),
+    (
+        Effect::LateralPlay(Axis::X, Axis::Y),
+        "k steps sideways (along j) where k reverses",
+    ),
+    (Effect::Drift, "D drifts in time (thermal)"),
+];
+
+/// The name of `e`'s family: its axes as k (one axis), ij (a pair) or k_j (two axes).
+fn family_name(e: &Effect) -> String {
+    let n = e.name();
+    let axis = |c: u8| matches!(c, b'x' | b'y' | b'z');
+    let b = n.as_bytes();
+    let len = b.len();
+    if len > 4 && b[len - 4] == b'_' && axis(b[len - 3]) && b[len - 2] == b'_' && axis(b[len - 1]) {
+        format!("{}_k_j", &n[..len - 4])
+    } else if len > 3 && b[len - 3] == b'_' && axis(b[len - 2]) && axis(b[len - 1]) {
+        format!("{}_ij", &n[..len - 3])
+    } else if len > 2 && b[len - 2] == b'_' && axis(b[len - 1]) {
+        format!("{}_k", &n[..len - 2])
+    } else {
+        n
+    }
+}
+
+/// The commented list of every effect the diagnosis knows, for the example machine: its name
+/// (by family), its parameters with their units, and what one value stands for.
+fn effect_list() -> String {
+    let mut out = String::from(
+        "\n# Every effect `jdbb diagnose` knows, by family (k: x, y or z; ij: xy, yz or zx; k_j: two\n\
+         # different axes). Give one value (the effect's size, in its unit) or all parameters:\n",
+    );
+    for (e, words) in FAMILIES {
+        let params = e.param_names();
+        let given = match e {
+            Effect::Cyclic(_) | Effect::Interference(_) => {
+                format!("\"A@phase_deg\" or [{}]", params.join(", "))
+            }
+            Effect::BacklashEnds(_) => format!("[{}]", params.join(", ")),
+            _ if params.len() == 1 => params[0].to_string(),
+            _ if e.params_from_value(1.0, 0.0).is_some() => {
+                format!("value or [{}]", params.join(", "))
+            }
+            _ => format!("[{}]", params.join(", ")),
+        };
+        out.push_str(&format!(
+            "#   {:<20} = {:<38} {}, {}\n",
+            family_name(&e),
+            given,
+            e.unit().replace("um", "µm").replace("^2", "²"),
+            words
+        ));
+    }
+    out
+}
+
+/// The commented example machine with the list of every effect (`jdbb simulate --machine`
+/// prints it).
+pub fn example() -> String {
+    format!("{EXAMPLE}{}", effect_list())
+}
 
 /// How the machine runs the program, its errors, and the instrument (module docs).
 #[derive(Debug, Clone)]
@@ -367,9 +478,25 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_example_lists_every_effect_the_diagnosis_knows() {
+        let text = example();
+        let families: Vec<String> = FAMILIES.iter().map(|(e, _)| family_name(e)).collect();
+        for e in Effect::all() {
+            let f = family_name(&e);
+            assert!(families.contains(&f), "{} is not in the example", e.name());
+            assert!(text.contains(&format!("#   {f} ")), "{f}");
+            for p in e.param_names() {
+                assert!(text.contains(p), "{p} of {}", e.name());
+            }
+        }
+        // Still a machine file that reads, with the list as comments.
+        Machine::parse(FsPath::new("example.toml"), &text).unwrap();
+    }
+
+    #[test]
     fn the_example_reads_with_its_values() {
         let m = Machine::parse(FsPath::new("example.toml"), EXAMPLE).unwrap();
-        assert_eq!(m.controller, Some(Dialect::Linuxcnc));
+        assert_eq!(m.controller, None);
         assert_eq!(m.feed_override_pct, 98.0);
         assert_eq!(m.instrument.clock_ppm, 37.0);
         assert_eq!(m.instrument.sample_rate_hz, 1000.0);

@@ -543,6 +543,11 @@ pub fn radial_deviation_f(d: &Diagnosis) -> Vec<[Option<(f64, f64)>; 2]> {
     out
 }
 
+/// How far (%) the measured feed may be from the programmed before the summary warns: a
+/// controller's feed runs within a few % of F at 100 % override (its clock and acceleration
+/// limits), while an override knob left at 80 % or 130 % changes every servo effect.
+pub const FEED_OVERRIDE_WARN_PERCENT: f64 = 5.0;
+
 /// Human summary of a synchronisation: cycle start, feed, clock, acceleration, the arcs used.
 pub fn sync_summary(plan: &Plan, s: &Sync) -> String {
     use std::fmt::Write;
@@ -567,6 +572,13 @@ pub fn sync_summary(plan: &Plan, s: &Sync) -> String {
     );
     if let Some(note) = &s.feed_note {
         let _ = writeln!(out, "timing: {note}");
+    }
+    if (s.feed_percent - 100.0).abs() > FEED_OVERRIDE_WARN_PERCENT {
+        let _ = writeln!(
+            out,
+            "warning: the arcs ran at {:.0} % of the programmed feed (feed override not at 100 %?): servo effects (mismatch, reversal spikes) change with feed, so compare this test only with tests run at the same feed; run it at 100 % override",
+            s.feed_percent
+        );
     }
     let _ = writeln!(
         out,

@@ -83,8 +83,9 @@ pub const REVERSAL_GUARD_S: f64 = 1e-3;
 /// plan: the record belongs to another program or the run was disturbed.
 pub const FEED_RANGE: (f64, f64) = (0.05, 3.0);
 
-/// The largest feed override a controller allows (%): a record whose arcs ran faster than this
-/// share of the plan's feed is not of this plan's program (or the program's F words were edited).
+/// The fastest a ballbar test's arcs are taken to run (% of the plan's feed): controllers allow
+/// overrides of 120–200 %, but a test run faster than this is taken as a record of another
+/// program (or of edited F words), which it far more often is than a knob left at 150–200 %.
 pub const MAX_OVERRIDE_PERCENT: f64 = 150.0;
 
 /// The least feed (% of the programmed) the arcs of the synchronised circles ran at, on the
@@ -129,7 +130,7 @@ pub fn check_feed(plan: &Plan, sync: &Sync, rec: &Record) -> Result<()> {
         Some(pct) if pct > MAX_OVERRIDE_PERCENT => Err(Error::Input {
             location: rec.path.display().to_string(),
             message: format!(
-                "the arcs ran at {pct:.0} % of the plan's feed {} mm/min or faster, more than a feed override allows ({MAX_OVERRIDE_PERCENT:.0} %): the machine ran another program, or its F words were edited. Record the plan's own program at an override of at most {MAX_OVERRIDE_PERCENT:.0} %, or give the plan.json of the program that ran",
+                "the arcs ran at {pct:.0} % of the plan's feed {} mm/min or faster, more than a ballbar test is run at ({MAX_OVERRIDE_PERCENT:.0} %): the machine ran another program, its F words were edited, or the override knob was far up. Record the plan's own program at an override of at most {MAX_OVERRIDE_PERCENT:.0} %, or give the plan.json of the program that ran",
                 sync.programmed_feed_mm_min
             ),
         }),

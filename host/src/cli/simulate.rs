@@ -6,7 +6,7 @@ use std::io::Write;
 use std::path::PathBuf;
 
 use super::output::{note, print, stdout_result};
-use crate::circular::machine::{Machine, EXAMPLE};
+use crate::circular::machine::{example, Machine};
 use crate::circular::model::{parse_pitch, Path};
 use crate::circular::plan::{Plan, PLAN_ID_KEY};
 use crate::circular::record_sim::record;
@@ -82,6 +82,15 @@ fn run_plan(
     if let Some(cal) = &machine.instrument.calibration_file {
         machine.instrument.calibration = crate::instrument::file::read_calibration(cal)?;
     }
+    if let Some(c) = machine.controller.filter(|c| *c != plan.dialect) {
+        note(&format!(
+            "warning: the plan's program is written for {}, and {} says its controller is {}: it is run as {} would run it (check the plan's --dialect)",
+            plan.dialect.name(),
+            machine_file.display(),
+            c.name(),
+            c.name()
+        ));
+    }
     let (samples, truth) = record(&plan, &machine)?;
     let mut text = header(&[(PLAN_ID_KEY, plan.id())]).into_bytes();
     // As `jdbb record` writes it: the serial the device reported, before the samples.
@@ -130,7 +139,7 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
         check_destination(file, args.force)?;
     }
     match (&args.plan, &args.machine) {
-        (_, Some(None)) => return print(EXAMPLE),
+        (_, Some(None)) => return print(&example()),
         (Some(plan), Some(Some(machine))) => return run_plan(args, plan, machine),
         (None, Some(Some(_))) => {
             return Err(Error::Usage(
