@@ -323,6 +323,37 @@ fn a_port_in_use_says_so_not_dialout() {
 }
 
 #[test]
+fn a_port_a_terminal_holds_without_the_exclusive_lock_is_refused() {
+    let pty = Pty::new();
+    // As minicom or screen hold it: opened plainly (they lock with UUCP lock files), so the
+    // port's own exclusive open would succeed and both programs would read the device's bytes.
+    let held = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(&pty.slave_path)
+        .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.csv");
+    let o = jdbb(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+        "--seconds",
+        "2",
+    ]);
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{e}");
+    assert!(
+        e.contains(&format!("(PID {})", std::process::id())) && e.contains("in use by"),
+        "{e}"
+    );
+    assert!(!out.exists());
+    drop(held);
+}
+
+#[test]
 fn port_that_is_not_a_device_is_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("x.csv");

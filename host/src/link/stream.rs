@@ -835,7 +835,7 @@ pub fn open_port(path: &str) -> Result<Box<dyn serialport::SerialPort>> {
         }
         _ => {}
     }
-    serialport::new(path, 115_200)
+    let port = serialport::new(path, 115_200)
         .timeout(READ_TIMEOUT)
         .open()
         .map_err(|source| {
@@ -854,7 +854,53 @@ pub fn open_port(path: &str) -> Result<Box<dyn serialport::SerialPort>> {
                 port: path.to_string(),
                 source,
             }
-        })
+        })?;
+    // A terminal (the open above checked it is one) that another program holds too.
+    #[cfg(target_os = "linux")]
+    if let Some((pid, name)) = holders(Path::new(path)).into_iter().next() {
+        return Err(refuse(
+            serialport::ErrorKind::Io(io::ErrorKind::ResourceBusy),
+            format!("in use by {name} (PID {pid})"),
+        ));
+    }
+    Ok(port)
+}
+
+/// Other processes that have `path` open, as (PID, program name), from their `/proc/PID/fd`
+/// links. A serial terminal that opened the port without the exclusive lock (minicom and screen
+/// use UUCP lock files instead, which nothing else here honours) would otherwise share the
+/// device's bytes with jdbb: each would read part of the stream, and the record would show it
+/// as lost and corrupt frames. Processes of other users are seen only by root.
+#[cfg(target_os = "linux")]
+fn holders(path: &Path) -> Vec<(u32, String)> {
+    let Ok(target) = std::fs::canonicalize(path) else {
+        return vec![];
+    };
+    let Ok(procs) = std::fs::read_dir("/proc") else {
+        return vec![];
+    };
+    let me = std::process::id();
+    let mut out = vec![];
+    for p in procs.flatten() {
+        let Some(pid) = p.file_name().to_str().and_then(|s| s.parse::<u32>().ok()) else {
+            continue;
+        };
+        if pid == me {
+            continue;
+        }
+        let Ok(fds) = std::fs::read_dir(p.path().join("fd")) else {
+            continue;
+        };
+        if fds
+            .flatten()
+            .any(|fd| std::fs::read_link(fd.path()).is_ok_and(|l| l == target))
+        {
+            let name = std::fs::read_to_string(p.path().join("comm"))
+                .map_or_else(|_| "another program".into(), |s| s.trim().to_string());
+            out.push((pid, name));
+        }
+    }
+    out
 }
 
 /// A flag set by Ctrl-C (SIGINT), SIGTERM and SIGHUP (a closed terminal, `kill`, a service
