@@ -150,36 +150,24 @@ fn calibrating_from_a_machine_test_plan_says_to_plan_a_calibration_test() {
 
 #[test]
 fn a_record_far_beyond_the_plans_feed_is_refused() {
+    const DIAGNOSE: [&str; 5] = [
+        "diagnose",
+        "--record",
+        "rec.csv",
+        "--plan",
+        "plan/plan.json",
+    ];
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     plan_and_record(d, "feed_override_pct = 196\n");
-    refused(
-        d,
-        &[
-            "diagnose",
-            "--record",
-            "rec.csv",
-            "--plan",
-            "plan/plan.json",
-        ],
-        &["rec.csv", "of the plan's feed", "150 %"],
-    );
+    refused(d, &DIAGNOSE, &["rec.csv", "of the plan's feed", "150 %"]);
     // Within a controller's override range it is diagnosed.
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     // 140 %: at 2100 mm/min the 2 mm feed-in never cruises and the fitted feed runs high (163 %
     // at 2800 mm/min); the refusal goes by the least feed the arcs' time allows, not by it.
     plan_and_record(d, "feed_override_pct = 140\n");
-    let out = ok_in(
-        d,
-        &[
-            "diagnose",
-            "--record",
-            "rec.csv",
-            "--plan",
-            "plan/plan.json",
-        ],
-    );
+    let out = ok_in(d, &DIAGNOSE);
     // ... with a warning that the override was not at 100 % (servo effects change with feed).
     assert!(
         out.contains("warning: the arcs ran at 1") && out.contains("run it at 100 % override"),
@@ -189,16 +177,7 @@ fn a_record_far_beyond_the_plans_feed_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     plan_and_record(d, "feed_override_pct = 98\n");
-    let out = ok_in(
-        d,
-        &[
-            "diagnose",
-            "--record",
-            "rec.csv",
-            "--plan",
-            "plan/plan.json",
-        ],
-    );
+    let out = ok_in(d, &DIAGNOSE);
     assert!(
         out.contains("feed on the arcs 98.") && !out.contains("override"),
         "{out}"
