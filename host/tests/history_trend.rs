@@ -49,7 +49,7 @@ fn run(dir: &Path, name: &str, backlash_um: f64, date: &str, compensation: &str)
 fn trend_marks_compensation_changes_fits_the_slope_after_them_and_exports_csv() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("h.sqlite");
-    // Wear of 1 µm/month, then the backlash compensated on 2026-04-10, then 0.5 µm/month.
+    // Wear of 1 µm a month, then the backlash compensated on 2026-04-10, then 0.5 µm a month.
     let runs = [
         (6.0, "2026-01-01", "BACKLASH = 0"),
         (7.0, "2026-02-01", "BACKLASH = 0"),
