@@ -245,3 +245,46 @@ fn trend_marks_compensation_changes_fits_the_slope_after_them_and_exports_csv() 
         "{out}"
     );
 }
+
+#[test]
+fn a_run_dated_by_its_diagnosis_is_filed_with_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("t.csv");
+    let rep = dir.path().join("rep");
+    let db = dir.path().join("h.sqlite");
+    ok(&["simulate", "--radius", "60", "--rate", "100", "-o", s(&csv)]);
+    // No --date: the diagnosis dates the file with the time it ran, and says so.
+    ok(&[
+        "diagnose",
+        "--samples",
+        s(&csv),
+        "--report",
+        s(&rep),
+        "--machine",
+        "mill",
+    ]);
+    let diag = rep.join("diagnosis.json");
+    let out = ok(&["history", "add", "--db", s(&db), "--diagnosis", s(&diag)]);
+    assert!(
+        out.contains(
+            ", the date of the diagnosis: the test's date was not given; give it with --date)"
+        ),
+        "{out}"
+    );
+    // The test's date given when filing: no warning.
+    let db2 = dir.path().join("h2.sqlite");
+    let out = ok(&[
+        "history",
+        "add",
+        "--db",
+        s(&db2),
+        "--diagnosis",
+        s(&diag),
+        "--date",
+        "2026-05-01",
+    ]);
+    assert!(
+        out.starts_with("added run 1 of mill (2026-05-01T00:00:00Z) to "),
+        "{out}"
+    );
+}
