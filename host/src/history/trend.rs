@@ -1,9 +1,8 @@
 //! The trend of a machine's effects over its runs: each effect's value ± σ per run, whether the
 //! run is comparable with the latest (and what differs if not), the change between the first and
 //! the last comparable run since the last compensation change, the slope per 30 days with its σ;
-//! and the same as an SVG plot and a
-//! CSV file. Instead of the effects, the circular deviation G or the hysteresis H of each run
-//! ([`Figure`]).
+//! and the same as an SVG plot and a CSV file. Instead of the effects, the circular deviation G
+//! or the hysteresis H of each run ([`Figure`]), which have no σ of their own.
 //!
 //! A run in which an effect was not selected has no value for it: the effect was below what that
 //! test could detect (shown as `not found`), which is not the same as zero.
@@ -14,14 +13,14 @@
 //! diagnoses state different compensations in force (`jdbb diagnose --compensation`). The slope
 //! and the change are taken over the comparable runs **since the last mark** only (the text names
 //! those runs and their dates, and the runs before the mark it leaves out); the text, the plot (a
-//! dashed vertical line in the legend) and the CSV (`compensation_changed`) show the marks.
+//! dashed vertical line, named in the legend) and the CSV (`compensation_changed`) show the marks.
 //!
 //! # Slope
-//! Least squares of value against time, in the unit per 30 days ([`SLOPE_DAYS`]; one unit in the
-//! text and the plot), over the comparable runs that
-//! found the effect since the last mark, weighted by 1/σ² where every run has a σ. Its σ is the
-//! fit's, scaled up by √(χ²/(n − 2)) when the runs scatter more than their σ say (n ≥ 3); without
-//! σ per run (G, H) it is the residual scatter's, which needs 3 runs.
+//! Least squares of value against time, in the trend's unit per 30 days ([`SLOPE_DAYS`]; the
+//! same unit in the text and the plot's legend, which draws the fitted line over its runs), over
+//! the comparable runs that found the effect since the last mark, weighted by 1/σ² where every
+//! run has a σ. Its σ is the fit's, scaled up by √(χ²/(n − 2)) when the runs scatter more than
+//! their σ say (n ≥ 3); without σ per run (G, H) it is the residual scatter's, which needs 3 runs.
 use std::fmt::Write;
 use std::path::Path;
 
