@@ -900,7 +900,7 @@ mod tests {
             text: "x".into(),
             why: "test".into(),
         };
-        assert_eq!(t.slope(&[mark.clone()]).unwrap().runs, 2);
+        assert_eq!(t.slope(std::slice::from_ref(&mark)).unwrap().runs, 2);
         // The fitted line (drawn on the plot) passes through the runs that lie on it.
         let d0 = days("2026-01-01T00:00:00Z").unwrap();
         assert!(
@@ -910,7 +910,7 @@ mod tests {
         // The change over the whole trend, then only since the mark (never across it).
         let c = t.change(&[]).unwrap();
         assert_eq!((c.from.0, c.to.0, c.value, c.days), (1, 3, 2.0, 60.0));
-        let c = t.change(&[mark.clone()]).unwrap();
+        let c = t.change(std::slice::from_ref(&mark)).unwrap();
         assert_eq!((c.from.0, c.to.0, c.value, c.days), (2, 3, 1.0, 30.0));
         assert_eq!(t.before_last_mark(&[mark]), vec![1]);
     }
