@@ -312,7 +312,7 @@ fn history_add_list_trend_and_plot() {
         "{trend}"
     );
     assert!(
-        trend.contains("change over the comparable runs:"),
+        trend.contains("the first and the last comparable run:"),
         "{trend}"
     );
     assert!(trend.contains("in 31 days"), "{trend}");

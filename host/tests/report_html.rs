@@ -138,6 +138,65 @@ fn the_iso_230_4_items_are_stated_or_said_to_be_missing() {
 }
 
 #[test]
+fn the_calibration_the_date_and_the_feed_read_as_a_person_needs_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let cal = dir.path().join("bar-2026.json");
+    std::fs::write(
+        &cal,
+        r#"{"l1_mm": 50.0123, "l2_mm": 49.9871,
+ "enc1": {"counts_per_rev": 8388608, "zero_count": 1234, "direction": "Positive", "zero_offset_rad": 0.00021},
+ "enc2": {"counts_per_rev": 8388608, "zero_count": -77, "direction": "Negative"},
+ "axes_skew_rad": 0.0002}"#,
+    )
+    .unwrap();
+    let html = std::fs::read_to_string(report_with(
+        dir.path(),
+        &["--calibration", cal.to_str().unwrap()],
+    ))
+    .unwrap();
+    // The file's name, the bars in mm, the angles in degrees; the raw keys only under <details>.
+    let row = html
+        .lines()
+        .find(|l| l.starts_with("<tr><th>Instrument calibration</th>"))
+        .unwrap();
+    let (shown, details) = row.split_once("<details>").unwrap();
+    assert!(
+        shown.contains("bar-2026.json</b>: bars L1 50.0123 mm, L2 49.9871 mm; encoder 1: 8388608 counts/rev, zero at count 1234, direction positive, fine zero 0.0120°"),
+        "{row}"
+    );
+    assert!(shown.contains("axes skew 0.0115°"), "{row}");
+    assert!(!shown.contains("enc1.") && !shown.contains("_rad"), "{row}");
+    assert!(
+        details.starts_with("<summary>all 21 values of the file</summary>")
+            && details.contains("<td>enc1.direction</td><td class=\"num\">Positive</td>")
+            && details.contains("0.0002 (0.011459°)"),
+        "{row}"
+    );
+    // --date given: the date is the test's; the feed from samples has no programmed feed.
+    assert!(
+        html.contains(
+            "<tr><th>Date of the test (UTC, --date)</th><td>2026-11-23T00:00:00Z</td></tr>"
+        ),
+        "date"
+    );
+    assert!(
+        html.contains(
+            "measured feed 1000 mm/min (programmed feed and override: not known without a plan)"
+        ),
+        "feed"
+    );
+    let json: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("rep/diagnosis.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(json["date_of"], "test");
+    assert!(json["calibration_file"]
+        .as_str()
+        .unwrap()
+        .ends_with("bar-2026.json"));
+}
+
+#[test]
 fn radial_deviation_f_is_from_the_nominal_radius_g_is_not() {
     // A bar 5 µm long everywhere: the plot and G remove the length offset, F must not.
     let dir = tempfile::tempdir().unwrap();
@@ -331,6 +390,27 @@ fn the_serial_the_device_reported_is_in_the_report() {
     ]);
     let html = std::fs::read_to_string(rep.join("report.html")).unwrap();
     assert!(html.contains("<td>J-DBB, serial 3F0029000851383235363438</td>"));
+    // No --date: the date is the diagnosis', and says so.
+    assert!(
+        html.contains("<tr><th>Date of the diagnosis (UTC)</th><td>")
+            && html.contains(
+                " (when jdbb diagnose ran; the test&#39;s date was not given: --date)</td>"
+            ),
+        "date"
+    );
+    // The feed the record shows, the programmed feed and the override beside it (the record
+    // ran at 98 % override).
+    assert!(
+        html.contains(
+            "measured feed 1961 mm/min (programmed 2000 mm/min, override 98.05 % as measured)"
+        ),
+        "feed"
+    );
+    // Where the data arcs are: after the 180° lead-in from the feed-in at 0°.
+    assert!(
+        html.contains("full circles: feed-in at 0°, lead-in 180°, data 180°→540° ccw (one turn) then 540°→180° cw, overshoot 180° each way"),
+        "arc"
+    );
     // The plan as a table, not JSON.
     assert!(html.contains("<th>bar length D mm</th>") && !html.contains("\"segments\""));
     let json: serde_json::Value =

@@ -121,6 +121,8 @@ pub struct NotSignificant {
     /// Its parameters in the exact refit, by name (a spike's decay shows why its height is
     /// undetermined: τ far below the sample period).
     pub params: Vec<(&'static str, f64)>,
+    /// The standard error of each of `params` (None: not determined).
+    pub params_sigma: Vec<Option<f64>>,
     /// Why it is not named, in words.
     pub reason: String,
 }
@@ -1057,6 +1059,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                         .copied()
                         .zip(f.params.iter().copied())
                         .collect(),
+                    params_sigma: f.param_sigma.clone(),
                     reason,
                 };
                 (ei, weak)

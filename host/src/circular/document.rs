@@ -213,14 +213,24 @@ pub struct DiagnosisDoc {
     pub machine: Option<String>,
     #[serde(default)]
     pub date_utc: Option<String>,
+    /// What `date_utc` is the date of: `test` (given with `--date`) or `diagnosis` (when
+    /// `diagnose` ran); absent in files written before it was said.
+    #[serde(default)]
+    pub date_of: Option<String>,
     #[serde(default)]
     pub tolerance: Option<ToleranceDoc>,
     /// The instrument calibration, kept as given (compared as a whole between runs).
     #[serde(default)]
     pub calibration: Option<serde_json::Value>,
+    /// The name of the file the calibration was read from, as given.
+    #[serde(default)]
+    pub calibration_file: Option<String>,
     /// The test plan, kept as given (compared as a whole between runs).
     #[serde(default)]
     pub plan: Option<serde_json::Value>,
+    /// How the record was lined up with the plan (measured feed, override), kept as given.
+    #[serde(default)]
+    pub sync: Option<serde_json::Value>,
     #[serde(default)]
     pub operator: Option<String>,
     #[serde(default)]
@@ -383,8 +393,10 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
         "candidates",
         "machine",
         "date_utc",
+        "date_of",
         "tolerance",
         "calibration",
+        "calibration_file",
         "plan",
         "sync",
         "lsq_circular_deviation_g_um",

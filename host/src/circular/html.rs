@@ -201,6 +201,96 @@ fn iso_rows(doc: &DiagnosisDoc) -> Vec<(String, String)> {
     ]
 }
 
+/// Where a plan's circles run, in degrees from the plane's first axis (the plan's `arc`): the
+/// feed-in at the start angle, the lead-in, the data arc ccw (the samples the diagnosis uses)
+/// and the overshoot, then back cw over the same data arc.
+fn arc_text(start: f64, sweep: f64, lead_in: f64, overshoot: f64, data0: f64, data: f64) -> String {
+    let end = data0 + data;
+    if sweep >= 360.0 {
+        format!(
+            "full circles: feed-in at {start:.0}°, lead-in {lead_in:.0}°, data {data0:.0}°→{end:.0}° ccw (one turn) then {end:.0}°→{data0:.0}° cw, overshoot {overshoot:.0}° each way"
+        )
+    } else {
+        format!(
+            "partial arcs of {sweep:.0}° from {start:.0}° to {:.0}°: feed-in at {start:.0}°, lead-in {lead_in:.0}°, data {data0:.0}°→{end:.0}° ccw then {end:.0}°→{data0:.0}° cw, overshoot {overshoot:.0}° each way",
+            start + sweep
+        )
+    }
+}
+
+/// The instrument calibration (`calibration` of the diagnosis, a jdbb-core `Calibration`) as a
+/// person reads it: the file it came from, the bar lengths in mm, the encoders and the angles
+/// in degrees; every value (radians also in degrees) under a `<details>` element. HTML.
+fn calibration_html(cal: &serde_json::Value, file: Option<&str>) -> String {
+    let num = |path: &[&str]| {
+        path.iter()
+            .try_fold(cal, |v, k| v.get(*k))
+            .and_then(|v| v.as_f64())
+    };
+    let mm = |path: &[&str]| num(path).map_or("?".into(), |v| format!("{v:.4} mm"));
+    let deg = |path: &[&str]| num(path).map_or("?".into(), |v| format!("{:.4}°", v.to_degrees()));
+    let mut out = String::new();
+    let _ = write!(
+        out,
+        "{}bars L1 {}, L2 {}",
+        file.map_or(String::new(), |f| format!("from <b>{}</b>: ", escape(f))),
+        mm(&["l1_mm"]),
+        mm(&["l2_mm"])
+    );
+    for enc in ["enc1", "enc2"] {
+        let counts = num(&[enc, "counts_per_rev"]);
+        let zero = num(&[enc, "zero_count"]);
+        let dir = cal
+            .get(enc)
+            .and_then(|e| e.get("direction"))
+            .and_then(|d| d.as_str())
+            .unwrap_or("?");
+        let _ = write!(
+            out,
+            "; encoder {}: {} counts/rev, zero at count {}, direction {}, fine zero {}, eccentricity {} at {}",
+            &enc[3..],
+            counts.map_or("?".into(), |c| format!("{c:.0}")),
+            zero.map_or("?".into(), |z| format!("{z:.0}")),
+            escape(&dir.to_lowercase()),
+            deg(&[enc, "zero_offset_rad"]),
+            deg(&[enc, "eccentricity_rad"]),
+            deg(&[enc, "eccentricity_phase_rad"])
+        );
+    }
+    let _ = write!(out, "; axes skew {}", deg(&["axes_skew_rad"]));
+    for frame in ["frame1", "frame2"] {
+        let _ = write!(
+            out,
+            "; frame {}: tilt {}, pivot offset {} normal, {} axial (× grip radius)",
+            &frame[5..],
+            deg(&[frame, "tilt_rad"]),
+            deg(&[frame, "offset_normal_rad"]),
+            deg(&[frame, "offset_axial_rad"])
+        );
+    }
+    let mut r = vec![];
+    object_rows(cal, "", &mut r);
+    let _ = write!(
+        out,
+        "<details><summary>all {} values of the file</summary><table>",
+        r.len()
+    );
+    for (k, v) in r {
+        let shown = match (k.ends_with("_rad"), v.parse::<f64>()) {
+            (true, Ok(x)) => format!("{v} ({:.6}°)", x.to_degrees()),
+            _ => v,
+        };
+        let _ = write!(
+            out,
+            "<tr><td>{}</td><td class=\"num\">{}</td></tr>",
+            escape(&k),
+            escape(&shown)
+        );
+    }
+    out.push_str("</table></details>");
+    out
+}
+
 /// The plan (`plan` of the diagnosis) as a sentence and a table of its circles.
 fn plan_html(plan: Option<&serde_json::Value>) -> String {
     let Some(p) = plan else {
@@ -225,7 +315,7 @@ fn plan_html(plan: Option<&serde_json::Value>) -> String {
         parts.push(format!("plane {x}"));
     }
     if let Some(f) = num(p.get("feed_mm_min")) {
-        parts.push(format!("feed {f:.0} mm/min"));
+        parts.push(format!("programmed feed {f:.0} mm/min"));
     }
     if let Some(c) = p.get("centre_mm").and_then(|v| v.as_array()) {
         let c: Vec<String> = c
@@ -239,26 +329,18 @@ fn plan_html(plan: Option<&serde_json::Value>) -> String {
     }
     if let Some(a) = p.get("arc") {
         let g = |k: &str| num(a.get(k)).unwrap_or(f64::NAN);
-        parts.push(if g("sweep_deg") >= 360.0 {
-            format!(
-                "full circles from {:.0}°, lead-in {:.0}°, overshoot {:.0}°",
-                g("start_deg"),
-                g("lead_in_deg"),
-                g("overshoot_deg")
-            )
-        } else {
-            format!(
-                "partial arcs of {:.0}° from {:.0}° (data {:.0}° from {:.0}°)",
-                g("sweep_deg"),
-                g("start_deg"),
-                g("data_sweep_deg"),
-                g("data_start_deg")
-            )
-        });
+        parts.push(arc_text(
+            g("start_deg"),
+            g("sweep_deg"),
+            g("lead_in_deg"),
+            g("overshoot_deg"),
+            g("data_start_deg"),
+            g("data_sweep_deg"),
+        ));
     }
     let mut out = parts.join(", ");
     if let Some(circles) = p.get("circles").and_then(|v| v.as_array()) {
-        out.push_str("<table><tr><th>circle</th><th>radius mm</th><th>height mm</th><th>bar length D mm</th><th>plane</th><th>feed mm/min</th></tr>");
+        out.push_str("<table><tr><th>circle</th><th>radius mm</th><th>height mm</th><th>bar length D mm</th><th>plane</th><th>programmed feed mm/min</th></tr>");
         for (k, c) in circles.iter().enumerate() {
             let f = |key: &str, d: usize| fmt_opt(num(c.get(key)), d);
             let _ = write!(
@@ -275,6 +357,32 @@ fn plan_html(plan: Option<&serde_json::Value>) -> String {
         out.push_str("</table>");
     }
     out
+}
+
+/// The feed of circle `k` as the record shows it (`measured_mm_min`), and beside it, where the
+/// diagnosis was lined up with a plan, the programmed feed and the override the record shows
+/// (the measured over the programmed feed: override, controller timing and clock together).
+fn feed_text(doc: &DiagnosisDoc, k: usize, measured_mm_min: Option<f64>) -> String {
+    let sync = doc.sync.as_ref();
+    let programmed = sync
+        .and_then(|s| s.get("programmed_feed_mm_min"))
+        .and_then(|v| v.as_f64());
+    let percent = sync
+        .and_then(|s| s.get("circles"))
+        .and_then(|c| c.get(k))
+        .and_then(|c| c.get("feed_percent"))
+        .and_then(|v| v.as_f64())
+        .or_else(|| {
+            sync.and_then(|s| s.get("feed_percent"))
+                .and_then(|v| v.as_f64())
+        });
+    let measured = format!("measured feed {} mm/min", fmt_opt(measured_mm_min, 0));
+    match (programmed, percent) {
+        (Some(p), Some(pc)) => {
+            format!("{measured} (programmed {p:.0} mm/min, override {pc:.2} % as measured)")
+        }
+        _ => format!("{measured} (programmed feed and override: not known without a plan)"),
+    }
 }
 
 /// F max / min of one trace (µm) to the noise's digits, or a dash.
@@ -307,12 +415,22 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>Circular test: {}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n",
         escape(machine)
     );
+    // What the date is the date of: the test's (--date) or the diagnosis' (when it ran).
+    let (date_label, date_word, date_note) = match doc.date_of.as_deref() {
+        Some("test") => ("Date of the test (UTC, --date)", "test of", ""),
+        Some("diagnosis") => (
+            "Date of the diagnosis (UTC)",
+            "diagnosed",
+            " (when jdbb diagnose ran; the test's date was not given: --date)",
+        ),
+        _ => ("Date (UTC)", "dated", ""),
+    };
     let _ = writeln!(
         h,
         "<h1>Circular test report: {}</h1>\n<p class=\"sub\">J-DBB double ball bar, {} samples, {}</p>",
         escape(machine),
         doc.samples,
-        escape(doc.date_utc.as_deref().unwrap_or("date not recorded"))
+        escape(&doc.date_utc.as_deref().map_or("date not recorded".to_string(), |d| format!("{date_word} {d}")))
     );
 
     // Verdict.
@@ -343,10 +461,10 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
     let mut rows: Vec<(String, String)> = vec![
         ("Machine".into(), machine.to_string()),
         (
-            "Date (UTC)".into(),
+            date_label.into(),
             doc.date_utc
-                .clone()
-                .unwrap_or_else(|| "not recorded".into()),
+                .as_ref()
+                .map_or("not recorded".into(), |d| format!("{d}{date_note}")),
         ),
         (
             "Plane".into(),
@@ -357,9 +475,9 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         rows.push((
             format!("Circle {}", k + 1),
             format!(
-                "{}, feed {} mm/min, {} samples (ccw and cw)",
+                "{}, {}, {} samples (ccw and cw)",
                 circle_label(c, normal),
-                fmt_opt(c.feed_mm_min, 0),
+                feed_text(doc, k, c.feed_mm_min),
                 c.samples
             ),
         ));
@@ -372,18 +490,17 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
     if !pitch.is_empty() {
         rows.push(("Screw/scale pitch".into(), pitch.join(", ")));
     }
-    match &doc.calibration {
-        Some(c) => {
-            let mut r = vec![];
-            object_rows(c, "", &mut r);
-            let text: Vec<String> = r.into_iter().map(|(k, v)| format!("{k} {v}")).collect();
-            rows.push(("Instrument calibration".into(), text.join(", ")));
-        }
-        None => rows.push((
-            "Instrument calibration".into(),
-            "not given (jdbb diagnose --calibration FILE)".into(),
-        )),
+    for (k, v) in rows.drain(..) {
+        let _ = writeln!(h, "<tr><th>{}</th><td>{}</td></tr>", escape(&k), escape(&v));
     }
+    let _ = writeln!(
+        h,
+        "<tr><th>Instrument calibration</th><td>{}</td></tr>",
+        match &doc.calibration {
+            Some(c) => calibration_html(c, doc.calibration_file.as_deref()),
+            None => "not given (jdbb diagnose --calibration FILE)".into(),
+        }
+    );
     rows.push((
         "Tolerance on G".into(),
         tol.map_or("not given".into(), |t| format!("{t} µm")),
@@ -496,11 +613,7 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
                 .filter_map(|(k, v)| {
                     let v = (*v)?;
                     let s = e.params_sigma.get(k).copied().flatten();
-                    Some(format!(
-                        "{} {}",
-                        super::words::param_label(k),
-                        format_estimate(v, s)
-                    ))
+                    Some(super::words::param_text(k, v, s, "undetermined, held"))
                 })
                 .collect();
             format!(
@@ -556,7 +669,7 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
     // G and H.
     let _ = writeln!(
         h,
-        "<h2>Circular deviation G and hysteresis H (ISO 230-4, minimum-zone centre)</h2>\n<table>\n<tr><th>circle</th><th>feed mm/min</th><th>G ccw µm</th><th>G cw µm</th><th>G both directions µm</th><th>H µm</th><th>F max / min ccw µm</th><th>F max / min cw µm</th><th>minimum-zone centre (ccw): table ball at, µm</th><th>verdict</th></tr>"
+        "<h2>Circular deviation G and hysteresis H (ISO 230-4, minimum-zone centre)</h2>\n<table>\n<tr><th>circle</th><th>measured feed mm/min</th><th>G ccw µm</th><th>G cw µm</th><th>G both directions µm</th><th>H µm</th><th>F max / min ccw µm</th><th>F max / min cw µm</th><th>minimum-zone centre (ccw): table ball at, µm</th><th>verdict</th></tr>"
     );
     for c in &doc.circles {
         let verdict = match (tol, c.g_um) {
@@ -621,12 +734,12 @@ mod tests {
             "program": "test.ngc", "plane": "xy", "feed_mm_min": 1000.0,
             "centre_mm": [100.0, 50.0, -20.0],
             "arc": {"start_deg": 0.0, "sweep_deg": 360.0, "lead_in_deg": 10.0,
-                    "overshoot_deg": 10.0, "data_start_deg": 0.0, "data_sweep_deg": 360.0},
+                    "overshoot_deg": 10.0, "data_start_deg": 10.0, "data_sweep_deg": 360.0},
             "circles": [{"radius_mm": 50.0, "height_mm": 0.0, "d_mm": 100.0, "plane": "xy",
                          "feed_mm_min": 1000.0}]
         });
         let h = plan_html(Some(&plan));
-        assert!(h.starts_with("<b>plan.json</b>, purpose machine-test, program test.ngc, G-code dialect linuxcnc, plane xy, feed 1000 mm/min, centre (program coordinates) (100.000, 50.000, -20.000) mm, full circles from 0°, lead-in 10°, overshoot 10°"), "{h}");
+        assert!(h.starts_with("<b>plan.json</b>, purpose machine-test, program test.ngc, G-code dialect linuxcnc, plane xy, programmed feed 1000 mm/min, centre (program coordinates) (100.000, 50.000, -20.000) mm, full circles: feed-in at 0°, lead-in 10°, data 10°→370° ccw (one turn) then 370°→10° cw, overshoot 10° each way"), "{h}");
         assert!(h.contains("<td class=\"num\">50.000</td><td class=\"num\">0.000</td><td class=\"num\">100.000</td><td>xy</td>"), "{h}");
         // No raw JSON left.
         assert!(!h.contains("{\"") && !h.contains("\":"), "{h}");

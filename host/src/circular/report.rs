@@ -136,8 +136,10 @@
 //! Written by `jdbb diagnose` from its options, when given:
 //! machine                  --machine NAME
 //! date_utc                 --date, else the time of the diagnosis (RFC 3339, UTC)
+//! date_of                  what date_utc is the date of: `test` (--date) or `diagnosis`
 //! tolerance                {g_um, pass}: --tolerance-um and whether every circle's G is within it
 //! calibration              --calibration FILE: the instrument calibration (jdbb-core Calibration)
+//! calibration_file         --calibration FILE: its name, as given
 //! plan                     the test plan, when the diagnosis was given one (read as an opaque
 //!                          object by the report and the history)
 //! operator                 --operator NAME
@@ -155,7 +157,7 @@ use super::diagnose::Diagnosis;
 use super::document::FORMAT;
 use super::plan::{Plan, Sense};
 use super::sync::Sync;
-use super::words::{cause, param_label};
+use super::words::{cause, param_text};
 use super::zone::CircleZone;
 use crate::numerics::mzc::MinimumZone;
 use crate::units::{format_estimate, format_to, percentages};
@@ -202,10 +204,7 @@ pub fn summary(d: &Diagnosis) -> String {
                 .iter()
                 .zip(&f.params)
                 .zip(&f.param_sigma)
-                .map(|((n, v), s)| match s {
-                    Some(s) => format!("{} {}", param_label(n), format_estimate(*v, Some(*s))),
-                    None => format!("{} {v:.3} (undetermined, held)", param_label(n)),
-                })
+                .map(|((n, v), s)| param_text(n, *v, *s, "undetermined, held"))
                 .collect();
             let _ = writeln!(s, "    {}", params.join(", "));
         }
@@ -239,7 +238,15 @@ pub fn summary(d: &Diagnosis) -> String {
         let params: Vec<String> = w
             .params
             .iter()
-            .map(|(n, v)| format!("{} {v:.3}", param_label(n)))
+            .enumerate()
+            .map(|(k, (n, v))| {
+                param_text(
+                    n,
+                    *v,
+                    w.params_sigma.get(k).copied().flatten(),
+                    "undetermined",
+                )
+            })
             .collect();
         let _ = writeln!(
             s,

@@ -148,6 +148,42 @@ pub fn param_label(key: &str) -> &str {
     }
 }
 
+/// The unit of a parameter for people, from its JSON key's suffix (`tau_ms` → `ms`, `h_um` →
+/// `µm`, `a_um_per_m` → `µm/m`); empty for a key without one.
+pub fn param_unit(key: &str) -> &'static str {
+    const SUFFIXES: [(&str, &str); 6] = [
+        ("_um_per_mm_s", "µm/(mm/s)"),
+        ("_um_per_m2", "µm/m²"),
+        ("_um_per_min", "µm/min"),
+        ("_um_per_m", "µm/m"),
+        ("_um", "µm"),
+        ("_ms", "ms"),
+    ];
+    SUFFIXES
+        .iter()
+        .find(|(suffix, _)| key.ends_with(suffix))
+        .map_or("", |(_, unit)| unit)
+}
+
+/// A parameter for people: its label, its value to the digits its σ supports (± σ) and its
+/// unit, e.g. `decay time 20 ± 15 ms`; without a σ (not determined) the value to 3 decimals and
+/// `undetermined` in brackets after the unit.
+pub fn param_text(key: &str, value: f64, sigma: Option<f64>, undetermined: &str) -> String {
+    let unit = param_unit(key);
+    let sep = if unit.is_empty() { "" } else { " " };
+    match sigma.filter(|s| s.is_finite() && *s > 0.0) {
+        Some(s) => format!(
+            "{} {}{sep}{unit}",
+            param_label(key),
+            crate::units::format_estimate(value, Some(s))
+        ),
+        None => format!(
+            "{} {value:.3}{sep}{unit} ({undetermined})",
+            param_label(key)
+        ),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -170,6 +206,27 @@ mod tests {
     }
 
     #[test]
+    fn a_parameter_reads_with_its_unit_and_the_digits_of_its_sigma() {
+        // A reversal spike's height is in µm and its decay time in ms (model.rs: h·1e-3 mm,
+        // τ in ms).
+        assert_eq!(
+            param_text("h_um", 0.0812, Some(7.93), "undetermined"),
+            "height 0.1 ± 7.9 µm"
+        );
+        assert_eq!(
+            param_text("tau_ms", 83.479, Some(12.4), "undetermined"),
+            "decay time 83 ± 12 ms"
+        );
+        assert_eq!(
+            param_text("z_um", 0.0, None, "undetermined, held"),
+            "z 0.000 µm (undetermined, held)"
+        );
+        assert_eq!(param_unit("a_um_per_m"), "µm/m");
+        assert_eq!(param_unit("b_um_per_m2"), "µm/m²");
+        assert_eq!(param_unit("sin_um_per_mm_s"), "µm/(mm/s)");
+    }
+
+    #[test]
     fn no_paper_references_or_symbols_in_the_words() {
         let mut all: Vec<Effect> = Effect::all();
         all.extend(Pair::ALL.map(Effect::ScaleMismatch));
@@ -184,6 +241,7 @@ mod tests {
             for k in e.param_names() {
                 let l = param_label(k);
                 assert!(!l.contains('_'), "{e}: parameter {k} has no label");
+                assert!(!param_unit(k).is_empty(), "{e}: parameter {k} has no unit");
             }
         }
     }

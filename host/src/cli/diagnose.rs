@@ -177,8 +177,14 @@ fn add_run_facts(
         json["machine"] = json!(m);
     }
     json["date_utc"] = json!(args.date.clone().unwrap_or_else(crate::dates::now_utc));
+    json["date_of"] = json!(if args.date.is_some() {
+        "test"
+    } else {
+        "diagnosis"
+    });
     if let Some(file) = &args.calibration {
         json["calibration"] = read_calibration(file)?;
+        json["calibration_file"] = json!(file.display().to_string());
     }
     let Some(tol) = args.tolerance_um else {
         return Ok(None);

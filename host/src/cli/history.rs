@@ -124,10 +124,13 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
                     "added run {} of {machine} ({}{}) to {}\n",
                     added.run_id,
                     added.date_utc,
-                    if added.date_from_file || date.is_some() {
-                        ""
-                    } else {
-                        ", the time of adding: the file has no date"
+                    match (added.date_from_file, date.is_some(), doc.date_of.as_deref()) {
+                        (_, true, _) => "",
+                        (true, _, Some("diagnosis")) => {
+                            ", the date of the diagnosis: the test's date was not given; give it with --date"
+                        }
+                        (true, _, _) => "",
+                        (false, _, _) => ", the time of adding: the file has no date",
                     },
                     path.display()
                 )

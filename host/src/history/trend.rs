@@ -1,8 +1,8 @@
 //! The trend of a machine's effects over its runs: each effect's value ± σ per run, whether the
 //! run is comparable with the latest (and what differs if not), the change between the first and
-//! the last comparable run, the slope per month with its σ; and the same as an SVG plot and a
-//! CSV file. Instead of the effects, the circular deviation G or the hysteresis H of each run
-//! ([`Figure`]).
+//! the last comparable run since the last compensation change, the slope per 30 days with its σ;
+//! and the same as an SVG plot and a CSV file. Instead of the effects, the circular deviation G
+//! or the hysteresis H of each run ([`Figure`]), which have no σ of their own.
 //!
 //! A run in which an effect was not selected has no value for it: the effect was below what that
 //! test could detect (shown as `not found`), which is not the same as zero.
@@ -11,14 +11,16 @@
 //! A change of the machine's compensation changes what the test sees, so the trend marks it
 //! ([`Mark`]): where a `jdbb history comp` event was filed, and between two runs whose
 //! diagnoses state different compensations in force (`jdbb diagnose --compensation`). The slope
-//! is fitted over the comparable runs **since the last mark** only; the text, the plot (a dashed
-//! vertical line) and the CSV (`compensation_changed`) show the marks.
+//! and the change are taken over the comparable runs **since the last mark** only (the text names
+//! those runs and their dates, and the runs before the mark it leaves out); the text, the plot (a
+//! dashed vertical line, named in the legend) and the CSV (`compensation_changed`) show the marks.
 //!
 //! # Slope
-//! Least squares of value against time (months of 30.4375 days) over the comparable runs that
-//! found the effect since the last mark, weighted by 1/σ² where every run has a σ. Its σ is the
-//! fit's, scaled up by √(χ²/(n − 2)) when the runs scatter more than their σ say (n ≥ 3); without
-//! σ per run (G, H) it is the residual scatter's, which needs 3 runs.
+//! Least squares of value against time, in the trend's unit per 30 days ([`SLOPE_DAYS`]; the
+//! same unit in the text and the plot's legend, which draws the fitted line over its runs), over
+//! the comparable runs that found the effect since the last mark, weighted by 1/σ² where every
+//! run has a σ. Its σ is the fit's, scaled up by √(χ²/(n − 2)) when the runs scatter more than
+//! their σ say (n ≥ 3); without σ per run (G, H) it is the residual scatter's, which needs 3 runs.
 use std::fmt::Write;
 use std::path::Path;
 
@@ -63,14 +65,50 @@ pub struct EffectTrend {
     pub points: Vec<Point>,
 }
 
+/// The change of a trend between the first and the last of the runs its slope is fitted over.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Change {
+    /// Last minus first, in the trend's unit.
+    pub value: f64,
+    pub sigma: Option<f64>,
+    /// Days between the two runs.
+    pub days: f64,
+    /// The first and the last run (id, date).
+    pub from: (i64, String),
+    pub to: (i64, String),
+}
+
 impl EffectTrend {
-    /// Last minus first comparable run that found the effect: (change, its σ, days between).
-    pub fn change(&self) -> Option<(f64, Option<f64>, f64)> {
-        let found: Vec<&Point> = self
-            .points
+    /// The runs a change and a slope are taken over: comparable with the latest, found, and
+    /// not before the last of `marks` (module docs).
+    fn fitted(&self, marks: &[Mark]) -> Vec<&Point> {
+        let since = marks.last().map(|m| m.date_utc.as_str());
+        self.points
             .iter()
             .filter(|p| p.differences.is_empty() && p.value.is_some())
-            .collect();
+            .filter(|p| since.is_none_or(|s| p.date_utc.as_str() >= s))
+            .filter(|p| days(&p.date_utc).is_some())
+            .collect()
+    }
+
+    /// The comparable runs that found the effect but lie before the last of `marks`: left out
+    /// of the change and the slope.
+    pub fn before_last_mark(&self, marks: &[Mark]) -> Vec<i64> {
+        let Some(since) = marks.last().map(|m| m.date_utc.as_str()) else {
+            return vec![];
+        };
+        self.points
+            .iter()
+            .filter(|p| p.differences.is_empty() && p.value.is_some())
+            .filter(|p| p.date_utc.as_str() < since)
+            .map(|p| p.run_id)
+            .collect()
+    }
+
+    /// Last minus first of the runs the slope is fitted over (comparable, since the last of
+    /// `marks`), never across a compensation change.
+    pub fn change(&self, marks: &[Mark]) -> Option<Change> {
+        let found = self.fitted(marks);
         let (a, b) = (found.first()?, found.last()?);
         if a.run_id == b.run_id {
             return None;
@@ -79,16 +117,18 @@ impl EffectTrend {
             (Some(x), Some(y)) => Some(x.hypot(y)),
             _ => None,
         };
-        Some((
-            b.value? - a.value?,
+        Some(Change {
+            value: b.value? - a.value?,
             sigma,
-            days(&b.date_utc)? - days(&a.date_utc)?,
-        ))
+            days: days(&b.date_utc)? - days(&a.date_utc)?,
+            from: (a.run_id, a.date_utc.clone()),
+            to: (b.run_id, b.date_utc.clone()),
+        })
     }
 }
 
-/// Days in the month of a slope (a mean Gregorian month).
-pub const DAYS_PER_MONTH: f64 = 30.4375;
+/// The time unit of a slope: per 30 days (said so wherever a slope is shown).
+pub const SLOPE_DAYS: f64 = 30.0;
 
 /// A figure of the whole run to trend instead of the effects (`--figure`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -197,27 +237,42 @@ pub fn compensation_marks(runs: &[Run], events: &[CompensationEvent]) -> Vec<Mar
     marks
 }
 
-/// A slope per month and its σ (module docs, *Slope*).
+/// A slope per 30 days and its σ (module docs, *Slope*).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Slope {
-    pub per_month: f64,
+    /// In the trend's unit per [`SLOPE_DAYS`] days.
+    pub per_30_days: f64,
     pub sigma: Option<f64>,
     /// Runs it was fitted over.
     pub runs: usize,
+    /// Their ids, oldest first.
+    pub run_ids: Vec<i64>,
+    /// The first and the last of their dates.
+    pub from_date: String,
+    pub to_date: String,
     /// The mark it starts after, if any.
     pub since: Option<String>,
+    /// The fitted line passes through (`mean_day`, `mean_value`): days since 1970 and the
+    /// trend's unit (the weighted means).
+    pub mean_day: f64,
+    pub mean_value: f64,
+}
+
+impl Slope {
+    /// The fitted line's value on `day` (days since 1970).
+    pub fn at(&self, day: f64) -> f64 {
+        self.mean_value + self.per_30_days * (day - self.mean_day) / SLOPE_DAYS
+    }
 }
 
 impl EffectTrend {
     /// The slope over the comparable runs since the last of `marks` (module docs).
     pub fn slope(&self, marks: &[Mark]) -> Option<Slope> {
         let since = marks.last().map(|m| m.date_utc.clone());
-        let pts: Vec<(f64, f64, Option<f64>)> = self
-            .points
+        let fitted = self.fitted(marks);
+        let pts: Vec<(f64, f64, Option<f64>)> = fitted
             .iter()
-            .filter(|p| p.differences.is_empty())
-            .filter(|p| since.as_ref().is_none_or(|s| p.date_utc >= *s))
-            .filter_map(|p| Some((days(&p.date_utc)? / DAYS_PER_MONTH, p.value?, p.sigma)))
+            .filter_map(|p| Some((days(&p.date_utc)? / SLOPE_DAYS, p.value?, p.sigma)))
             .collect();
         let n = pts.len();
         if n < 2 {
@@ -260,12 +315,22 @@ impl EffectTrend {
             None
         };
         Some(Slope {
-            per_month: slope,
+            per_30_days: slope,
             sigma,
             runs: n,
+            run_ids: fitted.iter().map(|p| p.run_id).collect(),
+            from_date: fitted.first()?.date_utc.clone(),
+            to_date: fitted.last()?.date_utc.clone(),
             since,
+            mean_day: mx * SLOPE_DAYS,
+            mean_value: my,
         })
     }
+}
+
+/// The day (YYYY-MM-DD) of an RFC 3339 date.
+fn day(date: &str) -> &str {
+    date.get(..10).unwrap_or(date)
 }
 
 /// Days since 1970 of an RFC 3339 date.
@@ -384,24 +449,36 @@ pub fn render(
             (None, Some(n)) => format_to(x, n),
             _ => format_estimate(x, sigma),
         };
-        if let Some((d, sigma, dt)) = t.change() {
+        let since = marks.last().map_or(String::new(), |m| {
+            format!(" since the compensation change of {}", day(&m.date_utc))
+        });
+        if let Some(c) = t.change(marks) {
             let _ = writeln!(
                 s,
-                "  change over the comparable runs: {} {} in {dt:.0} days",
-                estimate(d, sigma),
-                human(&t.unit)
+                "  change from run {} ({}) to run {} ({}), the first and the last comparable run{since}: {} {} in {:.0} days",
+                c.from.0,
+                day(&c.from.1),
+                c.to.0,
+                day(&c.to.1),
+                estimate(c.value, c.sigma),
+                human(&t.unit),
+                c.days
             );
         }
         match t.slope(marks) {
             Some(sl) => {
                 let _ = writeln!(
                     s,
-                    "  slope over the {} comparable runs{}: {} {}/month{}",
+                    "  slope over the {} comparable runs{since} (runs {} from {} to {}): {} {} per {SLOPE_DAYS} days{}",
                     sl.runs,
-                    sl.since.as_ref().map_or(String::new(), |d| format!(
-                        " since the compensation change of {d}"
-                    )),
-                    estimate(sl.per_month, sl.sigma),
+                    sl.run_ids
+                        .iter()
+                        .map(|i| i.to_string())
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                    day(&sl.from_date),
+                    day(&sl.to_date),
+                    estimate(sl.per_30_days, sl.sigma),
                     human(&t.unit),
                     if sl.sigma.is_none() {
                         " (σ needs a third run)"
@@ -417,6 +494,20 @@ pub fn render(
                 );
             }
             None => {}
+        }
+        let before = t.before_last_mark(marks);
+        if let (false, Some(m)) = (before.is_empty(), marks.last()) {
+            let _ = writeln!(
+                s,
+                "  run{} {}: before the compensation change of {}, not compared across it",
+                if before.len() > 1 { "s" } else { "" },
+                before
+                    .iter()
+                    .map(|i| i.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                day(&m.date_utc)
+            );
         }
         if let Some(tol) = tolerance_um {
             if t.unit != "um" {
@@ -500,9 +591,10 @@ pub fn csv(machine: &str, runs: &[Run], trends: &[EffectTrend], marks: &[Mark]) 
     s
 }
 
-/// Plot the trends into an SVG file: one panel per effect, value ± σ against the date;
-/// comparable runs filled, others hollow and grey; compensation marks as dashed vertical lines,
-/// the tolerance (on values in µm) as red lines at ± it (+ only for G and H).
+/// Plot the trends into an SVG file: one panel per effect, value (± σ where it has one) against
+/// the date; comparable runs filled, others hollow and grey; the fitted slope as a line over the
+/// runs it was fitted on; compensation marks as dashed vertical lines, the tolerance (on values
+/// in µm) as red lines at ± it (+ only for G and H); each named in the panel's legend.
 pub fn plot_svg(
     file: &Path,
     machine: &str,
@@ -512,18 +604,13 @@ pub fn plot_svg(
 ) -> Result<()> {
     crate::circular::plot::register_font();
     let err = |e: &dyn std::fmt::Display| Error::Numerics(format!("plotting failed: {e}"));
-    let panel_h = 260u32;
+    let panel_h = 340u32;
     let n = trends.len().max(1) as u32;
     let root = SVGBackend::new(file, (900, 40 + n * panel_h)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(&e))?;
     let (title, body) = root.split_vertically(40);
     title
-        .titled(
-            &format!(
-                "J-DBB history of {machine}: ± σ (filled: comparable with the latest run; hollow: not; dashed: compensation changed)"
-            ),
-            ("sans-serif", 17),
-        )
+        .titled(&format!("J-DBB history of {machine}"), ("sans-serif", 17))
         .map_err(|e| err(&e))?;
     let all_days: Vec<f64> = trends
         .iter()
@@ -573,11 +660,19 @@ pub fn plot_svg(
             .map(|p| p.1 + p.2)
             .chain(tol_lines.iter().copied())
             .fold(f64::NEG_INFINITY, f64::max);
+        // Room above the data for the legend (its lines of about 15 px in a plot area of about
+        // panel_h − 100 px), so that it covers no run.
+        let legend_lines = usize::from(!tol_lines.is_empty())
+            + marks.len()
+            + 2
+            + usize::from(pts.iter().any(|p| !p.3));
+        let legend = ((15 * legend_lines + 20) as f64 / (panel_h - 100) as f64).min(0.6);
         let (lo, hi) = if lo.is_finite() {
-            let pad = ((hi - lo) * 0.15)
+            let pad = ((hi - lo) * 0.08)
                 .max(1e-3 * hi.abs().max(lo.abs()))
                 .max(1e-6);
-            (lo - pad, hi + pad)
+            let (lo, hi) = (lo - pad, hi + pad);
+            (lo, hi + (hi - lo) * legend / (1.0 - legend))
         } else {
             (-1.0, 1.0)
         };
@@ -594,9 +689,24 @@ pub fn plot_svg(
         } else {
             tick
         };
+        let has_sigma = pts.iter().any(|p| p.2 > 0.0);
+        let unit = human(&t.unit);
+        let slope = t.slope(marks);
+        let fitted_line: Vec<(f64, f64)> = slope
+            .as_ref()
+            .and_then(|sl| {
+                let a = days(&sl.from_date)?;
+                let b = days(&sl.to_date)?;
+                Some(vec![(a - d0, sl.at(a)), (b - d0, sl.at(b))])
+            })
+            .unwrap_or_default();
         let mut chart = ChartBuilder::on(&area)
             .caption(
-                format!("{} ({})", t.name, human(&t.unit)),
+                format!(
+                    "{} ({unit}){}",
+                    t.name,
+                    if has_sigma { ", value ± σ" } else { "" }
+                ),
                 ("sans-serif", 16),
             )
             .margin(10)
@@ -619,10 +729,21 @@ pub fn plot_svg(
                 .map_err(|e| err(&e))?;
         }
         let red = RGBColor(200, 30, 30);
-        for v in &tol_lines {
-            chart
+        for (k, v) in tol_lines.iter().enumerate() {
+            let series = chart
                 .draw_series(LineSeries::new([(x0, *v), (x1, *v)], red.stroke_width(2)))
                 .map_err(|e| err(&e))?;
+            if k == 0 {
+                series
+                    .label(format!(
+                        "tolerance {}{} µm",
+                        if tol_lines.len() > 1 { "±" } else { "" },
+                        v.abs()
+                    ))
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 20, y)], red.stroke_width(2))
+                    });
+            }
         }
         let orange = RGBColor(230, 120, 0);
         for m in marks {
@@ -636,7 +757,39 @@ pub fn plot_svg(
                     let y = |k: usize| lo + (hi - lo) * k as f64 / n as f64;
                     PathElement::new(vec![(x, y(k)), (x, y(k + 1))], orange.stroke_width(2))
                 }))
-                .map_err(|e| err(&e))?;
+                .map_err(|e| err(&e))?
+                .label(format!(
+                    "compensation changed {}: {}",
+                    day(&m.date_utc),
+                    m.text
+                ))
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 8, y)], orange.stroke_width(2))
+                });
+        }
+        let green = RGBColor(20, 140, 60);
+        if let (Some(sl), false) = (&slope, fitted_line.is_empty()) {
+            let noise = t.points.iter().filter_map(|p| p.noise).reduce(f64::max);
+            let value = match (sl.sigma, noise) {
+                (None, Some(n)) => format_to(sl.per_30_days, n),
+                _ => format_estimate(sl.per_30_days, sl.sigma),
+            };
+            chart
+                .draw_series(LineSeries::new(fitted_line, green.stroke_width(2)))
+                .map_err(|e| err(&e))?
+                .label(format!(
+                    "fitted slope {value} {unit} per {SLOPE_DAYS} days (runs {}, {} to {})",
+                    sl.run_ids
+                        .iter()
+                        .map(|i| i.to_string())
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                    day(&sl.from_date),
+                    day(&sl.to_date)
+                ))
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], green.stroke_width(2))
+                });
         }
         let blue = RGBColor(31, 119, 180);
         let grey = RGBColor(150, 150, 150);
@@ -648,14 +801,34 @@ pub fn plot_svg(
                 )
             }))
             .map_err(|e| err(&e))?;
+        let what = if has_sigma { "run, value ± σ" } else { "run" };
         chart
-            .draw_series(pts.iter().map(|&(x, v, _, ok)| {
-                if ok {
-                    Circle::new((x, v), 5, blue.filled())
-                } else {
-                    Circle::new((x, v), 5, grey.stroke_width(2))
-                }
-            }))
+            .draw_series(
+                pts.iter()
+                    .filter(|p| p.3)
+                    .map(|&(x, v, _, _)| Circle::new((x, v), 5, blue.filled())),
+            )
+            .map_err(|e| err(&e))?
+            .label(format!("{what}, comparable with the latest"))
+            .legend(move |(x, y)| Circle::new((x + 10, y), 5, blue.filled()));
+        if pts.iter().any(|p| !p.3) {
+            chart
+                .draw_series(
+                    pts.iter()
+                        .filter(|p| !p.3)
+                        .map(|&(x, v, _, _)| Circle::new((x, v), 5, grey.stroke_width(2))),
+                )
+                .map_err(|e| err(&e))?
+                .label(format!("{what}, not comparable (left out of the slope)"))
+                .legend(move |(x, y)| Circle::new((x + 10, y), 5, grey.stroke_width(2)));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK.mix(0.4))
+            .label_font(("sans-serif", 12))
+            .draw()
             .map_err(|e| err(&e))?;
     }
     root.present().map_err(|e| err(&e))?;
@@ -686,11 +859,11 @@ mod tests {
     }
 
     #[test]
-    fn slope_per_month_and_its_sigma() {
+    fn slope_per_30_days_and_its_sigma() {
         // 2 µm in 30 days, two runs without σ per run: the slope, no σ.
         let t = trend(&[("2026-01-01", 1.0, None), ("2026-01-31", 3.0, None)]);
         let s = t.slope(&[]).unwrap();
-        assert!((s.per_month - 2.0 * 30.4375 / 30.0).abs() < 1e-9, "{s:?}");
+        assert!((s.per_30_days - 2.0).abs() < 1e-9, "{s:?}");
         assert_eq!(s.sigma, None, "two runs without σ: no σ");
         // Scatter about a line: σ from the residuals, √(RSS/(n−2)/Sxx).
         let t = trend(&[
@@ -699,7 +872,7 @@ mod tests {
             ("2026-03-02", 1.0, None),
         ]);
         let s = t.slope(&[]).unwrap();
-        let x: Vec<f64> = [0.0, 30.0, 60.0].iter().map(|d| d / 30.4375).collect();
+        let x: Vec<f64> = [0.0, 30.0, 60.0].iter().map(|d| d / 30.0).collect();
         let sxx: f64 = x.iter().map(|v| (v - x[1]).powi(2)).sum();
         let slope = (x[2] - x[1]) / sxx;
         let res: Vec<f64> = [0.0, 1.0, 1.0]
@@ -708,15 +881,15 @@ mod tests {
             .map(|(y, xi)| y - (2.0 / 3.0) - slope * (xi - x[1]))
             .collect();
         let want = (res.iter().map(|r| r * r).sum::<f64>() / sxx).sqrt();
-        assert!((s.per_month - slope).abs() < 1e-9 && (s.sigma.unwrap() - want).abs() < 1e-9);
+        assert!((s.per_30_days - slope).abs() < 1e-9 && (s.sigma.unwrap() - want).abs() < 1e-9);
         // Weighted: runs with σ that agree with the line keep the fit's σ, √(1/Σw(x−x̄)²).
         let t = trend(&[
             ("2026-01-01", 0.0, Some(0.1)),
-            ("2026-01-31", 30.0 / 30.4375, Some(0.1)),
-            ("2026-03-02", 60.0 / 30.4375, Some(0.1)),
+            ("2026-01-31", 1.0, Some(0.1)),
+            ("2026-03-02", 2.0, Some(0.1)),
         ]);
         let s = t.slope(&[]).unwrap();
-        assert!((s.per_month - 1.0).abs() < 1e-9);
+        assert!((s.per_30_days - 1.0).abs() < 1e-9);
         assert!(
             (s.sigma.unwrap() - (0.01 / sxx).sqrt()).abs() < 1e-12,
             "{s:?}"
@@ -727,6 +900,18 @@ mod tests {
             text: "x".into(),
             why: "test".into(),
         };
-        assert_eq!(t.slope(&[mark]).unwrap().runs, 2);
+        assert_eq!(t.slope(std::slice::from_ref(&mark)).unwrap().runs, 2);
+        // The fitted line (drawn on the plot) passes through the runs that lie on it.
+        let d0 = days("2026-01-01T00:00:00Z").unwrap();
+        assert!(
+            s.at(d0).abs() < 1e-9 && (s.at(d0 + 60.0) - 2.0).abs() < 1e-9,
+            "{s:?}"
+        );
+        // The change over the whole trend, then only since the mark (never across it).
+        let c = t.change(&[]).unwrap();
+        assert_eq!((c.from.0, c.to.0, c.value, c.days), (1, 3, 2.0, 60.0));
+        let c = t.change(std::slice::from_ref(&mark)).unwrap();
+        assert_eq!((c.from.0, c.to.0, c.value, c.days), (2, 3, 1.0, 30.0));
+        assert_eq!(t.before_last_mark(&[mark]), vec![1]);
     }
 }
