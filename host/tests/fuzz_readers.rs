@@ -5,7 +5,7 @@
 //! byte without panicking, and what `record` writes from any frames must read back.
 //!
 //! Readers: CSV samples (`diagnose --samples`), record CSV (`diagnose --record`, `recompute`),
-//! plan.json, calibration TOML, diagnosis JSON, the controllers' `--current` files, frames.
+//! plan.json, calibration TOML, machine TOML (`simulate --machine`), diagnosis JSON, the controllers' `--current` files, frames.
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -261,6 +261,16 @@ fn calibration_toml() {
     fuzz_file("cal.toml", CAL_TOML.as_bytes(), |p| {
         jdbb::instrument::file::read_calibration(p)
     });
+}
+
+#[test]
+fn machine_toml() {
+    // The example `jdbb simulate --machine` prints (every key, and the list of every effect).
+    fuzz_file(
+        "m.toml",
+        leak(&jdbb::circular::machine::example()),
+        jdbb::circular::machine::Machine::read,
+    );
 }
 
 #[test]
