@@ -418,3 +418,61 @@ fn the_serial_the_device_reported_is_in_the_report() {
             .unwrap();
     assert_eq!(json["instrument"]["serial"], "3F0029000851383235363438");
 }
+
+#[test]
+fn what_was_not_named_is_on_the_page_with_its_reason() {
+    // The README's first test: a reversal spike is tried at X's reversals and not named.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_str().unwrap();
+    let p = |f: &str| format!("{d}/{f}");
+    ok(&[
+        "plan",
+        "--radius",
+        "90",
+        "--feed",
+        "1000",
+        "--centre",
+        "100,50,-20",
+        "--out",
+        &p("plan"),
+    ]);
+    std::fs::write(p("m.toml"), ok(&["simulate", "--machine"])).unwrap();
+    ok(&[
+        "simulate",
+        "--plan",
+        &p("plan/plan.json"),
+        "--machine",
+        &p("m.toml"),
+        "-o",
+        &p("rec.csv"),
+    ]);
+    ok(&[
+        "diagnose",
+        "--record",
+        &p("rec.csv"),
+        "--plan",
+        &p("plan/plan.json"),
+        "--report",
+        &p("rep"),
+    ]);
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(p("rep/diagnosis.json")).unwrap()).unwrap();
+    let page = std::fs::read_to_string(p("rep/report.html")).unwrap();
+    let tried = json["not_significant"].as_array().unwrap();
+    assert!(
+        !tried.is_empty(),
+        "this test names a spike it tried: {json}"
+    );
+    for w in tried {
+        let name = w["name"].as_str().unwrap();
+        let reason = w["reason"].as_str().unwrap();
+        assert!(
+            page.contains(&format!("Not named: {name} = ")) && page.contains(reason),
+            "{name} is not on the page"
+        );
+    }
+    for b in json["below_floor"].as_array().unwrap() {
+        let name = b["name"].as_str().unwrap();
+        assert!(page.contains(&format!("below the reporting floor: {name} ")));
+    }
+}

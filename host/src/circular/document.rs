@@ -158,6 +158,25 @@ pub struct WeakOnArcDoc {
     pub free_fraction: f64,
 }
 
+/// An effect the data support that stays under the reporting floor: `name`, `peak_um` (its
+/// largest contribution to D).
+#[derive(Debug, Clone, Deserialize)]
+pub struct BelowFloorDoc {
+    pub name: String,
+    pub peak_um: Option<f64>,
+}
+
+/// An effect the selection chose that the data cannot carry: `name`, `value` ± `sigma` in
+/// `unit`, and why it is not named.
+#[derive(Debug, Clone, Deserialize)]
+pub struct NotSignificantDoc {
+    pub name: String,
+    pub value: Option<f64>,
+    pub sigma: Option<f64>,
+    pub unit: String,
+    pub reason: String,
+}
+
 /// `tolerance` of the file: the limit on G and the verdict.
 #[derive(Debug, Clone, Deserialize)]
 pub struct ToleranceDoc {
@@ -187,6 +206,13 @@ pub struct DiagnosisDoc {
     pub effects: Vec<EffectDoc>,
     #[serde(default)]
     pub confounded: Vec<Vec<String>>,
+    /// The reporting floor (µm on D).
+    #[serde(default)]
+    pub floor_um: Option<f64>,
+    #[serde(default)]
+    pub below_floor: Vec<BelowFloorDoc>,
+    #[serde(default)]
+    pub not_significant: Vec<NotSignificantDoc>,
     #[serde(rename = "final", default)]
     pub final_fit: Figures,
     /// The residual's share of the error (shares and it add up to 1).

@@ -641,6 +641,27 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
             escape(&g.join(", "))
         );
     }
+    // What the selection tried and did not name, and why: a reader checking a cause that is
+    // absent from the table finds it here.
+    for w in &doc.not_significant {
+        let _ = writeln!(
+            h,
+            "<p class=\"note\">Not named: {} = {} {} — {}.</p>",
+            escape(&w.name),
+            format_estimate(w.value.unwrap_or(f64::NAN), w.sigma),
+            human(&w.unit),
+            escape(&w.reason)
+        );
+    }
+    for b in &doc.below_floor {
+        let _ = writeln!(
+            h,
+            "<p class=\"note\">Not named, below the reporting floor: {} is supported by the data but changes D by at most {} µm, under the floor of {} µm.</p>",
+            escape(&b.name),
+            b.peak_um.map_or("–".to_string(), |p| format!("{p:.3}")),
+            doc.floor_um.map_or("–".to_string(), |f| format!("{f:.3}"))
+        );
+    }
     for (k, a) in doc.arcs.iter().enumerate().filter(|(_, a)| a.partial) {
         let start = if a.start_deg > 180.0 {
             a.start_deg - 360.0
