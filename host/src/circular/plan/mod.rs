@@ -62,8 +62,10 @@
 //! **Grid.** Every position in the plan and the program is on a 1 µm grid ([`GRID_MM`]: Fanuc's
 //! IS-B least input increment, the finest all four dialects take), so the program's numbers are
 //! the plan's numbers exactly; radii, heights and the centre are rounded to it. An arc end at an
-//! angle that is not a multiple of 90° is rounded too (at most 0.71 µm off its circle); feeds are
-//! rounded to 0.001 mm/min and dwells to 1 ms.
+//! angle that is not a multiple of 90° moves along its circle (at most [`ON_CIRCLE_SEARCH_DEG`])
+//! to a grid point on the circle (within [`ON_CIRCLE_NM`]): rounded where the angle says, it would
+//! be up to 0.71 µm off the circle, and a controller would draw a spiral or a step that the
+//! ballbar sees (`build::on_circle`). Feeds are rounded to 0.001 mm/min and dwells to 1 ms.
 //!
 //! # The calibration test (`--calibration-test`, purpose `calibration-test`)
 //!
@@ -146,7 +148,7 @@ pub mod gcode;
 
 pub use build::{
     calibration_circles, default_calibration_distances, default_lead_in_overshoot,
-    machine_test_circles, plan, CircleSpec, PlanSpec,
+    machine_test_circles, plan, CircleSpec, PlanSpec, ON_CIRCLE_NM, ON_CIRCLE_SEARCH_DEG,
 };
 pub use gcode::write_program;
 pub use jdbb_core::geometry::FRAME_RANGE_RAD;
@@ -782,8 +784,8 @@ impl Plan {
 
     /// The nominal position (program coordinates, mm) at path length `s_mm` along segment
     /// `seg`, `s_mm` clamped to [0, length]. An arc's point is on its nominal circle (centre,
-    /// radius, angles), so where an arc end was rounded to the grid it differs from `from_mm` /
-    /// `to_mm` by at most 0.71 µm. A stop or a dwell is where the previous motion ended.
+    /// radius, angles); its ends are grid points on that circle, `from_mm` and `to_mm`, within
+    /// [`ON_CIRCLE_NM`]. A stop or a dwell is where the previous motion ended.
     ///
     /// # Panics
     /// If `seg` is not an index of `segments`.
