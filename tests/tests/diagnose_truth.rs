@@ -931,3 +931,54 @@ fn an_effect_the_refit_leaves_below_the_floor_is_not_named() {
         .unwrap_or_else(|| panic!("the servo mismatch is not listed below the floor\n{text}"));
     assert!(*peak < d.floor_um, "{peak} µm\n{text}");
 }
+
+/// A cyclic error of an axis that lags its command (servo delays X 4 ms, Y 1 ms): the machine's
+/// cyclic error lies where the delayed axis is, A·sin(w·(p − v·τ)), whose speed-dependent part
+/// has the shape of an interference of (w·τ·A_c, −w·τ·A_s). It is one cyclic error, named with
+/// the servo mismatch and nothing else; the speed-dependent part is listed as not named with
+/// the lag as its reason (it was named as `interference_y`, issue 20's seed 9005). A real
+/// read-head interference beside them is still named.
+#[test]
+fn a_cyclic_error_of_a_lagging_axis_is_one_cyclic_error() {
+    let p = make_plan(&[95.0, 86.0], &[0.0], Plane::Xy);
+    let pitch = 6.0;
+    let mut errors = MachineErrors::default();
+    errors.cyclic[1] = Cyclic {
+        amplitude_um: 2.5,
+        pitch_mm: pitch,
+        phase_rad: 0.7,
+    };
+    errors.servo_delay_ms = [4.0, 1.0, 0.0];
+    let d = run(&p, errors.clone(), 71, [None, Some(pitch), None]);
+    let s = summary(&d);
+    assert_eq!(
+        machine_names(&d),
+        vec!["servo_mismatch_xy".to_string(), "cyclic_y".to_string()],
+        "{s}"
+    );
+    let lag = d
+        .not_significant
+        .iter()
+        .find(|w| w.name == "interference_y")
+        .unwrap_or_else(|| panic!("the lag's part is not said: {s}"));
+    assert!(lag.reason.contains("lags its command"), "{s}");
+    let f = d
+        .effects
+        .iter()
+        .find(|f| f.effect.name() == "cyclic_y")
+        .unwrap();
+    assert!((f.value - 2.5).abs() < 0.05, "{s}");
+    // With a read head reporting late by 0.1 ms·sin(…) on Y as well, the interference is named.
+    errors.interference[1] = Interference {
+        latency_ms: 0.1,
+        pitch_mm: pitch,
+        phase_rad: 0.2,
+    };
+    let d = run(&p, errors, 72, [None, Some(pitch), None]);
+    let names = machine_names(&d);
+    assert!(
+        names.contains(&"interference_y".to_string()),
+        "{}",
+        summary(&d)
+    );
+}

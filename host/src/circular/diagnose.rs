@@ -252,6 +252,86 @@ fn backlash_axis(e: Effect) -> Option<Axis> {
     }
 }
 
+/// The named `interference_k` that are the named `cyclic_k` read where axis k is when it lags
+/// its command (a named servo mismatch gives each axis of its pair a delay τ_k), as (index of
+/// the interference, index of the cyclic error, why) in `found`. A cyclic error is a function of
+/// the screw's position; an axis τ late is at p − v·τ, so its cyclic error A_s·sin ωp +
+/// A_c·cos ωp (ω = 2π/pitch) is read as itself plus v·ωτ·(A_c·sin ωp − A_s·cos ωp) to first
+/// order: an interference (A_s, A_c per mm/s) of exactly (ωτ·A_c, −ωτ·A_s). One the data
+/// cannot tell from that (each part within 3σ, the σ of both sides) is the cyclic error's, not
+/// a speed-dependent error of the scale.
+fn lag_explained(found: &[Found], path: &Path) -> Vec<(usize, usize, String)> {
+    let mut out = vec![];
+    for (ii, f) in found.iter().enumerate() {
+        let Effect::Interference(axis) = f.effect else {
+            continue;
+        };
+        let k = axis.index();
+        let Some(pitch) = path.pitch_mm[k] else {
+            continue;
+        };
+        let Some(ci) = found.iter().position(|c| c.effect == Effect::Cyclic(axis)) else {
+            continue;
+        };
+        // The axis's delay (s) and its σ from a named servo mismatch of a pair with it.
+        let Some((tau_s, tau_sigma_s)) = found.iter().find_map(|g| {
+            let Effect::ServoMismatch(pair) = g.effect else {
+                return None;
+            };
+            let (a, b) = pair.axes();
+            let half = if a == axis {
+                0.5
+            } else if b == axis {
+                -0.5
+            } else {
+                return None;
+            };
+            let (dtau, lag) = (g.params[0], g.params[1]);
+            let (sd, sl) = (g.param_sigma[0]?, g.param_sigma[1]?);
+            Some((1e-3 * (lag + half * dtau), 1e-3 * sl.hypot(0.5 * sd)))
+        }) else {
+            continue;
+        };
+        let c = &found[ci];
+        let (Some(sa_s), Some(sa_c)) = (c.param_sigma[0], c.param_sigma[1]) else {
+            continue;
+        };
+        let (Some(si_s), Some(si_c)) = (f.param_sigma[0], f.param_sigma[1]) else {
+            continue;
+        };
+        let omega = 2.0 * std::f64::consts::PI / pitch;
+        let (a_s, a_c) = (c.params[0], c.params[1]);
+        let predicted = [omega * tau_s * a_c, -omega * tau_s * a_s];
+        let predicted_sigma = [
+            omega * (tau_s * sa_c).hypot(a_c * tau_sigma_s),
+            omega * (tau_s * sa_s).hypot(a_s * tau_sigma_s),
+        ];
+        let fitted = [f.params[0], f.params[1]];
+        let fitted_sigma = [si_s, si_c];
+        let agrees = (0..2).all(|p| {
+            (fitted[p] - predicted[p]).abs() <= 3.0 * fitted_sigma[p].hypot(predicted_sigma[p])
+        });
+        if agrees {
+            let letter = axis.letter().to_ascii_uppercase();
+            out.push((
+                ii,
+                ci,
+                format!(
+                    "it is cyclic_{} read where {letter} is while it lags its command by {:.2} ms (servo): a delay τ reads a cyclic error A at p − v·τ, a speed-dependent part 2π·τ/pitch·A, here ({:.5}, {:.5}) µm/(mm/s) for ({:.5}, {:.5}) fitted; kept in the model as part of the cyclic error, not an error of its own",
+                    axis.letter(),
+                    1e3 * tau_s,
+                    predicted[0],
+                    predicted[1],
+                    fitted[0],
+                    fitted[1]
+                ),
+            ));
+        }
+    }
+    out.sort_by_key(|e| e.0);
+    out
+}
+
 /// Why the data cannot carry a refitted effect, if they cannot: parameters the data do not
 /// determine (no finite σ), a reversal spike whose decay time is shorter than one sample
 /// period `period_s` (it would be gone before the next sample), or one whose decay time the
@@ -1182,6 +1262,32 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     };
     for f in found.iter_mut().filter(|f| !f.effect.is_setup()) {
         f.share = share(f.contribution_rms_um.powi(2));
+    }
+    // A speed-dependent cyclic term that is the cyclic error read where a lagging axis is: kept
+    // in the model (D holds it), named as part of the cyclic error, not as an effect of its own.
+    let explained = lag_explained(&found, path);
+    for &(ii, ci, _) in &explained {
+        let (rms, sh) = (found[ii].contribution_rms_um, found[ii].share);
+        found[ci].contribution_rms_um = found[ci].contribution_rms_um.hypot(rms);
+        found[ci].share += sh;
+    }
+    for (ii, _, reason) in explained.into_iter().rev() {
+        let f = found.remove(ii);
+        not_significant.push(NotSignificant {
+            name: f.effect.name(),
+            unit: f.effect.unit(),
+            value: f.value,
+            sigma_value: f.sigma.unwrap_or(f64::NAN),
+            params: f
+                .effect
+                .param_names()
+                .iter()
+                .copied()
+                .zip(f.params.iter().copied())
+                .collect(),
+            params_sigma: f.param_sigma.clone(),
+            reason,
+        });
     }
     Ok(Diagnosis {
         samples: m,

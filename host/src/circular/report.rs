@@ -79,7 +79,9 @@
 //! not_significant[]        {name, value, sigma, unit, params, reason}: effects the selection
 //!                          chose that the data cannot carry, not named: parameters not
 //!                          determined, a spike decaying within one sample period, or a value
-//!                          within 2σ of zero once σ counts the timing uncertainty
+//!                          within 2σ of zero once σ counts the timing uncertainty; and an
+//!                          interference that is a named cyclic error read where its lagging
+//!                          axis is (kept in the model, named as part of the cyclic error)
 //! final.rms_um             RMS of the residual of the exact refit, µm (the test's noise)
 //! residual_share           the residual's share of the error (see *Shares*)
 //! gain                     baseline.rms_um / final.rms_um
