@@ -127,6 +127,27 @@ pub struct NotSignificant {
     pub reason: String,
 }
 
+impl NotSignificant {
+    /// `f` as not named, for `reason`.
+    fn of(f: &Found, reason: String) -> NotSignificant {
+        NotSignificant {
+            name: f.effect.name(),
+            unit: f.effect.unit(),
+            value: f.value,
+            sigma_value: f.sigma.unwrap_or(f64::NAN),
+            params: f
+                .effect
+                .param_names()
+                .iter()
+                .copied()
+                .zip(f.params.iter().copied())
+                .collect(),
+            params_sigma: f.param_sigma.clone(),
+            reason,
+        }
+    }
+}
+
 /// The result of [`diagnose`].
 #[derive(Debug, Clone)]
 pub struct Diagnosis {
@@ -1125,25 +1146,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                         (ei, reason.to_string())
                     })
             })
-            .map(|(ei, reason)| {
-                let f = &found[ei];
-                let weak = NotSignificant {
-                    name: f.effect.name(),
-                    unit: f.effect.unit(),
-                    value: f.value,
-                    sigma_value: f.sigma.unwrap_or(f64::NAN),
-                    params: f
-                        .effect
-                        .param_names()
-                        .iter()
-                        .copied()
-                        .zip(f.params.iter().copied())
-                        .collect(),
-                    params_sigma: f.param_sigma.clone(),
-                    reason,
-                };
-                (ei, weak)
-            });
+            .map(|(ei, reason)| (ei, NotSignificant::of(&found[ei], reason)));
         if let Some((ei, weak)) = weak {
             not_significant.push(weak);
             left_out.push(found[ei].effect);
@@ -1273,21 +1276,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
     }
     for (ii, _, reason) in explained.into_iter().rev() {
         let f = found.remove(ii);
-        not_significant.push(NotSignificant {
-            name: f.effect.name(),
-            unit: f.effect.unit(),
-            value: f.value,
-            sigma_value: f.sigma.unwrap_or(f64::NAN),
-            params: f
-                .effect
-                .param_names()
-                .iter()
-                .copied()
-                .zip(f.params.iter().copied())
-                .collect(),
-            params_sigma: f.param_sigma.clone(),
-            reason,
-        });
+        not_significant.push(NotSignificant::of(&f, reason));
     }
     Ok(Diagnosis {
         samples: m,
