@@ -114,19 +114,17 @@ const FAMILIES: [(Effect, &str); 14] = [
 
 /// The name of `e`'s family: its axes as k (one axis), ij (a pair) or k_j (two axes).
 fn family_name(e: &Effect) -> String {
-    let n = e.name();
-    let axis = |c: u8| matches!(c, b'x' | b'y' | b'z');
-    let b = n.as_bytes();
-    let len = b.len();
-    if len > 4 && b[len - 4] == b'_' && axis(b[len - 3]) && b[len - 2] == b'_' && axis(b[len - 1]) {
-        format!("{}_k_j", &n[..len - 4])
-    } else if len > 3 && b[len - 3] == b'_' && axis(b[len - 2]) && axis(b[len - 1]) {
-        format!("{}_ij", &n[..len - 3])
-    } else if len > 2 && b[len - 2] == b'_' && axis(b[len - 1]) {
-        format!("{}_k", &n[..len - 2])
-    } else {
-        n
-    }
+    let name = e.name();
+    let axes = |p: &str| !p.is_empty() && p.chars().all(|c| matches!(c, 'x' | 'y' | 'z'));
+    let mut parts: Vec<&str> = name.split('_').collect();
+    let tail = match parts.as_slice() {
+        [.., a, b] if axes(a) && axes(b) && a.len() == 1 => "k_j",
+        [.., a] if axes(a) && a.len() == 2 => "ij",
+        [.., a] if axes(a) => "k",
+        _ => return name,
+    };
+    parts.truncate(parts.len() - tail.split('_').count());
+    format!("{}_{tail}", parts.join("_"))
 }
 
 /// The commented list of every effect the diagnosis knows, for the example machine: its name

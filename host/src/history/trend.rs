@@ -237,15 +237,21 @@ pub fn compensation_marks(runs: &[Run], events: &[CompensationEvent]) -> Vec<Mar
     marks
 }
 
+/// Run ids as the text and the plot name them: `1, 2, 4`.
+fn id_list(ids: &[i64]) -> String {
+    ids.iter()
+        .map(i64::to_string)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 /// A slope per 30 days and its σ (module docs, *Slope*).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Slope {
     /// In the trend's unit per [`SLOPE_DAYS`] days.
     pub per_30_days: f64,
     pub sigma: Option<f64>,
-    /// Runs it was fitted over.
-    pub runs: usize,
-    /// Their ids, oldest first.
+    /// The runs it was fitted over, oldest first.
     pub run_ids: Vec<i64>,
     /// The first and the last of their dates.
     pub from_date: String,
@@ -317,7 +323,6 @@ impl EffectTrend {
         Some(Slope {
             per_30_days: slope,
             sigma,
-            runs: n,
             run_ids: fitted.iter().map(|p| p.run_id).collect(),
             from_date: fitted.first()?.date_utc.clone(),
             to_date: fitted.last()?.date_utc.clone(),
@@ -470,12 +475,8 @@ pub fn render(
                 let _ = writeln!(
                     s,
                     "  slope over the {} comparable runs{since} (runs {} from {} to {}): {} {} per {SLOPE_DAYS} days{}",
-                    sl.runs,
-                    sl.run_ids
-                        .iter()
-                        .map(|i| i.to_string())
-                        .collect::<Vec<_>>()
-                        .join(", "),
+                    sl.run_ids.len(),
+                    id_list(&sl.run_ids),
                     day(&sl.from_date),
                     day(&sl.to_date),
                     estimate(sl.per_30_days, sl.sigma),
@@ -501,11 +502,7 @@ pub fn render(
                 s,
                 "  run{} {}: before the compensation change of {}, not compared across it",
                 if before.len() > 1 { "s" } else { "" },
-                before
-                    .iter()
-                    .map(|i| i.to_string())
-                    .collect::<Vec<_>>()
-                    .join(", "),
+                id_list(&before),
                 day(&m.date_utc)
             );
         }
@@ -779,11 +776,7 @@ pub fn plot_svg(
                 .map_err(|e| err(&e))?
                 .label(format!(
                     "fitted slope {value} {unit} per {SLOPE_DAYS} days (runs {}, {} to {})",
-                    sl.run_ids
-                        .iter()
-                        .map(|i| i.to_string())
-                        .collect::<Vec<_>>()
-                        .join(", "),
+                    id_list(&sl.run_ids),
                     day(&sl.from_date),
                     day(&sl.to_date)
                 ))
@@ -900,7 +893,10 @@ mod tests {
             text: "x".into(),
             why: "test".into(),
         };
-        assert_eq!(t.slope(std::slice::from_ref(&mark)).unwrap().runs, 2);
+        assert_eq!(
+            t.slope(std::slice::from_ref(&mark)).unwrap().run_ids.len(),
+            2
+        );
         // The fitted line (drawn on the plot) passes through the runs that lie on it.
         let d0 = days("2026-01-01T00:00:00Z").unwrap();
         assert!(
