@@ -2,6 +2,7 @@
 //! trajectory. The models and their signs are the contract written in the [module docs](super);
 //! every parameter zero is a perfect machine.
 
+use super::dynamics::{DynOffsets, Dynamics, SpindleGrowth, ThermalGrowth};
 use super::planner::Trajectory;
 
 /// A machine axis.
@@ -167,6 +168,13 @@ pub struct MachineErrors {
     /// Interference of each axis' detection device (a reading latency that varies over the
     /// scale's signal period).
     pub interference: [Interference; 3],
+    /// Position loops, friction inside them and structural modes ([`super::dynamics`]):
+    /// integrated in time along the recording.
+    pub dynamics: Dynamics,
+    /// Axes whose scale grows in time (heat).
+    pub thermal: Vec<ThermalGrowth>,
+    /// The spindle growing towards the table (heat).
+    pub spindle_growth: SpindleGrowth,
 }
 
 impl MachineErrors {
@@ -242,6 +250,21 @@ impl MachineErrors {
         if self.squareness.iter().any(|s| s.axis == s.by) {
             return Err("squareness needs two different axes".into());
         }
+        self.dynamics.validate()?;
+        let heat = self
+            .thermal
+            .iter()
+            .flat_map(|g| [g.um_per_m_per_min, g.fixed_bearing_mm, g.time_constant_min]);
+        let spindle = [
+            self.spindle_growth.um_per_min,
+            self.spindle_growth.time_constant_min,
+        ];
+        if !heat.chain(spindle).all(f64::is_finite)
+            || self.thermal.iter().any(|g| g.time_constant_min < 0.0)
+            || self.spindle_growth.time_constant_min < 0.0
+        {
+            return Err("thermal growth: finite values, time constants ≥ 0".into());
+        }
         Ok(())
     }
 
@@ -316,6 +339,21 @@ impl MachineErrors {
     /// The machine's state at program time `t`: commanded and actual spindle-ball position.
     /// `ball_mm` is the nominal table-ball position (for squareness).
     pub fn actual(&self, traj: &Trajectory, t: f64, ball_mm: [f64; 3]) -> Pose {
+        self.actual_moving(traj, t, ball_mm, &DynOffsets::default())
+    }
+
+    /// [`Self::actual`] with what the machine's dynamics add at `t` (from a
+    /// [`DynamicState`](super::dynamics::DynamicState)
+    /// integrated along the same trajectory): each axis's carriage is its following error away
+    /// from the (delayed) command, and its own errors are evaluated there; the structure's
+    /// displacement and the thermal growth are added to δ.
+    pub fn actual_moving(
+        &self,
+        traj: &Trajectory,
+        t: f64,
+        ball_mm: [f64; 3],
+        dynamic: &DynOffsets,
+    ) -> Pose {
         let command = traj.position_at(t);
         // Each axis lags by its own delay; its position-dependent errors go with it.
         let mut lagged = command;
@@ -334,10 +372,19 @@ impl MachineErrors {
                 lagged[k] = traj.position_at(t_axis[k])[k];
             }
         }
-        let mut delta_um = [0.0; 3];
-        for k in 0..3 {
-            delta_um[k] = self.axis_error_um(k, lagged[k], traj, t_axis[k]);
+        for (l, f) in lagged.iter_mut().zip(dynamic.follow_mm) {
+            *l += f;
         }
+        let mut delta_um = dynamic.structure_um;
+        let t_min = (t - traj.cycle_start_s) / 60.0;
+        for k in 0..3 {
+            delta_um[k] += self.axis_error_um(k, lagged[k], traj, t_axis[k]);
+        }
+        for g in &self.thermal {
+            let k = g.axis.index();
+            delta_um[k] += g.delta_um(lagged[k], t_min);
+        }
+        delta_um[2] += self.spindle_growth.delta_z_um(t_min);
         for s in &self.squareness {
             let (i, j) = (s.axis.index(), s.by.index());
             delta_um[i] += s.um_per_m * (lagged[j] - ball_mm[j]) * 1e-3;

@@ -106,9 +106,15 @@
 //!   direction — the axis sticks, then catches up; the next reversal replaces the spike. A first
 //!   move in the same direction as `initial_direction` is no reversal.
 //! - *drift* (µm/min): D += drift·(t − t_cycle_start) for t ≥ cycle start, 0 before (warm-up).
+//! - *dynamics* ([`dynamics`]): per-axis position loops (Kv, velocity-loop bandwidth, velocity
+//!   and acceleration feed-forward, the axis held on its encoder counts) integrated in time on
+//!   the command p(t); their following error moves the carriage, and the axis's own errors above
+//!   are evaluated where the carriage is. Coulomb + Stribeck friction inside the loop (stick-slip
+//!   at reversals, per end), structural modes driven by the drive force, an axis's scale growing
+//!   in time about its fixed bearing, the spindle growing towards the table.
 //!
 //! **Instrument.** D (true + Gaussian noise of σ = [`InstrumentConfig::noise_um`] on D itself,
-//! before quantisation) → deflection φ → frame angles for the lean azimuth ψ(t) → whole counts,
+//! and the coloured noise of [`InstrumentConfig::coloured_noise`], before quantisation) → deflection φ → frame angles for the lean azimuth ψ(t) → whole counts,
 //! by the tests' own model of the instrument as built ([`crate::mechanism`]: frames as rigid
 //! bodies, bar 2 found where both grip points lie in the slot planes, encoders by eq. (G9)), for
 //! `true_calibration` if set, else the calibration in force — not by the core's inverse
@@ -130,12 +136,16 @@
 //! Performance: each sample is evaluated analytically (binary search of the segment, closed-form
 //! profile), O(log blocks); a 10-minute program at 1 kHz runs in well under a second in release.
 
+pub mod dynamics;
 pub mod errors;
 pub mod planner;
 pub mod program;
 pub mod recorder;
 mod words;
 
+pub use dynamics::{
+    ColouredNoise, Dynamics, Friction, ServoLoop, SpindleGrowth, StructuralMode, ThermalGrowth,
+};
 pub use errors::{
     Axis, BacklashEnds, Bow, Cyclic, Interference, LateralPlay, MachineErrors, ReversalSpike,
     Scale2, Squareness,

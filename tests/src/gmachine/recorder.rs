@@ -12,6 +12,7 @@ use rand_distr::StandardNormal;
 
 use crate::mechanism::Mechanism;
 
+use super::dynamics::{ColouredNoise, DynamicState, NoiseState};
 use super::planner::SegmentKind;
 use super::{SimError, Simulation};
 
@@ -65,6 +66,8 @@ pub struct InstrumentConfig {
     pub tail_s: f64,
     /// Gaussian noise on D, standard deviation (µm), added before quantisation.
     pub noise_um: f64,
+    /// Correlated noise on D besides the white noise (its own random stream).
+    pub coloured_noise: ColouredNoise,
     /// Lean of the bars.
     pub azimuth: AzimuthWalk,
     /// Seed of the noise and the azimuth walk.
@@ -84,6 +87,7 @@ impl Default for InstrumentConfig {
             start_delay_s: 3.0,
             tail_s: 2.0,
             noise_um: 0.0,
+            coloured_noise: ColouredNoise::default(),
             azimuth: AzimuthWalk::default(),
             seed: 1,
         }
@@ -110,6 +114,7 @@ impl InstrumentConfig {
         if !(nonneg(self.start_delay_s) && nonneg(self.tail_s) && nonneg(self.noise_um)) {
             return Err("start_delay_s, tail_s and noise_um must be ≥ 0".into());
         }
+        self.coloured_noise.validate()?;
         let a = &self.azimuth;
         if !(a.start_rad.is_finite() && nonneg(a.rate_rad_per_sqrt_s) && nonneg(a.half_range_rad)) {
             return Err("azimuth: start finite, rate and half range ≥ 0".into());
@@ -258,6 +263,11 @@ pub struct Samples<'a> {
     /// Two streams, so that switching the noise on does not change the lean's path.
     rng_psi: ChaCha8Rng,
     rng_noise: ChaCha8Rng,
+    /// A third stream for the coloured noise.
+    rng_coloured: ChaCha8Rng,
+    coloured: NoiseState,
+    /// The machine's dynamics along the recording (None: nothing to integrate).
+    dynamic: Option<DynamicState<'a>>,
     psi: f64,
     kernel: Kernel,
     /// The instrument as built: `true_calibration`, else the calibration in force, built from
@@ -278,6 +288,19 @@ impl<'a> Samples<'a> {
                 r.set_stream(1);
                 r
             },
+            rng_coloured: {
+                let mut r = ChaCha8Rng::seed_from_u64(ins.seed);
+                r.set_stream(2);
+                r
+            },
+            coloured: NoiseState::default(),
+            dynamic: sim.config.errors.dynamics.is_on().then(|| {
+                DynamicState::new(
+                    &sim.config.errors.dynamics,
+                    &sim.trajectory,
+                    sim.recording_start_s,
+                )
+            }),
             psi: ins.azimuth.start_rad,
             kernel: Kernel::new(&ins.calibration),
             mechanism: Mechanism::new(ins.true_calibration.as_ref().unwrap_or(&ins.calibration)),
@@ -328,14 +351,25 @@ impl Iterator for Samples<'_> {
         let traj = &sim.trajectory;
         let errors = &sim.config.errors;
         let ball = sim.config.table_ball_mm;
-        let pose = errors.actual(traj, t_p, ball);
+        let pose = match &mut self.dynamic {
+            Some(dynamic) => errors.actual_moving(traj, t_p, ball, &dynamic.at(traj, t_p)),
+            None => errors.actual(traj, t_p, ball),
+        };
         let d_true = errors.distance_mm(pose.actual_mm, ball, t_p, traj.cycle_start_s);
-        let d_ins = if ins.noise_um > 0.0 {
+        let mut d_ins = if ins.noise_um > 0.0 {
             let z: f64 = self.rng_noise.sample(StandardNormal);
             d_true + ins.noise_um * 1e-3 * z
         } else {
             d_true
         };
+        if ins.coloured_noise.is_on() {
+            let dt = 1.0 / (ins.sample_rate_hz * scale);
+            let rng = &mut self.rng_coloured;
+            let n = self
+                .coloured
+                .next(&ins.coloured_noise, dt, || rng.sample(StandardNormal));
+            d_ins += n * 1e-3;
+        }
         let block = (t_p >= 0.0 && t_p < traj.end_s).then(|| traj.segment_at(t_p));
         // The counts: the independent model of the instrument as built, not the core's inverse.
         let counts = self
