@@ -167,6 +167,7 @@ fn local_hosts(bound: SocketAddr) -> Vec<String> {
             hosts.push(name.to_string());
         }
     }
+    hosts.sort();
     hosts.dedup();
     hosts
 }
@@ -486,6 +487,16 @@ async fn index(State(shared): State<Shared>) -> Response {
     ([(CACHE_CONTROL, "no-store")], Html(shared.page.clone())).into_response()
 }
 
+/// The board's JSON as a body that shares it (no copy per answer: a client that asks for it
+/// many times and reads slowly holds no copies).
+struct SharedJson(Arc<String>);
+
+impl AsRef<[u8]> for SharedJson {
+    fn as_ref(&self) -> &[u8] {
+        self.0.as_bytes()
+    }
+}
+
 async fn state(State(shared): State<Shared>) -> Response {
     let json = latest(&shared.board).1;
     (
@@ -493,7 +504,7 @@ async fn state(State(shared): State<Shared>) -> Response {
             (CONTENT_TYPE, "application/json"),
             (CACHE_CONTROL, "no-store"),
         ],
-        json.as_str().to_owned(),
+        Bytes::from_owner(SharedJson(json)),
     )
         .into_response()
 }
