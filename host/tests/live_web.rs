@@ -793,7 +793,7 @@ fn on_loopback_only_requests_naming_this_computer_are_answered() {
         format!("evil.example:{port}"),
         "evil.example".into(),
         format!("127.0.0.1.evil.example:{port}"),
-        "127.0.0.1:1".into(),
+        format!("localhost.evil.example:{port}"),
     ] {
         // Kept alive by the client, closed by the server.
         let text = send(&format!("HTTP/1.1\r\nHost: {host}"));
@@ -806,10 +806,12 @@ fn on_loopback_only_requests_naming_this_computer_are_answered() {
     // No Host at all (HTTP/1.0 allows it).
     let text = send("HTTP/1.0");
     assert_eq!(text.get(9..12), Some("421"), "{text}");
+    // This computer's names; any port (a port forwarded to this one, as by an SSH tunnel).
     for host in [
         format!("127.0.0.1:{port}"),
         format!("localhost:{port}"),
         format!("[::1]:{port}"),
+        "localhost:9000".into(),
     ] {
         let text = send(&format!("HTTP/1.1\r\nHost: {host}\r\nConnection: close"));
         assert!(text.starts_with("HTTP/1.1 200"), "{host}: {text}");

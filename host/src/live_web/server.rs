@@ -9,7 +9,7 @@
 //! to a loopback address, anyone on this computer may read it; bound to another address, every
 //! request must carry `?token=` with the random token the server was started with (printed with the
 //! URL), else 403 and the connection closed. Bound to a loopback address, a request must name the
-//! server as this computer in its `Host` (`localhost`, `127.0.0.1` or `[::1]` with the port), else
+//! server as this computer in its `Host` (`localhost`, `127.0.0.1` or `[::1]`, any port), else
 //! 421 and the connection closed: a web page elsewhere that renames itself to 127.0.0.1 (DNS
 //! rebinding) cannot read the state.
 //!
@@ -151,31 +151,48 @@ fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
-/// The `Host` values a server bound to the loopback address `bound` answers: `localhost`,
-/// `127.0.0.1`, `[::1]` and the bound address itself, each with the port (without it only on
-/// port 80, which a browser leaves out).
-fn local_hosts(bound: SocketAddr) -> Vec<String> {
+/// The host names a server bound to the loopback address `bound` answers to: `localhost`,
+/// `127.0.0.1`, `[::1]` and the bound address itself.
+fn local_names(bound: SocketAddr) -> Vec<String> {
     let own = match bound {
         SocketAddr::V4(a) => a.ip().to_string(),
         SocketAddr::V6(a) => format!("[{}]", a.ip()),
     };
-    let port = bound.port();
-    let mut hosts = vec![];
-    for name in ["localhost", "127.0.0.1", "[::1]", own.as_str()] {
-        hosts.push(format!("{name}:{port}"));
-        if port == 80 {
-            hosts.push(name.to_string());
-        }
+    let mut names: Vec<String> = ["localhost", "127.0.0.1", "[::1]"]
+        .iter()
+        .map(|n| n.to_string())
+        .collect();
+    if !names.contains(&own) {
+        names.push(own);
     }
-    hosts.sort();
-    hosts.dedup();
-    hosts
+    names
 }
 
-/// Whether a request's `Host` (none: `None`) is one of `hosts` (host names are
-/// case-insensitive).
-fn host_allowed(host: Option<&[u8]>, hosts: &[String]) -> bool {
-    host.is_some_and(|h| hosts.iter().any(|a| a.as_bytes().eq_ignore_ascii_case(h)))
+/// Whether a request's `Host` (none: `None`) is one of `names` (case-insensitive), with or
+/// without a port. Any port: the name is what a rebinding page cannot fake (its own name is
+/// sent), and a port forwarded to this one (an SSH tunnel, `localhost:9000`) is still this
+/// computer.
+fn host_allowed(host: Option<&[u8]>, names: &[String]) -> bool {
+    let Some(host) = host else {
+        return false;
+    };
+    let name_end = match host.first() {
+        Some(b'[') => host.iter().position(|&b| b == b']').map(|i| i + 1),
+        _ => Some(host.iter().position(|&b| b == b':').unwrap_or(host.len())),
+    };
+    let Some(name_end) = name_end else {
+        return false;
+    };
+    let (name, port) = host.split_at(name_end);
+    let port_ok = match port.split_first() {
+        None => true,
+        Some((b':', digits)) => !digits.is_empty() && digits.iter().all(u8::is_ascii_digit),
+        Some(_) => false,
+    };
+    port_ok
+        && names
+            .iter()
+            .any(|n| n.as_bytes().eq_ignore_ascii_case(name))
 }
 
 /// A running server; dropping it stops it (module docs).
@@ -217,7 +234,7 @@ impl LiveServer {
         let shared = Shared {
             board,
             token: token.clone(),
-            hosts: token.is_none().then(|| local_hosts(bound)),
+            hosts: token.is_none().then(|| local_names(bound)),
             bound,
             page: Bytes::from(page()),
             streams: Arc::new(AtomicUsize::new(0)),
@@ -268,7 +285,7 @@ impl Drop for LiveServer {
 struct Shared {
     board: Board,
     token: Option<String>,
-    /// On a loopback address, the `Host` values answered ([`local_hosts`]).
+    /// On a loopback address, the host names answered to ([`local_names`]).
     hosts: Option<Vec<String>>,
     /// The address listened on.
     bound: SocketAddr,
@@ -615,35 +632,43 @@ mod tests {
     }
 
     #[test]
-    fn on_loopback_only_this_computer_with_the_port_is_a_host() {
-        let hosts = local_hosts("127.0.0.1:8765".parse().unwrap());
-        let ok = |h: &str| host_allowed(Some(h.as_bytes()), &hosts);
+    fn on_loopback_only_this_computer_is_a_host() {
+        let names = local_names("127.0.0.1:8765".parse().unwrap());
+        let ok = |h: &str| host_allowed(Some(h.as_bytes()), &names);
         for h in [
             "127.0.0.1:8765",
             "localhost:8765",
             "LocalHost:8765",
             "[::1]:8765",
+            "localhost",
+            "127.0.0.1",
+            "localhost:9000",
         ] {
             assert!(ok(h), "{h}");
         }
         for h in [
-            "127.0.0.1",
-            "localhost",
-            "127.0.0.1:8766",
             "evil.example:8765",
+            "evil.example",
             "localhost.evil.example:8765",
+            "127.0.0.1.evil.example",
             "127.0.0.1:8765.evil.example",
+            "localhost:",
+            "localhost:80x",
+            "localhost:8765:1",
+            "[::1",
+            "[::1]x",
             "",
         ] {
             assert!(!ok(h), "{h}");
         }
-        assert!(!host_allowed(None, &hosts));
-        // The bound address itself, and no port on port 80 (as a browser sends it).
-        let own = local_hosts("127.0.0.2:80".parse().unwrap());
+        assert!(!host_allowed(None, &names));
+        // The bound address itself.
+        let own = local_names("127.0.0.2:80".parse().unwrap());
         for h in ["127.0.0.2:80", "127.0.0.2", "localhost", "[::1]"] {
             assert!(host_allowed(Some(h.as_bytes()), &own), "{h}");
         }
-        let v6 = local_hosts("[::1]:9000".parse().unwrap());
+        let v6 = local_names("[::1]:9000".parse().unwrap());
+        assert_eq!(v6.len(), 3);
         assert!(host_allowed(Some(b"[::1]:9000"), &v6));
         assert!(!host_allowed(Some(b"::1:9000"), &v6));
     }
