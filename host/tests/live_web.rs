@@ -13,7 +13,7 @@ use jdbb::circular::plan::build::{plan, PlanSpec};
 use jdbb::circular::plan::{Dialect, Plan, Plane, Segment};
 use jdbb::link::stream::{SeqSample, Stats};
 use jdbb::live_web::feed::{new_board, LiveFeed};
-use jdbb::live_web::server::LiveServer;
+use jdbb::live_web::server::{Limits, LiveServer};
 use jdbb_core::protocol::{Sample, Status};
 
 fn test_plan() -> Plan {
@@ -586,6 +586,238 @@ fn a_non_local_address_needs_the_token() {
     assert!(!evs.is_empty());
 }
 
+/// The server on an ephemeral loopback port with `limits`.
+fn limited(board: jdbb::live_web::feed::Board, limits: Limits) -> LiveServer {
+    LiveServer::start_with("127.0.0.1:0".parse().unwrap(), board, limits).unwrap()
+}
+
+/// Read until the server closes the connection (the end of the stream, or a reset); the bytes
+/// read. Panics if one read waits `wait` for nothing: a guard against a hang, much longer than
+/// the server's limits under test (no timing is asserted).
+fn read_until_closed(s: &mut TcpStream, wait: Duration) -> Vec<u8> {
+    use std::io::ErrorKind::{BrokenPipe, ConnectionAborted, ConnectionReset};
+    s.set_read_timeout(Some(wait)).unwrap();
+    let mut got = vec![];
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        match s.read(&mut buf) {
+            Ok(0) => return got,
+            Ok(n) => got.extend_from_slice(&buf[..n]),
+            Err(e) if matches!(e.kind(), ConnectionReset | ConnectionAborted | BrokenPipe) => {
+                return got
+            }
+            Err(e) => panic!(
+                "the connection is still open after {wait:?} without data ({e}); {} bytes read",
+                got.len()
+            ),
+        }
+    }
+}
+
+/// One GET of `path` on the open keep-alive connection `s`: the status code (the body, of its
+/// Content-Length, read and dropped).
+fn ask(s: &mut TcpStream, addr: SocketAddr, path: &str) -> u16 {
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    write!(s, "GET {path} HTTP/1.1\r\nHost: {addr}\r\n\r\n").unwrap();
+    let mut r = BufReader::new(s.try_clone().unwrap());
+    let mut head = String::new();
+    loop {
+        let mut line = String::new();
+        assert!(r.read_line(&mut line).unwrap() > 0, "closed: {head}");
+        if line == "\r\n" {
+            break;
+        }
+        head.push_str(&line.to_ascii_lowercase());
+    }
+    let len: usize = head
+        .lines()
+        .find_map(|l| l.strip_prefix("content-length: "))
+        .unwrap_or_else(|| panic!("no length: {head}"))
+        .trim()
+        .parse()
+        .unwrap();
+    let mut body = vec![0; len];
+    r.read_exact(&mut body).unwrap();
+    head[9..12].parse().unwrap()
+}
+
+#[test]
+fn connections_beyond_the_cap_are_closed_at_once_and_the_others_keep_working() {
+    let limits = Limits {
+        max_connections: 4,
+        head_timeout: Duration::from_secs(120),
+        ..Limits::default()
+    };
+    let server = limited(new_board(), limits);
+    let addr = server.addr();
+    // Four connections that send nothing hold the four places.
+    let mut held: Vec<TcpStream> = (0..4).map(|_| TcpStream::connect(addr).unwrap()).collect();
+    // A fifth is closed without an answer; so is a sixth.
+    for _ in 0..2 {
+        let mut extra = TcpStream::connect(addr).unwrap();
+        let got = read_until_closed(&mut extra, Duration::from_secs(10));
+        assert!(got.is_empty(), "{}", String::from_utf8_lossy(&got));
+    }
+    // The ones held are served, twice each over their keep-alive connections.
+    for s in &mut held {
+        assert_eq!(ask(s, addr, "/state"), 200);
+        assert_eq!(ask(s, addr, "/"), 200);
+    }
+    // One closed gives its place back (once the server has seen it closed).
+    drop(held.pop());
+    let mut served = false;
+    for _ in 0..100 {
+        let mut s = TcpStream::connect(addr).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+        write!(s, "GET /state HTTP/1.1\r\nHost: {addr}\r\n\r\n").unwrap();
+        let mut first = [0u8; 12];
+        if s.read_exact(&mut first).is_ok() {
+            assert_eq!(&first, b"HTTP/1.1 200");
+            served = true;
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(served, "a closed connection's place never came back");
+}
+
+#[test]
+fn a_client_that_trickles_its_request_head_is_closed() {
+    // Slowloris: a header line every 50 ms, the head never finished.
+    let limits = Limits {
+        head_timeout: Duration::from_millis(200),
+        ..Limits::default()
+    };
+    let server = limited(new_board(), limits);
+    let addr = server.addr();
+    let mut s = TcpStream::connect(addr).unwrap();
+    write!(s, "GET /state HTTP/1.1\r\nHost: {addr}\r\n").unwrap();
+    let mut trickle = s.try_clone().unwrap();
+    let dripper = std::thread::spawn(move || {
+        // At most 20 s of it; stops when the server has closed.
+        for k in 0..400 {
+            if write!(trickle, "X-Slow-{k}: 1\r\n").is_err() {
+                return true;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        false
+    });
+    let got = read_until_closed(&mut s, Duration::from_secs(15));
+    let text = String::from_utf8_lossy(&got);
+    assert!(!text.contains(" 200 "), "{text}");
+    drop(s);
+    dripper.join().unwrap();
+}
+
+#[test]
+fn an_idle_keep_alive_connection_is_closed() {
+    let limits = Limits {
+        head_timeout: Duration::from_millis(200),
+        ..Limits::default()
+    };
+    let server = limited(new_board(), limits);
+    let addr = server.addr();
+    let mut s = TcpStream::connect(addr).unwrap();
+    // Answered, kept alive (HTTP/1.1), then left idle: closed with nothing more sent.
+    assert_eq!(ask(&mut s, addr, "/state"), 200);
+    assert_eq!(ask(&mut s, addr, "/state"), 200);
+    let got = read_until_closed(&mut s, Duration::from_secs(10));
+    assert!(got.is_empty(), "{}", String::from_utf8_lossy(&got));
+}
+
+#[test]
+fn a_client_that_does_not_read_its_answers_is_closed() {
+    // States of 1 MiB, 64 asked for at once, none read: far more than the sockets' buffers.
+    let board = new_board();
+    {
+        let mut b = board.lock().unwrap();
+        b.version += 1;
+        b.json = Arc::new(format!("{{\"pad\":\"{}\"}}", "x".repeat(1 << 20)));
+    }
+    let one = board.lock().unwrap().json.len();
+    let limits = Limits {
+        send_timeout: Duration::from_millis(200),
+        ..Limits::default()
+    };
+    let server = limited(board, limits);
+    let addr = server.addr();
+    let mut s = TcpStream::connect(addr).unwrap();
+    let asked = 64;
+    let pipelined = format!("GET /state HTTP/1.1\r\nHost: {addr}\r\n\r\n").repeat(asked);
+    s.write_all(pipelined.as_bytes()).unwrap();
+    // Read nothing for a while (many times the send timeout): the server gives up on us ...
+    std::thread::sleep(Duration::from_secs(3));
+    // ... so reading now gets what was in the buffers, then the end: not every answer.
+    let got = read_until_closed(&mut s, Duration::from_secs(10));
+    println!(
+        "{} bytes read of {} asked for before the server closed",
+        got.len(),
+        asked * one
+    );
+    assert!(got.len() < asked * one, "{} bytes", got.len());
+    // The server still answers others.
+    assert_eq!(get(addr, "/state").0, 200);
+}
+
+#[test]
+fn without_the_token_a_request_is_refused_and_its_connection_closed() {
+    let server = LiveServer::start("0.0.0.0:0".parse().unwrap(), new_board()).unwrap();
+    let addr: SocketAddr = format!("127.0.0.1:{}", server.addr().port())
+        .parse()
+        .unwrap();
+    let mut s = TcpStream::connect(addr).unwrap();
+    // Two requests without the token, kept alive: the first refused, the connection closed
+    // before the second is read.
+    let two = format!("GET /state HTTP/1.1\r\nHost: {addr}\r\n\r\n").repeat(2);
+    s.write_all(two.as_bytes()).unwrap();
+    let got = read_until_closed(&mut s, Duration::from_secs(10));
+    let text = String::from_utf8_lossy(&got);
+    assert!(text.starts_with("HTTP/1.1 403"), "{text}");
+    assert_eq!(text.matches("HTTP/1.1 ").count(), 1, "{text}");
+    assert!(text.contains("token"), "{text}");
+}
+
+#[test]
+fn on_loopback_only_requests_naming_this_computer_are_answered() {
+    // DNS rebinding: a page of evil.example that renamed itself to 127.0.0.1 sends its own name.
+    let server = LiveServer::start("127.0.0.1:0".parse().unwrap(), new_board()).unwrap();
+    let addr = server.addr();
+    let port = addr.port();
+    let send = |head: &str| {
+        let mut s = TcpStream::connect(addr).unwrap();
+        write!(s, "GET /state {head}\r\n\r\n").unwrap();
+        String::from_utf8_lossy(&read_until_closed(&mut s, Duration::from_secs(10))).into_owned()
+    };
+    for host in [
+        format!("evil.example:{port}"),
+        "evil.example".into(),
+        format!("127.0.0.1.evil.example:{port}"),
+        format!("localhost.evil.example:{port}"),
+    ] {
+        // Kept alive by the client, closed by the server.
+        let text = send(&format!("HTTP/1.1\r\nHost: {host}"));
+        assert!(text.starts_with("HTTP/1.1 421"), "{host}: {text}");
+        assert!(
+            text.ends_with(&format!("open http://127.0.0.1:{port}/\n")),
+            "{host}: {text}"
+        );
+    }
+    // No Host at all (HTTP/1.0 allows it).
+    let text = send("HTTP/1.0");
+    assert_eq!(text.get(9..12), Some("421"), "{text}");
+    // This computer's names; any port (a port forwarded to this one, as by an SSH tunnel).
+    for host in [
+        format!("127.0.0.1:{port}"),
+        format!("localhost:{port}"),
+        format!("[::1]:{port}"),
+        "localhost:9000".into(),
+    ] {
+        let text = send(&format!("HTTP/1.1\r\nHost: {host}\r\nConnection: close"));
+        assert!(text.starts_with("HTTP/1.1 200"), "{host}: {text}");
+    }
+}
+
 /// CPU time of the calling thread.
 fn thread_cpu() -> Duration {
     let mut ts = libc::timespec {
@@ -609,7 +841,7 @@ fn a_stalled_page_costs_the_feed_nothing() {
     let mut stalled = vec![];
     for _ in 0..4 {
         let mut s = TcpStream::connect(addr).unwrap();
-        write!(s, "GET /events HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
+        write!(s, "GET /events HTTP/1.1\r\nHost: {addr}\r\n\r\n").unwrap();
         stalled.push(s);
     }
     let plan = test_plan();

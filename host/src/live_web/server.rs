@@ -8,27 +8,42 @@
 //! proxies that hold streams back). Anything but GET is refused (405): the page only reads. Bound
 //! to a loopback address, anyone on this computer may read it; bound to another address, every
 //! request must carry `?token=` with the random token the server was started with (printed with the
-//! URL), else 403.
+//! URL), else 403 and the connection closed. Bound to a loopback address, a request must name the
+//! server as this computer in its `Host` (`localhost`, `127.0.0.1` or `[::1]`, any port), else
+//! 421 and the connection closed: a web page elsewhere that renames itself to 127.0.0.1 (DNS
+//! rebinding) cannot read the state.
+//!
+//! What a client may hold is bounded ([`Limits`], issue 28): at most
+//! [`Limits::max_connections`] connections (one more is closed as soon as it is accepted, the
+//! others keep working); a request's head must arrive within [`Limits::head_timeout`] of the
+//! connection's start or its last answer (hyper's header-read timeout: a client that trickles
+//! its head, or a keep-alive connection left idle, is closed); an answer that the client does not
+//! read for [`Limits::send_timeout`] closes the connection (a client that pipelines requests
+//! without reading cannot make the server hold more than one answer and hyper's buffer of
+//! [`MAX_BUF`] for it). Each connection is served by hyper's HTTP/1 builder; no HTTP is written
+//! here.
 //!
 //! The server runs on a thread of its own with its own single-threaded tokio runtime: the
 //! recorder never waits for it. The handlers read the [`Board`] by cloning an `Arc` under its
 //! lock, never holding the lock across an `.await`. A page that stops reading leaves its
 //! connection's task waiting for the socket (hyper stops polling the stream once its buffer is
-//! full): it costs no thread, no board read and no sample. Dropping the [`LiveServer`] stops it
-//! gracefully: no new connection, the event streams end within [`EVENT_INTERVAL`], the thread is
-//! joined; a connection still not done after [`SHUTDOWN_LIMIT`] (a page that stopped reading) is
-//! dropped.
+//! full) until [`Limits::send_timeout`]: it costs no thread, no board read and no sample.
+//! Dropping the [`LiveServer`] stops it gracefully: no new connection, the event streams end
+//! within [`EVENT_INTERVAL`], the thread is joined; a connection still not done after
+//! [`SHUTDOWN_LIMIT`] (a page that stopped reading) is dropped.
 use std::convert::Infallible;
-use std::future::IntoFuture;
+use std::future::Future;
 use std::net::SocketAddr;
+use std::pin::Pin;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
+use std::task::{Context, Poll};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
 use axum::body::Bytes;
 use axum::extract::{Request, State};
-use axum::http::header::{ALLOW, CACHE_CONTROL, CONTENT_TYPE};
+use axum::http::header::{ALLOW, CACHE_CONTROL, CONNECTION, CONTENT_TYPE, HOST};
 use axum::http::{Method, StatusCode};
 use axum::middleware::{self, Next};
 use axum::response::sse::{Event, KeepAlive, Sse};
@@ -36,7 +51,10 @@ use axum::response::{Html, IntoResponse, Response};
 use axum::routing::get;
 use axum::Router;
 use futures_util::stream::{self, Stream, StreamExt};
-use tokio::sync::watch;
+use hyper_util::rt::{TokioIo, TokioTimer};
+use hyper_util::service::TowerToHyperService;
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tokio::sync::{watch, Semaphore};
 
 use super::feed::Board;
 use crate::{Error, Result};
@@ -58,6 +76,46 @@ pub const MAX_STREAMS: usize = 16;
 /// The longest a stopping server waits for its connections to finish (a page that stopped
 /// reading never does); then they are dropped.
 pub const SHUTDOWN_LIMIT: Duration = Duration::from_secs(1);
+
+/// Most connections open at once, by default ([`Limits`]): four times [`MAX_STREAMS`], room for
+/// the pages' streams, their `/state` polls and page loads.
+pub const MAX_CONNECTIONS: usize = 64;
+
+/// How long a request's head may take by default ([`Limits::head_timeout`]).
+pub const HEAD_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// How long an answer may wait for its client to read by default ([`Limits::send_timeout`]).
+pub const SEND_TIMEOUT: Duration = Duration::from_secs(20);
+
+/// hyper's buffer for one connection, each way (its default is about 400 KiB): a request's head
+/// must fit (else 431), and a client that does not read holds at most this besides the answer.
+pub const MAX_BUF: usize = 64 * 1024;
+
+/// What clients may hold of the server (module docs); [`Limits::default`] is what `--web` uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Limits {
+    /// Most connections open at once; one more is closed as soon as it is accepted. A
+    /// connection that sends no request, or none with the token, counts until it is closed.
+    pub max_connections: usize,
+    /// The longest a connection may take to send a request's whole head, counted from when it
+    /// was accepted or its last answer was sent: a client that trickles its head (slowloris), and
+    /// a keep-alive connection left idle, are closed after it.
+    pub head_timeout: Duration,
+    /// The longest an answer may wait for its client to read any of it: a client that stops
+    /// reading (a stalled page, or requests pipelined without reading the answers) is closed
+    /// after it.
+    pub send_timeout: Duration,
+}
+
+impl Default for Limits {
+    fn default() -> Limits {
+        Limits {
+            max_connections: MAX_CONNECTIONS,
+            head_timeout: HEAD_TIMEOUT,
+            send_timeout: SEND_TIMEOUT,
+        }
+    }
+}
 
 /// An event stream sends a comment after this long without an event: it keeps proxies from
 /// closing the stream and finds a closed page.
@@ -93,6 +151,50 @@ fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
+/// The host names a server bound to the loopback address `bound` answers to: `localhost`,
+/// `127.0.0.1`, `[::1]` and the bound address itself.
+fn local_names(bound: SocketAddr) -> Vec<String> {
+    let own = match bound {
+        SocketAddr::V4(a) => a.ip().to_string(),
+        SocketAddr::V6(a) => format!("[{}]", a.ip()),
+    };
+    let mut names: Vec<String> = ["localhost", "127.0.0.1", "[::1]"]
+        .iter()
+        .map(|n| n.to_string())
+        .collect();
+    if !names.contains(&own) {
+        names.push(own);
+    }
+    names
+}
+
+/// Whether a request's `Host` (none: `None`) is one of `names` (case-insensitive), with or
+/// without a port. Any port: the name is what a rebinding page cannot fake (its own name is
+/// sent), and a port forwarded to this one (an SSH tunnel, `localhost:9000`) is still this
+/// computer.
+fn host_allowed(host: Option<&[u8]>, names: &[String]) -> bool {
+    let Some(host) = host else {
+        return false;
+    };
+    let name_end = match host.first() {
+        Some(b'[') => host.iter().position(|&b| b == b']').map(|i| i + 1),
+        _ => Some(host.iter().position(|&b| b == b':').unwrap_or(host.len())),
+    };
+    let Some(name_end) = name_end else {
+        return false;
+    };
+    let (name, port) = host.split_at(name_end);
+    let port_ok = match port.split_first() {
+        None => true,
+        Some((b':', digits)) => !digits.is_empty() && digits.iter().all(u8::is_ascii_digit),
+        Some(_) => false,
+    };
+    port_ok
+        && names
+            .iter()
+            .any(|n| n.as_bytes().eq_ignore_ascii_case(name))
+}
+
 /// A running server; dropping it stops it (module docs).
 pub struct LiveServer {
     addr: SocketAddr,
@@ -105,6 +207,11 @@ impl LiveServer {
     /// Listen on `addr` (port 0: any free port) and serve `board`. A non-loopback address gets
     /// a random token (128 bits, hex).
     pub fn start(addr: SocketAddr, board: Board) -> Result<LiveServer> {
+        LiveServer::start_with(addr, board, Limits::default())
+    }
+
+    /// [`LiveServer::start`] with other [`Limits`] (a test's short timeouts).
+    pub fn start_with(addr: SocketAddr, board: Board, limits: Limits) -> Result<LiveServer> {
         let failed = |e: std::io::Error| Error::WebServer {
             addr: addr.to_string(),
             message: e.to_string(),
@@ -127,13 +234,15 @@ impl LiveServer {
         let shared = Shared {
             board,
             token: token.clone(),
+            hosts: token.is_none().then(|| local_names(bound)),
+            bound,
             page: Bytes::from(page()),
             streams: Arc::new(AtomicUsize::new(0)),
             stopped: stopped.clone(),
         };
         let thread = std::thread::Builder::new()
             .name("jdbb-web".into())
-            .spawn(move || serve(runtime, listener, router(shared), stopped))
+            .spawn(move || serve(runtime, listener, router(shared), limits, stopped))
             .map_err(failed)?;
         Ok(LiveServer {
             addr: bound,
@@ -176,6 +285,10 @@ impl Drop for LiveServer {
 struct Shared {
     board: Board,
     token: Option<String>,
+    /// On a loopback address, the host names answered to ([`local_names`]).
+    hosts: Option<Vec<String>>,
+    /// The address listened on.
+    bound: SocketAddr,
     /// The page, made once.
     page: Bytes,
     /// Event streams open now.
@@ -186,25 +299,154 @@ struct Shared {
 
 /// Run the server on this thread until `stopped`, then stop it gracefully, dropping what is
 /// still open after [`SHUTDOWN_LIMIT`] (with the runtime).
+///
+/// Each accepted connection takes one of `limits.max_connections` permits, or is closed at once
+/// when none is left; it is served by hyper's HTTP/1 builder with the head timeout and
+/// [`MAX_BUF`], over a socket whose writes fail after `limits.send_timeout` without progress
+/// ([`SendLimit`]). Stopping waits until every permit is back: every connection closed.
 fn serve(
     runtime: tokio::runtime::Runtime,
     listener: tokio::net::TcpListener,
     app: Router,
+    limits: Limits,
     mut stopped: watch::Receiver<bool>,
 ) {
+    // A semaphore counts at most u32::MAX permits at once for `acquire_many`.
+    let cap = limits.max_connections.clamp(1, u32::MAX as usize >> 1);
+    let mut http = hyper::server::conn::http1::Builder::new();
+    http.timer(TokioTimer::new())
+        .header_read_timeout(limits.head_timeout)
+        .max_buf_size(MAX_BUF);
     runtime.block_on(async move {
-        let mut signal = stopped.clone();
-        let server = tokio::spawn(
-            axum::serve(listener, app)
-                .with_graceful_shutdown(async move {
-                    // An error: the LiveServer is gone, which also means stop.
-                    let _ = signal.wait_for(|s| *s).await;
-                })
-                .into_future(),
-        );
-        let _ = stopped.wait_for(|s| *s).await;
-        let _ = tokio::time::timeout(SHUTDOWN_LIMIT, server).await;
+        let permits = Arc::new(Semaphore::new(cap));
+        loop {
+            let accepted = tokio::select! {
+                a = listener.accept() => a,
+                // An error: the LiveServer is gone, which also means stop.
+                _ = stopped.wait_for(|s| *s) => break,
+            };
+            let tcp = match accepted {
+                Ok((tcp, _)) => tcp,
+                // Out of file descriptors, or the connection gone before it was accepted: wait
+                // a little rather than spin.
+                Err(_) => {
+                    tokio::time::sleep(EVENT_INTERVAL).await;
+                    continue;
+                }
+            };
+            let Ok(permit) = permits.clone().try_acquire_owned() else {
+                // Over the cap: closed at once, before anything is read.
+                drop(tcp);
+                continue;
+            };
+            let _ = tcp.set_nodelay(true);
+            let io = TokioIo::new(SendLimit::new(tcp, limits.send_timeout));
+            let conn = http.serve_connection(io, TowerToHyperService::new(app.clone()));
+            let mut stop = stopped.clone();
+            tokio::spawn(async move {
+                let mut conn = std::pin::pin!(conn);
+                let stopping = tokio::select! {
+                    _ = conn.as_mut() => false,
+                    _ = stop.wait_for(|s| *s) => true,
+                };
+                if stopping {
+                    // Idle connections close now, an answer under way is finished.
+                    conn.as_mut().graceful_shutdown();
+                    let _ = conn.await;
+                }
+                drop(permit);
+            });
+        }
+        drop(listener);
+        let _ = tokio::time::timeout(SHUTDOWN_LIMIT, permits.acquire_many(cap as u32)).await;
     });
+}
+
+/// A connection's socket whose writes fail (`TimedOut`) once one has waited `limit` for the
+/// client to read: hyper then drops the connection.
+struct SendLimit {
+    tcp: tokio::net::TcpStream,
+    limit: Duration,
+    /// Running while a write waits for the client.
+    stalled: Option<Pin<Box<tokio::time::Sleep>>>,
+}
+
+impl SendLimit {
+    fn new(tcp: tokio::net::TcpStream, limit: Duration) -> SendLimit {
+        SendLimit {
+            tcp,
+            limit,
+            stalled: None,
+        }
+    }
+
+    /// What a write that returned `poll` gives: progress stops the clock, waiting starts it (or
+    /// fails once it has run out).
+    fn watch<T>(
+        &mut self,
+        poll: Poll<std::io::Result<T>>,
+        cx: &mut Context<'_>,
+    ) -> Poll<std::io::Result<T>> {
+        if poll.is_ready() {
+            self.stalled = None;
+            return poll;
+        }
+        let limit = self.limit;
+        let clock = self
+            .stalled
+            .get_or_insert_with(|| Box::pin(tokio::time::sleep(limit)));
+        match clock.as_mut().poll(cx) {
+            Poll::Ready(()) => Poll::Ready(Err(std::io::Error::new(
+                std::io::ErrorKind::TimedOut,
+                "the client read nothing of its answer for the send timeout",
+            ))),
+            Poll::Pending => Poll::Pending,
+        }
+    }
+}
+
+impl AsyncRead for SendLimit {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.tcp).poll_read(cx, buf)
+    }
+}
+
+impl AsyncWrite for SendLimit {
+    fn poll_write(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<std::io::Result<usize>> {
+        let poll = Pin::new(&mut self.tcp).poll_write(cx, buf);
+        self.watch(poll, cx)
+    }
+
+    fn poll_write_vectored(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        bufs: &[std::io::IoSlice<'_>],
+    ) -> Poll<std::io::Result<usize>> {
+        let poll = Pin::new(&mut self.tcp).poll_write_vectored(cx, bufs);
+        self.watch(poll, cx)
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.tcp.is_write_vectored()
+    }
+
+    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        let poll = Pin::new(&mut self.tcp).poll_flush(cx);
+        self.watch(poll, cx)
+    }
+
+    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        let poll = Pin::new(&mut self.tcp).poll_shutdown(cx);
+        self.watch(poll, cx)
+    }
 }
 
 /// The routes, behind the rules that hold for every request ([`guard`]).
@@ -219,7 +461,9 @@ fn router(shared: Shared) -> Router {
         .with_state(shared)
 }
 
-/// GET only (405 otherwise), and the token when there is one (403 without it).
+/// GET only (405 otherwise); on a loopback address a `Host` naming this computer (421
+/// without), on another the token (403 without): both refusals close the connection, so that
+/// nothing is held for a client that may not read.
 async fn guard(State(shared): State<Shared>, req: Request, next: Next) -> Response {
     if req.method() != Method::GET {
         return (
@@ -229,10 +473,26 @@ async fn guard(State(shared): State<Shared>, req: Request, next: Next) -> Respon
         )
             .into_response();
     }
+    if let Some(hosts) = &shared.hosts {
+        let host = req.headers().get(HOST).map(|h| h.as_bytes());
+        if !host_allowed(host, hosts) {
+            let text = format!(
+                "this page answers only as this computer: open http://127.0.0.1:{}/\n",
+                shared.bound.port()
+            );
+            return (
+                StatusCode::MISDIRECTED_REQUEST,
+                [(CONNECTION, "close")],
+                text,
+            )
+                .into_response();
+        }
+    }
     let url = req.uri().path_and_query().map_or("/", |pq| pq.as_str());
     if !authorised(url, shared.token.as_deref()) {
         return (
             StatusCode::FORBIDDEN,
+            [(CONNECTION, "close")],
             "this page needs the token jdbb printed with its URL: add ?token=...\n",
         )
             .into_response();
@@ -244,6 +504,16 @@ async fn index(State(shared): State<Shared>) -> Response {
     ([(CACHE_CONTROL, "no-store")], Html(shared.page.clone())).into_response()
 }
 
+/// The board's JSON as a body that shares it (no copy per answer: a client that asks for it
+/// many times and reads slowly holds no copies).
+struct SharedJson(Arc<String>);
+
+impl AsRef<[u8]> for SharedJson {
+    fn as_ref(&self) -> &[u8] {
+        self.0.as_bytes()
+    }
+}
+
 async fn state(State(shared): State<Shared>) -> Response {
     let json = latest(&shared.board).1;
     (
@@ -251,7 +521,7 @@ async fn state(State(shared): State<Shared>) -> Response {
             (CONTENT_TYPE, "application/json"),
             (CACHE_CONTROL, "no-store"),
         ],
-        json.as_str().to_owned(),
+        Bytes::from_owner(SharedJson(json)),
     )
         .into_response()
 }
@@ -359,6 +629,48 @@ mod tests {
         assert!(!authorised("/?token=00ff0", t));
         assert!(!authorised("/?tokens=00ff", t));
         assert!(!authorised("/00ff", t));
+    }
+
+    #[test]
+    fn on_loopback_only_this_computer_is_a_host() {
+        let names = local_names("127.0.0.1:8765".parse().unwrap());
+        let ok = |h: &str| host_allowed(Some(h.as_bytes()), &names);
+        for h in [
+            "127.0.0.1:8765",
+            "localhost:8765",
+            "LocalHost:8765",
+            "[::1]:8765",
+            "localhost",
+            "127.0.0.1",
+            "localhost:9000",
+        ] {
+            assert!(ok(h), "{h}");
+        }
+        for h in [
+            "evil.example:8765",
+            "evil.example",
+            "localhost.evil.example:8765",
+            "127.0.0.1.evil.example",
+            "127.0.0.1:8765.evil.example",
+            "localhost:",
+            "localhost:80x",
+            "localhost:8765:1",
+            "[::1",
+            "[::1]x",
+            "",
+        ] {
+            assert!(!ok(h), "{h}");
+        }
+        assert!(!host_allowed(None, &names));
+        // The bound address itself.
+        let own = local_names("127.0.0.2:80".parse().unwrap());
+        for h in ["127.0.0.2:80", "127.0.0.2", "localhost", "[::1]"] {
+            assert!(host_allowed(Some(h.as_bytes()), &own), "{h}");
+        }
+        let v6 = local_names("[::1]:9000".parse().unwrap());
+        assert_eq!(v6.len(), 3);
+        assert!(host_allowed(Some(b"[::1]:9000"), &v6));
+        assert!(!host_allowed(Some(b"::1:9000"), &v6));
     }
 
     #[test]
