@@ -3,6 +3,12 @@
 //! - One file (default `history.sqlite` in the user's data directory, e.g.
 //!   `~/.local/share/jdbb/` on Linux; `--db PATH` chooses another), schema versioned by
 //!   `PRAGMA user_version` with migrations in [`schema`].
+//! - jdbb's file only: `PRAGMA application_id` [`schema::APPLICATION_ID`], checked before
+//!   anything is written ([`schema::owner`]); another program's SQLite file (a mistyped `--db`)
+//!   is refused as it is, and a `--db` that is a symbolic link is refused like any output
+//!   ([`crate::fsio::check_destination`]).
+//! - Bounded: `add` refuses values and σ that are not finite or beyond [`MAX_VALUE`], and machine
+//!   names with control characters; names and texts print through [`printable`].
 //! - Safe with two writers at once: write-ahead logging (`journal_mode = WAL`), a busy timeout
 //!   (a writer waits up to [`BUSY_TIMEOUT`] for the other), and every write in one
 //!   `BEGIN IMMEDIATE` transaction (the write lock is taken up front, so two writers never
