@@ -106,6 +106,12 @@ fn an_absurd_value_in_force_is_refused_not_built_on() {
             "M92 X in force (--current) is 2000000",
         ),
         (
+            "marlin",
+            "f.txt",
+            "M92 X80\nM425 F1000 X0.01\n",
+            "M425 F in force (--current) is 1000",
+        ),
+        (
             "klipper",
             "k.cfg",
             "[stepper_x]\nrotation_distance: 0.00004\n",

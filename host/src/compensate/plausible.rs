@@ -15,7 +15,8 @@
 //! | steps per mm (in force or new) | 1 to 10⁶ | a belt drive at full step has about 5; a 0.9° motor at 256 microsteps on a 0.5 mm screw 204 800 |
 //! | a Klipper `rotation_distance` (in force or new) | 0.1 to 1000 mm per turn | a fine screw is 0.5 mm per turn, a belt pulley about 40 |
 //! | a skew factor (in force or new) | ≤ 0.01 | 10 mm per m: a machine to square mechanically |
-use super::{Change, MachineErrors, Plan};
+//! | Marlin's backlash correction `M425 F` (in force or new) | 0 to 1 | a fraction of the backlash |
+use super::{Change, Current, MachineErrors, Plan};
 use crate::{Error, Result};
 
 /// Largest backlash (mm) a controller setting may take up: beyond 1 mm the screw or nut is worn
@@ -77,6 +78,12 @@ fn out_of_range(c: &Change, v: f64, what: &str) -> Option<String> {
                 c.unit
             ));
         }
+    } else if s.starts_with("M425 F") {
+        if !(0.0..=1.0).contains(&v) {
+            return Some(format!(
+                "{s} {what} {v}; Marlin's backlash correction fraction is 0 (none) to 1 (full)"
+            ));
+        }
     } else if (s.contains("skew") || s.contains("matrixkins")) && v.abs() > MAX_SKEW {
         return Some(format!(
             "{s} {what} {v}; a skew beyond {MAX_SKEW} (10 mm per m) is a machine to square mechanically, not a setting"
@@ -120,6 +127,19 @@ pub fn check_errors(m: &MachineErrors) -> Result<()> {
             return Err(Error::Usage(format!(
                 "{}: a scale error of {s} µm/m is beyond {MAX_SCALE_UM_PER_M} µm/m (1 %), which no setting should trim: a wrong drive setting (pulley, microsteps, screw pitch) to correct from the machine's data, or an absurd number in the diagnosis; nothing was written",
                 src.text()
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Refuse a value in force that a plan builds on without changing it, if absurd: Marlin's
+/// `M425 F` (the others in force are a change's current value, checked with it by [`check`]).
+pub fn check_in_force(current: &Current) -> Result<()> {
+    if let Some(f) = current.get("M425.F") {
+        if !(0.0..=1.0).contains(&f) {
+            return Err(Error::Usage(format!(
+                "M425 F in force (--current) is {f}; Marlin's backlash correction fraction is 0 (none) to 1 (full): check the values in force"
             )));
         }
     }
@@ -187,6 +207,14 @@ mod tests {
         );
         assert!(implausible(&c("[JOINT_0] BACKLASH", "inch", 0.08, 0.0801)).is_some());
         assert!(implausible(&c("[JOINT_0] BACKLASH", "inch", 0.0004, 0.0005)).is_none());
+        let mut m = Current::none();
+        m.set("M425.F", 1000.0);
+        assert!(check_in_force(&m).is_err());
+        m.set("M425.F", 0.5);
+        assert!(check_in_force(&m).is_ok());
+        assert!(implausible(&c("M425 F", "", 1000.0, 1000.0))
+            .unwrap()
+            .contains("0 (none) to 1 (full)"));
         // An assumed default (0 steps/mm where none was given) is not checked.
         let mut d = c("$100", "steps/mm", 0.0, 80.0);
         d.assumed = true;
