@@ -238,3 +238,31 @@ fn cli_saddle_json() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("--d"));
 }
+
+/// Issue 28: `--bar-series` is bounded in count (each length is a synthesis of its own) and
+/// each length is a bar's (1 mm … 10 m), refused before any synthesis runs.
+#[test]
+fn cli_bar_series_is_bounded() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("table2.toml");
+    std::fs::write(&file, jdbb::rrsps::io::params_toml(&table2())).unwrap();
+    // One length over the limit (before, each of the 33 was a synthesis, then exit 1).
+    let many = vec!["1"; 33].join(",");
+    for (series, want) in [
+        (many.as_str(), "at most 32"),
+        ("100,1e300", "10 m"),
+        ("100,-5", "a bar length is positive"),
+    ] {
+        let out = jdbb(&[
+            "rrsps",
+            "synthesize",
+            "--params",
+            file.to_str().unwrap(),
+            "--require-a=-110,0",
+            &format!("--bar-series={series}"),
+        ]);
+        let e = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{e}");
+        assert!(e.contains(want), "wanted `{want}` in {e}");
+    }
+}

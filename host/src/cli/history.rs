@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use super::output::print;
 use crate::circular::document::DiagnosisDoc;
-use crate::history::{default_path, trend, History};
+use crate::history::{default_path, printable, trend, History};
 use crate::units::{format_to, human};
 use crate::Result;
 
@@ -152,7 +152,7 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
                 let _ = writeln!(s, "{}: no machines yet", path.display());
             }
             for (name, n) in machines {
-                let _ = writeln!(s, "{name}: {n} runs");
+                let _ = writeln!(s, "{}: {n} runs", printable(&name));
             }
             print(&s)
         }
@@ -162,7 +162,7 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             let h = History::open_existing(&path)?;
             let runs = h.runs(machine)?;
             let mut s = String::new();
-            let _ = writeln!(s, "machine {machine}: {} runs", runs.len());
+            let _ = writeln!(s, "machine {}: {} runs", printable(machine), runs.len());
             let _ = writeln!(
                 s,
                 "run  date                  G µm    H µm    RMS µm  verdict  effects"
@@ -182,7 +182,7 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
                     .map(|e| {
                         format!(
                             "{} {} {}",
-                            e.name,
+                            printable(&e.name),
                             match (e.value, e.sigma) {
                                 (Some(v), Some(s)) => format_to(v, s),
                                 (Some(v), None) => format!("{v:.3}"),
@@ -273,7 +273,8 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             let mut h = History::open(&path)?;
             let id = h.add_compensation(machine, date, &text, source.as_deref())?;
             print(&format!(
-                "filed compensation change {id} of {machine} on {date} in {}\n",
+                "filed compensation change {id} of {} on {date} in {}\n",
+                printable(machine),
                 path.display()
             ))
         }

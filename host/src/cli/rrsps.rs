@@ -81,7 +81,7 @@ pub enum SynthMethod {
 #[derive(Debug, clap::Args)]
 pub struct LimitArgs {
     /// g13: bar lengths available (mm) [assumed: QC20-W series].
-    #[arg(long, value_name = "MM,..", value_delimiter = ',', default_values_t = [100.0, 150.0, 300.0], value_parser = super::args::finite)]
+    #[arg(long, value_name = "MM,..", value_delimiter = ',', default_values_t = [100.0, 150.0, 300.0], value_parser = super::args::bar_mm)]
     pub bar_series: Vec<f64>,
     /// g1: largest bar angle to the spindle axis (deg) [assumed].
     #[arg(long, default_value_t = 75.0, value_parser = super::args::finite)]
@@ -115,6 +115,10 @@ pub struct LimitArgs {
     pub ball_height_mm: Vec<f64>,
 }
 
+/// Most bar lengths `--bar-series` takes: a ball bar's extension set has a handful; each length
+/// is a synthesis of its own, so an endless list would be an endless run.
+pub const MAX_BAR_SERIES: usize = 32;
+
 impl LimitArgs {
     /// The limits, with every pair checked.
     pub fn limits(&self) -> Result<Limits> {
@@ -139,6 +143,12 @@ impl LimitArgs {
             return Err(Error::Usage(
                 "--bar-series takes positive bar lengths in mm, e.g. 100,150,300".into(),
             ));
+        }
+        if self.bar_series.len() > MAX_BAR_SERIES {
+            return Err(Error::Usage(format!(
+                "--bar-series has {} bar lengths; a bar set has at most {MAX_BAR_SERIES} (each is a synthesis of its own): give the lengths you have, e.g. 100,150,300",
+                self.bar_series.len()
+            )));
         }
         Ok(Limits {
             spindle_cup_deg: self.spindle_cup_deg,

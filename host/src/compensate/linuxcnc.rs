@@ -55,7 +55,7 @@
 use std::path::Path;
 
 use super::current::{key_value, number, Current};
-use super::{change, defaults_note, Block, Change, MachineErrors, Options, Plan};
+use super::{change, defaults_note, plausible, Block, Change, MachineErrors, Options, Plan};
 use crate::circular::model::{Axis, Pair};
 use crate::{Error, Result};
 
@@ -311,6 +311,12 @@ pub fn plan(m: &MachineErrors, current: &Current, opts: &Options) -> Result<Plan
         let k = axis.index();
         let key = format!("JOINT_{k}.BACKLASH");
         let old_table = table_in_force(current, k, u)?;
+        if let Some((old_name, old)) = &old_table {
+            for r in old {
+                plausible::check_trim(old_name, "in force", r.0, r.1)?;
+                plausible::check_trim(old_name, "in force", r.0, r.2)?;
+            }
+        }
         let cur_backlash = current.get(&key);
         if let (Some((name, _)), Some(b)) = (&old_table, cur_backlash) {
             p.notes.push(format!(
@@ -373,6 +379,10 @@ pub fn plan(m: &MachineErrors, current: &Current, opts: &Options) -> Result<Plan
                     rows = r;
                     note = n;
                 }
+            }
+            for r in &rows {
+                plausible::check_trim(&name, "new", r.0, r.1)?;
+                plausible::check_trim(&name, "new", r.0, r.2)?;
             }
             let mut text = String::new();
             for row in &rows {

@@ -400,6 +400,8 @@ pub struct Options {
 /// The plan for `opts.controller` from a diagnosis file and the values in force.
 pub fn plan(doc: &DiagnosisDoc, current: &Current, opts: &Options) -> Result<Plan> {
     let m = MachineErrors::from_doc(doc)?;
+    plausible::check_errors(&m)?;
+    plausible::check_in_force(current)?;
     let mut p = match opts.controller {
         Controller::LinuxCnc => linuxcnc::plan(&m, current, opts)?,
         Controller::GrblHal => grblhal::plan(&m, current),

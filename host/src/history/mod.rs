@@ -3,6 +3,12 @@
 //! - One file (default `history.sqlite` in the user's data directory, e.g.
 //!   `~/.local/share/jdbb/` on Linux; `--db PATH` chooses another), schema versioned by
 //!   `PRAGMA user_version` with migrations in [`schema`].
+//! - jdbb's file only: `PRAGMA application_id` [`schema::APPLICATION_ID`], checked before
+//!   anything is written ([`schema::owner`]); another program's SQLite file (a mistyped `--db`)
+//!   is refused as it is, and a `--db` that is a symbolic link is refused like any output
+//!   ([`crate::fsio::check_destination`]).
+//! - Bounded: `add` refuses values and σ that are not finite or beyond [`MAX_VALUE`], and machine
+//!   names with control characters; names and texts print through [`printable`].
 //! - Safe with two writers at once: write-ahead logging (`journal_mode = WAL`), a busy timeout
 //!   (a writer waits up to [`BUSY_TIMEOUT`] for the other), and every write in one
 //!   `BEGIN IMMEDIATE` transaction (the write lock is taken up front, so two writers never
@@ -211,6 +217,63 @@ fn file_uri(path: &Path, immutable: bool) -> String {
     uri
 }
 
+/// Largest size of a value or σ filed in a history, in its own unit (µm, µm/m, µm/m², ms,
+/// µm/min, µm/(mm/s)): 10⁶ is 1 m of error, a scale of 100 %, a lag of 1000 s, which no machine
+/// has. A larger number is a damaged or hand-edited file, and would leave the trend nothing to
+/// fit or plot.
+pub const MAX_VALUE: f64 = 1e6;
+
+/// Refuse a diagnosis with a value or σ that is not finite or beyond [`MAX_VALUE`] (`source`
+/// names the file).
+fn check_values(doc: &DiagnosisDoc, source: &str) -> Result<()> {
+    let mut values: Vec<(String, Option<f64>, &str)> = vec![];
+    for (e, _) in doc.machine_effects() {
+        values.push((e.name.clone(), e.value, e.unit.as_str()));
+        values.push((format!("the σ of {}", e.name), e.sigma, e.unit.as_str()));
+    }
+    values.push(("G".into(), doc.g_um(), "um"));
+    values.push(("H".into(), doc.h_um(), "um"));
+    values.push(("the residual RMS".into(), doc.final_fit.rms_um, "um"));
+    values.push((
+        "the tolerance".into(),
+        doc.tolerance.as_ref().map(|t| t.g_um),
+        "um",
+    ));
+    for (what, value, unit) in values {
+        let Some(v) = value else { continue };
+        if !(v.is_finite() && v.abs() <= MAX_VALUE) || (what.starts_with("the σ") && v < 0.0) {
+            return Err(Error::Input {
+                location: source.to_string(),
+                message: format!(
+                    "{} = {v:e} {}: a value filed in the history is finite and at most {MAX_VALUE:e} in size (a σ not negative); no machine has this, so the file is damaged or hand-edited: nothing was added",
+                    printable(&what),
+                    crate::units::human(unit)
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// `text` with its control characters (line breaks, tabs, escapes) shown escaped (`\n`,
+/// `\u{1b}`), so that a name or a text from the history prints as one plain line.
+pub fn printable(text: &str) -> std::borrow::Cow<'_, str> {
+    if text.chars().any(char::is_control) {
+        text.chars()
+            .map(|c| {
+                if c.is_control() {
+                    c.escape_default().to_string()
+                } else {
+                    c.to_string()
+                }
+            })
+            .collect::<String>()
+            .into()
+    } else {
+        text.into()
+    }
+}
+
 /// 64-bit FNV-1a of `bytes`, as 16 hex digits: the identity of a diagnosis file's text.
 pub fn digest(bytes: &[u8]) -> String {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
@@ -233,6 +296,7 @@ impl History {
     /// is opened read-only. A file of an older schema is brought up to date if it may be
     /// written.
     pub fn open_existing(path: &Path) -> Result<History> {
+        crate::fsio::check_destination(path, true)?;
         match std::fs::metadata(path) {
             Ok(m) if m.is_file() => {}
             Ok(_) => {
@@ -263,6 +327,7 @@ impl History {
         // A WAL file in a directory the user may not write has no shared-memory file to read
         // through: then it is read as immutable (nobody who may write it is this user).
         let (conn, version) = read_only(false).or_else(|_| read_only(true)).map_err(db)?;
+        Self::check_owner(&conn, path)?;
         if version == schema::latest() {
             return Ok(History {
                 conn,
@@ -275,6 +340,9 @@ impl History {
 
     /// [`History::open`] migrating only to version `target` (for the migration tests).
     pub fn open_at(path: &Path, target: i64) -> Result<History> {
+        // A history is a file jdbb writes: like every output, never through a symbolic link
+        // (which would make a database of whatever it points at), never a device.
+        crate::fsio::check_destination(path, true)?;
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|source| Error::File {
                 action: "cannot create the directory of",
@@ -288,6 +356,8 @@ impl History {
         };
         let mut conn = Connection::open(path).map_err(db)?;
         conn.busy_timeout(BUSY_TIMEOUT).map_err(db)?;
+        // Whose the file is, before anything is written to it (WAL, migrations, the stamp).
+        Self::check_owner(&conn, path)?;
         // journal_mode returns the mode in force; anything but wal means the file system
         // cannot share memory between processes (then SQLite's default locking still serialises).
         // Switching a new file to WAL while another process does the same can be refused as busy
@@ -322,6 +392,21 @@ impl History {
         })
     }
 
+    /// Refuse the file of `conn` (at `path`) unless it is jdbb's history or a new empty
+    /// database ([`schema::owner`]).
+    fn check_owner(conn: &Connection, path: &Path) -> Result<()> {
+        match schema::owner(conn).map_err(|source| Error::Database {
+            path: path.to_path_buf(),
+            source,
+        })? {
+            schema::Owner::Jdbb | schema::Owner::Empty => Ok(()),
+            schema::Owner::Other(why) => Err(Error::Usage(format!(
+                "{} is not a jdbb history database ({why}): it is another program's file, left as it was; check --db",
+                path.display()
+            ))),
+        }
+    }
+
     pub fn path(&self) -> &Path {
         &self.path
     }
@@ -354,6 +439,13 @@ impl History {
         if machine.is_empty() {
             return Err(Error::Usage("--machine: give the machine a name".into()));
         }
+        if machine.chars().any(char::is_control) {
+            return Err(Error::Usage(format!(
+                "--machine `{}`: a machine name is one line of text, without control characters (line breaks, tabs, escapes)",
+                printable(machine)
+            )));
+        }
+        check_values(doc, source)?;
         let path = self.path.clone();
         let db = move |source| Error::Database {
             path: path.clone(),
@@ -483,9 +575,14 @@ impl History {
             .optional()
             .map_err(self.db())?;
         let Some(machine_id) = id else {
-            let known: Vec<String> = self.machines()?.into_iter().map(|(n, _)| n).collect();
+            let known: Vec<String> = self
+                .machines()?
+                .into_iter()
+                .map(|(n, _)| printable(&n).into_owned())
+                .collect();
             return Err(Error::Usage(format!(
-                "no machine `{machine}` in the history {}; {}",
+                "no machine `{}` in the history {}; {}",
+                printable(machine),
                 self.path.display(),
                 if known.is_empty() {
                     "it is empty: add a diagnosis with `jdbb history add --machine NAME --diagnosis DIAG.json`".to_string()
@@ -871,6 +968,46 @@ mod tests {
         }
         let h = History::open(&path).unwrap();
         assert_eq!(h.runs("mill").unwrap().len(), 80);
+    }
+
+    #[test]
+    fn an_older_jdbb_history_without_the_stamp_opens_and_is_stamped() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("h.sqlite");
+        for version in 1..=schema::latest() {
+            let _ = std::fs::remove_file(&path);
+            drop(History::open_at(&path, version).unwrap());
+            // As a jdbb before the application id left it.
+            let conn = Connection::open(&path).unwrap();
+            conn.pragma_update(None, "application_id", 0).unwrap();
+            assert_eq!(schema::owner(&conn).unwrap(), schema::Owner::Jdbb);
+            // Another table beside jdbb's is not jdbb's schema.
+            conn.execute_batch("CREATE TABLE laps (t REAL)").unwrap();
+            assert!(matches!(
+                schema::owner(&conn).unwrap(),
+                schema::Owner::Other(_)
+            ));
+            conn.execute_batch("DROP TABLE laps").unwrap();
+            drop(conn);
+            if version == schema::latest() {
+                // Read as it is (list, trend), then stamped when opened to write.
+                let h = History::open_existing(&path).unwrap();
+                assert!(h.machines().unwrap().is_empty());
+            }
+            let h = History::open(&path).unwrap();
+            assert_eq!(h.version().unwrap(), schema::latest(), "from {version}");
+            let id: i64 = h
+                .conn
+                .query_row("PRAGMA application_id", [], |r| r.get(0))
+                .unwrap();
+            assert_eq!(id, schema::APPLICATION_ID, "from {version}");
+        }
+    }
+
+    #[test]
+    fn control_characters_print_escaped() {
+        assert_eq!(printable("mill-1 ä"), "mill-1 ä");
+        assert_eq!(printable("a\nb\u{1b}[2J\t"), "a\\nb\\u{1b}[2J\\t");
     }
 
     #[test]

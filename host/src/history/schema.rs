@@ -6,8 +6,91 @@
 //! once do not both migrate it (the second waits, then finds the version already up to date).
 //! A file whose version is newer than this program's is refused rather than guessed at.
 //!
+//! A history file is jdbb's by its `PRAGMA application_id` ([`APPLICATION_ID`]), stamped in the
+//! same transaction as the migrations. Before anything is written to a file, [`owner`] says
+//! whose it is, reading only: jdbb's (stamped, or an older jdbb's file without the stamp whose
+//! tables are exactly those of its `user_version`), a new empty database, or another program's,
+//! which is refused untouched (never switched to WAL, never migrated, its `user_version` kept).
+//!
 //! Never edit a released migration: add one.
 use rusqlite::{params, Connection, Transaction, TransactionBehavior};
+
+/// jdbb's `PRAGMA application_id`: "JDBB" in ASCII.
+pub const APPLICATION_ID: i64 = 0x4A44_4242;
+
+/// Whose a SQLite file is (see the module docs).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Owner {
+    /// jdbb's history: stamped, or an older jdbb's by its schema.
+    Jdbb,
+    /// A new database: no application id, no version, nothing in it.
+    Empty,
+    /// Another program's: what shows it, in words.
+    Other(String),
+}
+
+/// The tables (without SQLite's own) of a history file of schema version `version`.
+fn tables_of(version: i64) -> &'static [&'static str] {
+    if version >= 4 {
+        &["compensations", "effects", "machines", "runs"]
+    } else {
+        &["effects", "machines", "runs"]
+    }
+}
+
+/// Whose the database of `conn` is, read without writing anything (in one read transaction:
+/// another process may be creating the schema meanwhile).
+pub fn owner(conn: &Connection) -> rusqlite::Result<Owner> {
+    let tx = conn.unchecked_transaction()?;
+    let conn: &Connection = &tx;
+    let id: i64 = conn.query_row("PRAGMA application_id", [], |r| r.get(0))?;
+    if id == APPLICATION_ID {
+        return Ok(Owner::Jdbb);
+    }
+    if id != 0 {
+        return Ok(Owner::Other(format!(
+            "its application id is {id:#010x}, not jdbb's {APPLICATION_ID:#010x}"
+        )));
+    }
+    let version: i64 = conn.query_row("PRAGMA user_version", [], |r| r.get(0))?;
+    let objects: i64 = conn.query_row("SELECT COUNT(*) FROM sqlite_master", [], |r| r.get(0))?;
+    if version == 0 && objects == 0 {
+        return Ok(Owner::Empty);
+    }
+    let mut st = conn.prepare(
+        "SELECT name FROM sqlite_master WHERE type = 'table' AND name NOT LIKE 'sqlite\\_%' ESCAPE '\\'
+         ORDER BY name",
+    )?;
+    let tables = st
+        .query_map([], |r| r.get::<_, String>(0))?
+        .collect::<rusqlite::Result<Vec<_>>>()?;
+    let runs_columns = if tables.iter().any(|t| t == "runs") {
+        let mut st = conn.prepare("SELECT name FROM pragma_table_info('runs')")?;
+        let v = st
+            .query_map([], |r| r.get::<_, String>(0))?
+            .collect::<rusqlite::Result<Vec<_>>>()?;
+        v
+    } else {
+        vec![]
+    };
+    let ours = (1..=latest()).contains(&version)
+        && tables == tables_of(version)
+        && ["digest", "diagnosis", "conditions", "machine_id"]
+            .iter()
+            .all(|c| runs_columns.iter().any(|r| r == c));
+    Ok(if ours {
+        Owner::Jdbb
+    } else {
+        Owner::Other(format!(
+            "it holds {} (user_version {version}), not the tables of a jdbb history",
+            if tables.is_empty() {
+                "no table".to_string()
+            } else {
+                format!("the tables {}", tables.join(", "))
+            }
+        ))
+    })
+}
 
 /// One migration: SQL, or code for what SQL cannot do (rewrite the stored diagnosis files).
 pub enum Migration {
@@ -129,6 +212,10 @@ pub fn migrate_to(conn: &mut Connection, target: i64) -> Result<i64, MigrateErro
     let found: i64 = tx.query_row("PRAGMA user_version", [], |r| r.get(0))?;
     if found > latest() {
         return Err(MigrateError::Newer(found));
+    }
+    let id: i64 = tx.query_row("PRAGMA application_id", [], |r| r.get(0))?;
+    if id != APPLICATION_ID {
+        tx.pragma_update(None, "application_id", APPLICATION_ID)?;
     }
     for (k, migration) in MIGRATIONS
         .iter()

@@ -28,7 +28,7 @@ use plotters::prelude::*;
 use time::format_description::well_known::Rfc3339;
 use time::OffsetDateTime;
 
-use super::{CompensationEvent, Run};
+use super::{printable, CompensationEvent, Run};
 use crate::units::{format_estimate, format_to, human};
 use crate::{Error, Result};
 
@@ -410,8 +410,9 @@ pub fn render(
 ) -> String {
     let mut s = String::new();
     let Some(latest) = runs.last() else {
-        return format!("machine {machine}: no runs\n");
+        return format!("machine {}: no runs\n", printable(machine));
     };
+    let machine = printable(machine);
     let _ = writeln!(
         s,
         "machine {machine}: {} runs; compared with the latest (run {}, {})",
@@ -426,11 +427,13 @@ pub fn render(
         let _ = writeln!(
             s,
             "  {}  -- compensation changed: {} ({})",
-            m.date_utc, m.text, m.why
+            m.date_utc,
+            printable(&m.text),
+            m.why
         );
     };
     for t in trends {
-        let _ = writeln!(s, "{} ({})", t.name, human(&t.unit));
+        let _ = writeln!(s, "{} ({})", printable(&t.name), human(&t.unit));
         let mut next_mark = 0;
         for p in &t.points {
             while let Some(m) = marks.get(next_mark).filter(|m| m.date_utc <= p.date_utc) {
@@ -588,6 +591,27 @@ pub fn csv(machine: &str, runs: &[Run], trends: &[EffectTrend], marks: &[Mark]) 
     s
 }
 
+/// The value axis of a panel whose data (with σ and tolerance lines) span `lo..hi` (infinite:
+/// no data), with room for the legend (`legend`, the fraction of the plot it takes) on top.
+/// The axis' ticks are counted from its range: a range that is finite, and wide against its
+/// values (a thousandth of their size at least), keeps that count small and finite.
+fn axis_range(lo: f64, hi: f64, legend: f64) -> (f64, f64) {
+    let (lo, hi) = if lo.is_finite() && hi.is_finite() && lo <= hi {
+        let pad = ((hi - lo) * 0.08)
+            .max(1e-3 * hi.abs().max(lo.abs()))
+            .max(1e-6);
+        let (lo, hi) = (lo - pad, hi + pad);
+        (lo, hi + (hi - lo) * legend / (1.0 - legend))
+    } else {
+        (-1.0, 1.0)
+    };
+    if (hi - lo).is_finite() && hi > lo {
+        (lo, hi)
+    } else {
+        (-1.0, 1.0)
+    }
+}
+
 /// Plot the trends into an SVG file: one panel per effect, value (± σ where it has one) against
 /// the date; comparable runs filled, others hollow and grey; the fitted slope as a line over the
 /// runs it was fitted on; compensation marks as dashed vertical lines, the tolerance (on values
@@ -607,7 +631,10 @@ pub fn plot_svg(
     root.fill(&WHITE).map_err(|e| err(&e))?;
     let (title, body) = root.split_vertically(40);
     title
-        .titled(&format!("J-DBB history of {machine}"), ("sans-serif", 17))
+        .titled(
+            &format!("J-DBB history of {}", printable(machine)),
+            ("sans-serif", 17),
+        )
         .map_err(|e| err(&e))?;
     let all_days: Vec<f64> = trends
         .iter()
@@ -628,18 +655,27 @@ pub fn plot_svg(
         .map(|p| p.date_utc[..10.min(p.date_utc.len())].to_string())
         .unwrap_or_default();
     for (t, area) in trends.iter().zip(body.split_evenly((n as usize, 1))) {
+        // Only values a history can hold (a run filed before `history add` bounded them may
+        // hold ±1e308, which would leave the axis no finite range): the others are not drawn,
+        // and said so in the panel's caption.
+        let plottable = |x: f64| x.is_finite() && x.abs() <= super::MAX_VALUE;
         let pts: Vec<(f64, f64, f64, bool)> = t
             .points
             .iter()
             .filter_map(|p| {
                 Some((
                     days(&p.date_utc)? - d0,
-                    p.value?,
-                    p.sigma.unwrap_or(0.0),
+                    p.value.filter(|v| plottable(*v))?,
+                    p.sigma.filter(|s| plottable(*s)).unwrap_or(0.0).abs(),
                     p.differences.is_empty(),
                 ))
             })
             .collect();
+        let not_drawn = t
+            .points
+            .iter()
+            .filter(|p| p.value.is_some_and(|v| !plottable(v)))
+            .count();
         let tol = tolerance_um.filter(|_| t.unit == "um");
         let figure = t.name == Figure::G.name() || t.name == Figure::H.name();
         let tol_lines: Vec<f64> = match tol {
@@ -664,15 +700,7 @@ pub fn plot_svg(
             + 2
             + usize::from(pts.iter().any(|p| !p.3));
         let legend = ((15 * legend_lines + 20) as f64 / (panel_h - 100) as f64).min(0.6);
-        let (lo, hi) = if lo.is_finite() {
-            let pad = ((hi - lo) * 0.08)
-                .max(1e-3 * hi.abs().max(lo.abs()))
-                .max(1e-6);
-            let (lo, hi) = (lo - pad, hi + pad);
-            (lo, hi + (hi - lo) * legend / (1.0 - legend))
-        } else {
-            (-1.0, 1.0)
-        };
+        let (lo, hi) = axis_range(lo, hi, legend);
         // Axis labels to the digits of the panel's smallest σ, or of its tick spacing where that
         // is coarser (about a tenth of the range).
         let smallest_sigma = pts
@@ -694,15 +722,24 @@ pub fn plot_svg(
             .and_then(|sl| {
                 let a = days(&sl.from_date)?;
                 let b = days(&sl.to_date)?;
-                Some(vec![(a - d0, sl.at(a)), (b - d0, sl.at(b))])
+                let line = vec![(a - d0, sl.at(a)), (b - d0, sl.at(b))];
+                line.iter().all(|p| plottable(p.1)).then_some(line)
             })
             .unwrap_or_default();
         let mut chart = ChartBuilder::on(&area)
             .caption(
                 format!(
-                    "{} ({unit}){}",
-                    t.name,
-                    if has_sigma { ", value ± σ" } else { "" }
+                    "{} ({unit}){}{}",
+                    printable(&t.name),
+                    if has_sigma { ", value ± σ" } else { "" },
+                    if not_drawn > 0 {
+                        format!(
+                            ", {not_drawn} run(s) beyond ±{:e} not drawn",
+                            super::MAX_VALUE
+                        )
+                    } else {
+                        String::new()
+                    }
                 ),
                 ("sans-serif", 16),
             )
@@ -758,7 +795,7 @@ pub fn plot_svg(
                 .label(format!(
                     "compensation changed {}: {}",
                     day(&m.date_utc),
-                    m.text
+                    printable(&m.text)
                 ))
                 .legend(move |(x, y)| {
                     PathElement::new(vec![(x, y), (x + 8, y)], orange.stroke_width(2))
