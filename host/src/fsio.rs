@@ -24,7 +24,8 @@
 //!   interrupted command leaves no partial output. Whatever is put in place is put there under
 //!   the same lock, which the handler takes and keeps: a set is finished before the process ends
 //!   (old or new, never a mix), and the message says whether an output was written. Temporary
-//!   files of a process that no longer runs (SIGKILL) are removed by the next write beside them;
+//!   files of a process that no longer runs (SIGKILL) are removed by the next write beside them,
+//!   and a set it was putting in place is rolled back from its journal by the next set there;
 //!   a write past the file size limit is an error, not a SIGXFSZ death
 //!   ([`fail_writes_past_size_limit`]).
 //!
@@ -214,20 +215,11 @@ fn remove_stale_temps(dest: &Path) {
     };
     for e in entries.flatten() {
         let name = e.file_name();
-        let Some(rest) = name
+        if name
             .to_str()
-            .and_then(|n| n.strip_prefix(&prefix))
-            .and_then(|r| r.strip_suffix(".tmp"))
-        else {
-            continue;
-        };
-        let Some(pid) = rest
-            .split_once('-')
-            .and_then(|(pid, n)| n.parse::<u32>().ok().and(pid.parse::<u32>().ok()))
-        else {
-            continue;
-        };
-        if pid == std::process::id() || alive(pid) {
+            .and_then(|n| dead_pid(n, &prefix, ".tmp", true))
+            .is_none()
+        {
             continue;
         }
         let p = e.path();
@@ -500,6 +492,7 @@ impl FileSet {
                 .map_err(|e| write_err(&dest)(e.into_error()))?;
             f.sync_all().map_err(write_err(&dest))?;
         }
+        recover_sets(&self.dir);
         for s in &self.staged {
             check_destination(&s.dest, self.force)?;
         }
@@ -511,68 +504,79 @@ impl FileSet {
         result
     }
 
-    /// The old file at `dest` kept under another name (`.NAME.jdbb-PID-K.old`) by `keep`.
-    fn backup(
-        dest: &Path,
-        k: usize,
-        keep: impl Fn(&Path, &Path) -> io::Result<()>,
-    ) -> Result<PathBuf> {
-        let b = dest.with_file_name(format!(
-            ".{}.jdbb-{}-{k}.old",
-            file_name(dest),
-            std::process::id()
-        ));
-        keep(dest, &b).map_err(|source| Error::File {
-            action: "cannot keep a copy of",
-            path: dest.to_path_buf(),
-            source,
-        })?;
-        Ok(b)
-    }
-
-    /// Put the set in place with the lock held (`v`): all of it, or nothing changed.
+    /// Put the set in place with the lock held (`v`): all of it, or nothing changed. A journal
+    /// beside the set names what is about to change before anything does and is removed once the
+    /// set is whole, so a process killed in between (SIGKILL, a power cut) is rolled back by the
+    /// next set written in the directory ([`recover_sets`]).
     fn swap(&self, v: &mut Vec<PathBuf>) -> Result<()> {
-        // What was done: each destination and the old file kept for it (None: it was new).
+        // Each destination, the old file kept for it (None: it is new), and whether it is
+        // removed rather than replaced.
+        let pid = std::process::id();
+        let mut entries: Vec<(PathBuf, Option<PathBuf>, Option<&Staged>)> = vec![];
+        for (k, s) in self.staged.iter().enumerate() {
+            let existed = fs::symlink_metadata(&s.dest).is_ok();
+            entries.push((
+                s.dest.clone(),
+                existed.then(|| backup_path(&s.dest, pid, k)),
+                Some(s),
+            ));
+        }
+        let n = entries.len();
+        for (k, r) in self.removals.iter().enumerate() {
+            if fs::symlink_metadata(r).is_ok_and(|m| m.is_file()) {
+                entries.push((r.clone(), Some(backup_path(r, pid, n + k)), None));
+            }
+        }
+        let journal = journal_path(&self.dir, pid);
+        let mut text = String::new();
+        for (dest, backup, _) in &entries {
+            text.push_str(&file_name(dest));
+            text.push('\t');
+            if let Some(b) = backup {
+                text.push_str(&file_name(b));
+            }
+            text.push('\n');
+        }
+        File::create(&journal)
+            .and_then(|mut f| {
+                f.write_all(text.as_bytes())?;
+                f.sync_all()
+            })
+            .map_err(write_err(&journal))?;
+        sync_dir(&self.dir);
+        // What was done, to be undone on a failure.
         let mut done: Vec<(PathBuf, Option<PathBuf>)> = vec![];
         let mut result = Ok(());
-        for (k, s) in self.staged.iter().enumerate() {
-            let backup = if fs::symlink_metadata(&s.dest).is_ok() {
-                match Self::backup(&s.dest, k, |a, b| fs::hard_link(a, b)) {
-                    Ok(b) => Some(b),
-                    Err(e) => {
-                        result = Err(e);
-                        break;
-                    }
-                }
-            } else {
-                None
+        for (dest, backup, staged) in &entries {
+            let keep = match (backup, staged) {
+                (Some(b), Some(_)) => fs::hard_link(dest, b),
+                (Some(b), None) => fs::rename(dest, b),
+                (None, _) => Ok(()),
             };
-            if let Err(e) = put(v, &s.tmp, &s.dest, self.force) {
-                if let Some(b) = backup {
-                    let _ = fs::remove_file(b);
-                }
-                result = Err(e);
+            if let Err(source) = keep {
+                result = Err(Error::File {
+                    action: "cannot keep a copy of",
+                    path: dest.clone(),
+                    source,
+                });
                 break;
             }
-            done.push((s.dest.clone(), backup));
-        }
-        if result.is_ok() {
-            let n = self.staged.len();
-            for (k, r) in self.removals.iter().enumerate() {
-                if !fs::symlink_metadata(r).is_ok_and(|m| m.is_file()) {
-                    continue;
-                }
-                match Self::backup(r, n + k, |a, b| fs::rename(a, b)) {
-                    Ok(b) => done.push((r.clone(), Some(b))),
-                    Err(e) => {
-                        result = Err(e);
-                        break;
+            if let Some(s) = staged {
+                if let Err(e) = put(v, &s.tmp, dest, self.force) {
+                    if let Some(b) = backup {
+                        let _ = fs::remove_file(b);
                     }
+                    result = Err(e);
+                    break;
                 }
             }
+            done.push((dest.clone(), backup.clone()));
         }
         match result {
             Ok(()) => {
+                // The set is whole: the journal goes first, then the old copies.
+                let _ = fs::remove_file(&journal);
+                sync_dir(&self.dir);
                 for b in done.iter().filter_map(|(_, b)| b.as_ref()) {
                     let _ = fs::remove_file(b);
                 }
@@ -580,20 +584,96 @@ impl FileSet {
                 Ok(())
             }
             Err(e) => {
-                // Back to the old set: old files restored, new ones removed (a copy that cannot
-                // be put back stays under its .old name, so nothing is lost).
-                for (dest, backup) in done.iter().rev() {
-                    match backup {
-                        Some(b) => {
-                            let _ = fs::rename(b, dest);
-                        }
-                        None => {
-                            let _ = fs::remove_file(dest);
-                        }
-                    }
-                }
+                roll_back(&done);
+                let _ = fs::remove_file(&journal);
                 Err(e)
             }
+        }
+    }
+}
+
+/// Undo a set's changes (`done`: each destination and its old copy, None if it was new), last
+/// first: old files restored, new ones removed (a copy that cannot be put back stays under its
+/// .old name, so nothing is lost).
+fn roll_back(done: &[(PathBuf, Option<PathBuf>)]) {
+    for (dest, backup) in done.iter().rev() {
+        match backup {
+            Some(b) => {
+                let _ = fs::rename(b, dest);
+            }
+            None => {
+                let _ = fs::remove_file(dest);
+            }
+        }
+    }
+}
+
+/// The old file at `dest` kept while a set is put in place: `.NAME.jdbb-PID-K.old`.
+fn backup_path(dest: &Path, pid: u32, k: usize) -> PathBuf {
+    dest.with_file_name(format!(".{}.jdbb-{pid}-{k}.old", file_name(dest)))
+}
+
+/// The journal of a set being put in place in `dir` by the process `pid`.
+fn journal_path(dir: &Path, pid: u32) -> PathBuf {
+    dir.join(format!(".jdbb-set-{pid}.journal"))
+}
+
+/// The process id in `name` if it is `PREFIX PID SUFFIX` (with `-N` after PID if `counted`), of
+/// a process that no longer runs.
+fn dead_pid(name: &str, prefix: &str, suffix: &str, counted: bool) -> Option<u32> {
+    let rest = name.strip_prefix(prefix)?.strip_suffix(suffix)?;
+    let pid = if counted {
+        let (pid, n) = rest.split_once('-')?;
+        n.parse::<u32>().ok()?;
+        pid
+    } else {
+        rest
+    };
+    let pid = pid.parse::<u32>().ok()?;
+    (pid != std::process::id() && !alive(pid)).then_some(pid)
+}
+
+/// Finish what a killed process left of a set in `dir`: a set whose journal remains was being put
+/// in place, and is rolled back to the old files; old copies without a journal belong to a set
+/// that was put in place whole, and are removed. Best effort; run before a set is written there.
+fn recover_sets(dir: &Path) {
+    let Ok(names) = entry_names(dir) else {
+        return;
+    };
+    for name in &names {
+        let Some(pid) = dead_pid(name, ".jdbb-set-", ".journal", false) else {
+            continue;
+        };
+        let journal = dir.join(name);
+        let Ok(text) = fs::read_to_string(&journal) else {
+            continue;
+        };
+        let done: Vec<(PathBuf, Option<PathBuf>)> = text
+            .lines()
+            .filter_map(|l| l.split_once('\t'))
+            .map(|(dest, b)| (dir.join(dest), (!b.is_empty()).then(|| dir.join(b))))
+            .collect();
+        // Only what had changed is undone: an old copy not yet made means its file is as it was.
+        let done: Vec<_> = done
+            .into_iter()
+            .filter(|(_, b)| b.as_ref().is_none_or(|b| b.exists()))
+            .collect();
+        roll_back(&done);
+        let _ = fs::remove_file(&journal);
+        let _ = writeln!(
+            io::stderr(),
+            "note: {} held a set of files that a jdbb killed while writing it (process {pid}) had half put in place; the files before it were put back",
+            dir.display()
+        );
+    }
+    sync_dir(dir);
+    for name in entry_names(dir).unwrap_or_default() {
+        let is_old = name.starts_with('.')
+            && name
+                .split_once(".jdbb-")
+                .is_some_and(|(_, rest)| dead_pid(rest, "", ".old", true).is_some());
+        if is_old {
+            let _ = fs::remove_file(dir.join(&name));
         }
     }
 }
@@ -800,11 +880,14 @@ pub fn check_dir_destination(dest: &Path, force: bool) -> Result<bool> {
     // Only what jdbb wrote there is replaced: anything else (an input, notes) is the user's.
     let mark = read_input(&dest.join(DIR_MARK), Limit::Document)?;
     let mark = String::from_utf8_lossy(&mark);
-    let ours: Vec<&str> = match mark.strip_prefix(MARK_FIRST_LINE) {
-        Some(list) => list.lines().collect(),
-        // A mark of an older jdbb, without the list: nothing is known to be its.
-        None => vec![],
+    let Some(list) = mark.strip_prefix(MARK_FIRST_LINE) else {
+        // A mark of an older jdbb, without the list: nothing in it is known to be jdbb's.
+        return Err(Error::Usage(format!(
+            "{} was written by an older jdbb, which did not list the files it wrote there; it is not replaced even with --force, so nothing of yours in it is lost: choose another directory, or remove it yourself",
+            dest.display()
+        )));
     };
+    let ours: Vec<&str> = list.lines().collect();
     let theirs: Vec<String> = entry_names(dest)
         .map_err(|source| Error::File {
             action: "cannot read",
@@ -1144,6 +1227,38 @@ mod tests {
         set.remove("one");
         set.commit().unwrap();
         assert_eq!(ls(&d), [DIR_MARK, "notes", "two"]);
+    }
+
+    #[test]
+    #[cfg(unix)]
+    fn a_set_a_killed_process_left_half_in_place_is_rolled_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let mut gone = std::process::Command::new("true").spawn().unwrap();
+        let pid = gone.id();
+        gone.wait().unwrap();
+        // Killed after `a` was replaced (its old copy kept) and `b` (new) put in place.
+        fs::write(d.join("a"), "new a").unwrap();
+        fs::write(d.join(format!(".a.jdbb-{pid}-0.old")), "old a").unwrap();
+        fs::write(d.join("b"), "new b").unwrap();
+        fs::write(
+            d.join(format!(".jdbb-set-{pid}.journal")),
+            format!("a\t.a.jdbb-{pid}-0.old\nb\t\nz\t.z.jdbb-{pid}-2.old\n"),
+        )
+        .unwrap();
+        fs::write(d.join("z"), "z as it was").unwrap();
+        let mut set = FileSet::new(d, true).unwrap();
+        set.add("c", b"c").unwrap();
+        set.commit().unwrap();
+        assert_eq!(fs::read_to_string(d.join("a")).unwrap(), "old a");
+        assert_eq!(fs::read_to_string(d.join("z")).unwrap(), "z as it was");
+        assert_eq!(ls(d), ["a", "c", "z"]);
+        // Old copies of a set that was put in place whole (no journal) are removed.
+        fs::write(d.join(format!(".c.jdbb-{pid}-0.old")), "older c").unwrap();
+        let mut set = FileSet::new(d, true).unwrap();
+        set.add("c", b"c2").unwrap();
+        set.commit().unwrap();
+        assert_eq!(ls(d), ["a", "c", "z"]);
     }
 
     #[test]

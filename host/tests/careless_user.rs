@@ -1352,7 +1352,7 @@ fn an_output_is_never_one_of_the_commands_inputs() {
     )
     .unwrap();
     let comp = fs::read(d.join("x.comp")).unwrap();
-    let o = jdbb_in(
+    fails_in(
         d,
         &[
             "compensate",
@@ -1368,9 +1368,9 @@ fn an_output_is_never_one_of_the_commands_inputs() {
             ".",
             "--force",
         ],
+        2,
+        "COMP_FILE x.comp",
     );
-    assert_ne!(o.status.code(), Some(0), "{}", stderr(&o));
-    assert!(!stderr(&o).contains("panicked"), "{}", stderr(&o));
     assert_eq!(fs::read(d.join("x.comp")).unwrap(), comp);
     no_temporaries(d);
 }
@@ -1563,7 +1563,12 @@ fn a_header_of_200_000_names_is_read_at_once() {
     // Three characters each: 800 kB, under the 1 MiB a line may have.
     let alphabet: Vec<char> = ('a'..='z').chain('A'..='Z').chain('0'..='9').collect();
     let names: Vec<String> = (0..205_000)
-        .map(|k| [k / 3844, k / 62 % 62, k % 62].map(|i| alphabet[i]).iter().collect())
+        .map(|k| {
+            [k / 3844, k / 62 % 62, k % 62]
+                .map(|i| alphabet[i])
+                .iter()
+                .collect()
+        })
         .collect();
     fs::write(d.join("wide.csv"), names.join(",") + "\n").unwrap();
     for args in [
