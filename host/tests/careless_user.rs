@@ -1340,6 +1340,24 @@ fn an_output_is_never_one_of_the_commands_inputs() {
         );
     }
     assert_eq!(fs::read(d.join("m.toml")).unwrap(), machine);
+    // record -o over its plan: refused before the port is opened.
+    let plan = fs::read(d.join("p/plan.json")).unwrap();
+    fails_in(
+        d,
+        &[
+            "record",
+            "--port",
+            "/dev/nonexistent",
+            "--plan",
+            "p/plan.json",
+            "-o",
+            "p/plan.json",
+            "--force",
+        ],
+        2,
+        "input",
+    );
+    assert_eq!(fs::read(d.join("p/plan.json")).unwrap(), plan);
     // compensate --out over the COMP_FILE in force (the table it merges into).
     fs::write(
         d.join("x.comp"),
