@@ -1438,6 +1438,7 @@ fn ctrl_c_during_a_set_leaves_the_old_set_or_the_new_one() {
     ok_in(d, &plan("90", "p"));
     let run = t0.elapsed();
     let mut current = 1;
+    let mut interrupted = 0;
     for k in 0..120u32 {
         let next = 1 - current;
         let (code, e) = interrupt_capturing(d, &plan(["85", "90"][next], "p"), run * (k % 40) / 30);
@@ -1455,6 +1456,7 @@ fn ctrl_c_during_a_set_leaves_the_old_set_or_the_new_one() {
         if code == Some(0) {
             assert_eq!(which, next, "run {k}");
         }
+        interrupted += usize::from(code == Some(130));
         current = which;
         let left: Vec<String> = ls(&d.join("p"))
             .into_iter()
@@ -1462,6 +1464,10 @@ fn ctrl_c_during_a_set_leaves_the_old_set_or_the_new_one() {
             .collect();
         assert!(left.is_empty(), "run {k}: left {left:?} ({code:?}: {e})");
     }
+    assert!(
+        interrupted > 0,
+        "no run was interrupted: the test tested nothing"
+    );
 }
 
 #[test]
