@@ -49,7 +49,7 @@ pub struct DiagnoseArgs {
     /// built beside it and swapped in, never a mix of new and stale files.
     #[arg(long)]
     pub report: Option<PathBuf>,
-    /// Replace the --report directory if it exists (only one jdbb wrote; never a link).
+    /// Replace the --report directory if it exists (only one jdbb wrote, holding nothing else; never a link).
     #[arg(long, requires = "report")]
     pub force: bool,
     /// The machine's name, for the report and the history (`jdbb history add`).
