@@ -15,66 +15,113 @@
 //! - **Sets.** Files that belong together (plan.json and its program, a controller's
 //!   compensation files) are all staged before any is put in place; a failure while putting them
 //!   in place puts the old ones back ([`FileSet`]). A report directory is built whole beside the
-//!   destination and swapped in ([`write_dir`]), so it never mixes new and stale files.
+//!   destination and swapped in ([`write_dir`]), so it never mixes new and stale files; its
+//!   [`DIR_MARK`] lists what it wrote, and a directory holding anything else is not replaced.
+//! - **Inputs.** An output is never one of the command's inputs ([`check_not_input`]: the same
+//!   file by any name, or an input inside an output directory), even with `--force`.
 //! - **Interruption.** Temporary files and directories are registered while they exist;
 //!   [`exit_on_interrupt`] makes Ctrl-C (SIGTERM, SIGHUP) remove them and exit 130 at once, so an
-//!   interrupted command leaves no partial output.
+//!   interrupted command leaves no partial output. Whatever is put in place is put there under
+//!   the same lock, which the handler takes and keeps: a set is finished before the process ends
+//!   (old or new, never a mix), and the message says whether an output was written. Temporary
+//!   files of a process that no longer runs (SIGKILL) are removed by the next write beside them,
+//!   and a set it was putting in place is rolled back from its journal by the next set there;
+//!   a write past the file size limit is an error, not a SIGXFSZ death
+//!   ([`fail_writes_past_size_limit`]).
 //!
 //! # Reading
-//! [`open_input`] opens an input file for reading: a directory is refused, and the bytes read are
+//! [`open_input`] opens an input file for reading without waiting at the opening (a named pipe
+//! with no writer reads as empty): a directory is refused, and the bytes read are
 //! limited ([`LimitedReader`]): past the limit, reading fails with a message that names the limit
 //! (exit 2). The limits per kind of input are [`Limit`]; `/dev/zero` or a runaway file is stopped
 //! there instead of filling the memory.
 use std::fs::{self, File, OpenOptions};
 use std::io::{self, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Mutex, MutexGuard, PoisonError};
 
 use crate::{Error, Result};
 
-/// Temporary files and directories that exist now (removed on an interrupt).
+/// Temporary files and directories that exist now (removed on an interrupt). Whatever is put in
+/// place (a rename, a set swapped in) is put there with this lock held, and the interrupt handler
+/// takes it and keeps it until the process ends: an interrupt waits for a set being put in place
+/// and then nothing more is.
 static STAGED: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
 
-fn register(p: &Path) {
-    if let Ok(mut v) = STAGED.lock() {
-        v.push(p.to_path_buf());
-    }
+/// How many outputs this process has put in place (what an interrupt's message says).
+static PLACED: AtomicUsize = AtomicUsize::new(0);
+
+fn staged() -> MutexGuard<'static, Vec<PathBuf>> {
+    STAGED.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
 fn unregister(p: &Path) {
-    if let Ok(mut v) = STAGED.lock() {
-        v.retain(|q| q != p);
+    staged().retain(|q| q != p);
+}
+
+fn remove_all(v: &mut Vec<PathBuf>) {
+    for p in v.drain(..) {
+        if fs::symlink_metadata(&p).is_ok_and(|m| m.is_dir()) {
+            let _ = fs::remove_dir_all(&p);
+        } else {
+            let _ = fs::remove_file(&p);
+        }
+    }
+}
+
+/// Count `n` outputs put at `dest` (a file inside a staging directory is not an output yet).
+fn count_placed(v: &[PathBuf], dest: &Path, n: usize) {
+    if !v.iter().any(|s| dest.starts_with(s)) {
+        PLACED.fetch_add(n, Ordering::SeqCst);
     }
 }
 
 /// Remove every temporary file and directory this process has staged and not yet put in place.
 pub fn remove_staged() {
-    if let Ok(mut v) = STAGED.lock() {
-        for p in v.drain(..) {
-            if fs::symlink_metadata(&p).is_ok_and(|m| m.is_dir()) {
-                let _ = fs::remove_dir_all(&p);
-            } else {
-                let _ = fs::remove_file(&p);
-            }
-        }
+    remove_all(&mut staged());
+}
+
+/// What an interrupt leaves, in words, when `placed` outputs had been put in place.
+fn interrupted_message(placed: usize) -> String {
+    match placed {
+        0 => "interrupted; no output was written (what was in place before is as it was)".into(),
+        n => format!(
+            "interrupted after {n} output file(s) or set(s) had been written whole; nothing half-written was left (the others are as they were)"
+        ),
     }
 }
 
 /// Make Ctrl-C (and SIGTERM, SIGHUP) end the process within milliseconds with exit code 130,
 /// after removing what it staged ([`remove_staged`]): for every command but those that
 /// talk to a device (`record`, `live`, `calibration`), which end their session themselves. A rename
-/// in progress finishes first (it holds the same lock), so an output is whole or absent.
+/// or a set being put in place finishes first (it holds the same lock), so an output or a set is
+/// whole or as it was, and the message says which.
 pub fn exit_on_interrupt() {
     // A second handler cannot be installed (a command that has its own, such as `record`,
     // keeps it); that is not an error here.
     let _ = ctrlc::set_handler(|| {
-        remove_staged();
+        // Held until the process ends: nothing is put in place after this.
+        let mut v = staged();
+        remove_all(&mut v);
         let _ = writeln!(
             io::stderr(),
-            "interrupted; no output was written (what was in place before is as it was)"
+            "{}",
+            interrupted_message(PLACED.load(Ordering::SeqCst))
         );
         std::process::exit(130);
     });
+}
+
+/// Make a write beyond the process's file size limit (`ulimit -f`) fail with an error (EFBIG:
+/// "File too large", then the output is as it was) instead of killing the process silently with
+/// SIGXFSZ and leaving its temporary files behind.
+pub fn fail_writes_past_size_limit() {
+    #[cfg(unix)]
+    // SAFETY: setting a signal's disposition to "ignore" (no handler code runs).
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
 }
 
 /// What `path` is, in words, if it is not a regular file (None: a regular file).
@@ -140,13 +187,60 @@ fn temp_name(dest: &Path, n: u32) -> PathBuf {
     ))
 }
 
+/// Whether the process `pid` is alive (or may be: one of another user's).
+fn alive(pid: u32) -> bool {
+    #[cfg(unix)]
+    {
+        let Ok(pid) = libc::pid_t::try_from(pid) else {
+            return true;
+        };
+        // SAFETY: signal 0 sends nothing; it only asks whether the process exists.
+        let r = unsafe { libc::kill(pid, 0) };
+        r == 0 || io::Error::last_os_error().raw_os_error() != Some(libc::ESRCH)
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = pid;
+        true
+    }
+}
+
+/// Remove the temporary files and directories of `dest` (`.NAME.jdbb-PID-N.tmp`) that a process
+/// which no longer runs left behind (killed, with no chance to remove them): they were never put
+/// in place, so nothing of the user's is in them, and they do not pile up. Best effort.
+fn remove_stale_temps(dest: &Path) {
+    let prefix = format!(".{}.jdbb-", file_name(dest));
+    let Ok(entries) = fs::read_dir(parent_of(dest)) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let name = e.file_name();
+        if name
+            .to_str()
+            .and_then(|n| dead_pid(n, &prefix, ".tmp", true))
+            .is_none()
+        {
+            continue;
+        }
+        let p = e.path();
+        if fs::symlink_metadata(&p).is_ok_and(|m| m.is_dir()) {
+            let _ = fs::remove_dir_all(&p);
+        } else {
+            let _ = fs::remove_file(&p);
+        }
+    }
+}
+
 /// Create a new temporary file beside `dest` (never an existing file, never through a link).
 fn create_temp(dest: &Path) -> Result<(PathBuf, File)> {
+    remove_stale_temps(dest);
     for n in 0..1000 {
         let tmp = temp_name(dest, n);
+        // Created and registered under the lock: an interrupt removes it, or it does not exist.
+        let mut v = staged();
         match OpenOptions::new().write(true).create_new(true).open(&tmp) {
             Ok(f) => {
-                register(&tmp);
+                v.push(tmp.clone());
                 return Ok((tmp, f));
             }
             Err(e) if e.kind() == io::ErrorKind::AlreadyExists => continue,
@@ -185,26 +279,32 @@ fn sync_dir(dir: &Path) {
 /// destination is checked again; without `force` a file that appeared meanwhile is kept.
 fn place(tmp: &Path, dest: &Path, force: bool) -> Result<()> {
     check_destination(dest, force)?;
-    let guard = STAGED.lock();
+    let mut v = staged();
+    put(&mut v, tmp, dest, force)?;
+    count_placed(&v, dest, 1);
+    drop(v);
+    sync_dir(parent_of(dest));
+    Ok(())
+}
+
+/// [`place`]'s rename, with the lock held (`v`: the staged paths).
+fn put(v: &mut Vec<PathBuf>, tmp: &Path, dest: &Path, force: bool) -> Result<()> {
     let placed = if force {
         fs::rename(tmp, dest)
     } else {
         match fs::hard_link(tmp, dest) {
             Ok(()) => fs::remove_file(tmp),
             Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {
-                drop(guard);
                 return Err(Error::OutputExists {
                     path: dest.to_path_buf(),
                 });
             }
-            // A file system without hard links: the check above is the guard.
+            // A file system without hard links: the check before is the guard.
             Err(_) => fs::rename(tmp, dest),
         }
     };
-    drop(guard);
     placed.map_err(write_err(dest))?;
-    unregister(tmp);
-    sync_dir(parent_of(dest));
+    v.retain(|q| q != tmp);
     Ok(())
 }
 
@@ -294,23 +394,38 @@ pub fn write_via<T>(dest: &Path, force: bool, write: impl FnOnce(&Path) -> Resul
 }
 
 /// Files written into one directory as a set: every file is staged first, then all are put in
-/// place; if putting one in place fails, those already replaced get their old content back and
-/// new ones are removed (see the module docs).
+/// place with the interrupt lock held (Ctrl-C waits for them), together with the removal of
+/// files the set replaces under another name ([`FileSet::remove`]); if putting one in place
+/// fails, those already replaced get their old content back, new ones are removed and removed
+/// ones come back (see the module docs). Files of the directory that are not in the set are
+/// kept.
 pub struct FileSet {
     dir: PathBuf,
     force: bool,
     staged: Vec<Staged>,
+    removals: Vec<PathBuf>,
+}
+
+/// `path` without a trailing `/` (`link/` would name what the link points at, not the link).
+fn without_trailing_slash(path: &Path) -> PathBuf {
+    let p: PathBuf = path.components().collect();
+    if p.as_os_str().is_empty() {
+        PathBuf::from(".")
+    } else {
+        p
+    }
 }
 
 impl FileSet {
     /// A set of files in `dir` (created with the first file staged; a link or a non-directory
     /// is refused).
     pub fn new(dir: &Path, force: bool) -> Result<FileSet> {
-        match fs::symlink_metadata(dir) {
+        let dir = without_trailing_slash(dir);
+        match fs::symlink_metadata(&dir) {
             Ok(m) if m.is_dir() => {}
             Ok(m) => {
                 return Err(Error::OutputNotAFile {
-                    path: dir.to_path_buf(),
+                    path: dir.clone(),
                     what: not_a_file(&m).unwrap_or("a file, not a directory"),
                 })
             }
@@ -319,22 +434,27 @@ impl FileSet {
             Err(source) => {
                 return Err(Error::File {
                     action: "cannot check",
-                    path: dir.to_path_buf(),
+                    path: dir.clone(),
                     source,
                 })
             }
         }
         Ok(FileSet {
-            dir: dir.to_path_buf(),
+            dir,
             force,
             staged: vec![],
+            removals: vec![],
         })
     }
 
-    /// Check every destination of `names` in the set's directory before anything is written.
-    pub fn check(&self, names: &[&str]) -> Result<()> {
+    /// Check every destination of `names` in the set's directory before anything is written:
+    /// each may be written ([`check_destination`]) and none is one of `inputs`
+    /// ([`check_not_input`]).
+    pub fn check(&self, names: &[&str], inputs: &[(&str, &Path)]) -> Result<()> {
         for n in names {
-            check_destination(&self.dir.join(n), self.force)?;
+            let dest = self.dir.join(n);
+            check_destination(&dest, self.force)?;
+            check_not_input(&dest, inputs)?;
         }
         Ok(())
     }
@@ -355,6 +475,12 @@ impl FileSet {
         Ok(())
     }
 
+    /// Remove the file `name` of the directory with the set (an older member of it under
+    /// another name, such as the program of another dialect), if it is a regular file.
+    pub fn remove(&mut self, name: &str) {
+        self.removals.push(self.dir.join(name));
+    }
+
     /// Put every staged file in place (see the type's docs).
     pub fn commit(mut self) -> Result<()> {
         // Everything on the disk first.
@@ -366,60 +492,233 @@ impl FileSet {
                 .map_err(|e| write_err(&dest)(e.into_error()))?;
             f.sync_all().map_err(write_err(&dest))?;
         }
+        recover_sets(&self.dir);
         for s in &self.staged {
             check_destination(&s.dest, self.force)?;
         }
-        // Keep the old files under other names until all new ones are in place.
-        let mut backups: Vec<(PathBuf, Option<PathBuf>)> = vec![];
-        let mut result = Ok(());
-        for (k, s) in self.staged.iter().enumerate() {
-            let backup = if fs::symlink_metadata(&s.dest).is_ok() {
-                let b = s.dest.with_file_name(format!(
-                    ".{}.jdbb-{}-{k}.old",
-                    file_name(&s.dest),
-                    std::process::id()
-                ));
-                if let Err(source) = fs::hard_link(&s.dest, &b) {
-                    result = Err(Error::File {
-                        action: "cannot keep a copy of",
-                        path: s.dest.clone(),
-                        source,
-                    });
-                    break;
-                }
-                register(&b);
-                Some(b)
-            } else {
-                None
-            };
-            backups.push((s.dest.clone(), backup));
-            if let Err(e) = place(&s.tmp, &s.dest, self.force) {
-                result = Err(e);
-                break;
-            }
-        }
-        if result.is_err() {
-            // Back to the old set: old files restored, new ones removed.
-            for (dest, backup) in backups.iter().rev() {
-                match backup {
-                    Some(b) => {
-                        let _ = fs::rename(b, dest);
-                    }
-                    None => {
-                        let _ = fs::remove_file(dest);
-                    }
-                }
-            }
-        }
-        for (_, b) in &backups {
-            if let Some(b) = b {
-                let _ = fs::remove_file(b);
-                unregister(b);
-            }
-        }
+        // An interrupt waits until the set is all new, or all old again.
+        let mut v = staged();
+        let result = self.swap(&mut v);
+        drop(v);
         sync_dir(&self.dir);
         result
     }
+
+    /// Put the set in place with the lock held (`v`): all of it, or nothing changed. A journal
+    /// beside the set names what is about to change before anything does and is removed once the
+    /// set is whole, so a process killed in between (SIGKILL, a power cut) is rolled back by the
+    /// next set written in the directory ([`recover_sets`]).
+    fn swap(&self, v: &mut Vec<PathBuf>) -> Result<()> {
+        // Each destination, the old file kept for it (None: it is new), and whether it is
+        // removed rather than replaced.
+        let pid = std::process::id();
+        let mut entries: Vec<(PathBuf, Option<PathBuf>, Option<&Staged>)> = vec![];
+        for (k, s) in self.staged.iter().enumerate() {
+            let existed = fs::symlink_metadata(&s.dest).is_ok();
+            entries.push((
+                s.dest.clone(),
+                existed.then(|| backup_path(&s.dest, pid, k)),
+                Some(s),
+            ));
+        }
+        let n = entries.len();
+        for (k, r) in self.removals.iter().enumerate() {
+            if fs::symlink_metadata(r).is_ok_and(|m| m.is_file()) {
+                entries.push((r.clone(), Some(backup_path(r, pid, n + k)), None));
+            }
+        }
+        let journal = journal_path(&self.dir, pid);
+        let mut text = String::new();
+        for (dest, backup, _) in &entries {
+            text.push_str(&file_name(dest));
+            text.push('\t');
+            if let Some(b) = backup {
+                text.push_str(&file_name(b));
+            }
+            text.push('\n');
+        }
+        File::create(&journal)
+            .and_then(|mut f| {
+                f.write_all(text.as_bytes())?;
+                f.sync_all()
+            })
+            .map_err(write_err(&journal))?;
+        sync_dir(&self.dir);
+        // What was done, to be undone on a failure.
+        let mut done: Vec<(PathBuf, Option<PathBuf>)> = vec![];
+        let mut result = Ok(());
+        for (dest, backup, staged) in &entries {
+            let keep = match (backup, staged) {
+                (Some(b), Some(_)) => fs::hard_link(dest, b),
+                (Some(b), None) => fs::rename(dest, b),
+                (None, _) => Ok(()),
+            };
+            if let Err(source) = keep {
+                result = Err(Error::File {
+                    action: "cannot keep a copy of",
+                    path: dest.clone(),
+                    source,
+                });
+                break;
+            }
+            if let Some(s) = staged {
+                if let Err(e) = put(v, &s.tmp, dest, self.force) {
+                    if let Some(b) = backup {
+                        let _ = fs::remove_file(b);
+                    }
+                    result = Err(e);
+                    break;
+                }
+            }
+            done.push((dest.clone(), backup.clone()));
+        }
+        match result {
+            Ok(()) => {
+                // The set is whole: the journal goes first, then the old copies.
+                let _ = fs::remove_file(&journal);
+                sync_dir(&self.dir);
+                for b in done.iter().filter_map(|(_, b)| b.as_ref()) {
+                    let _ = fs::remove_file(b);
+                }
+                count_placed(v, &self.dir, 1);
+                Ok(())
+            }
+            Err(e) => {
+                roll_back(&done);
+                let _ = fs::remove_file(&journal);
+                Err(e)
+            }
+        }
+    }
+}
+
+/// Undo a set's changes (`done`: each destination and its old copy, None if it was new), last
+/// first: old files restored, new ones removed (a copy that cannot be put back stays under its
+/// .old name, so nothing is lost).
+fn roll_back(done: &[(PathBuf, Option<PathBuf>)]) {
+    for (dest, backup) in done.iter().rev() {
+        match backup {
+            Some(b) => {
+                let _ = fs::rename(b, dest);
+            }
+            None => {
+                let _ = fs::remove_file(dest);
+            }
+        }
+    }
+}
+
+/// The old file at `dest` kept while a set is put in place: `.NAME.jdbb-PID-K.old`.
+fn backup_path(dest: &Path, pid: u32, k: usize) -> PathBuf {
+    dest.with_file_name(format!(".{}.jdbb-{pid}-{k}.old", file_name(dest)))
+}
+
+/// The journal of a set being put in place in `dir` by the process `pid`.
+fn journal_path(dir: &Path, pid: u32) -> PathBuf {
+    dir.join(format!(".jdbb-set-{pid}.journal"))
+}
+
+/// The process id in `name` if it is `PREFIX PID SUFFIX` (with `-N` after PID if `counted`), of
+/// a process that no longer runs.
+fn dead_pid(name: &str, prefix: &str, suffix: &str, counted: bool) -> Option<u32> {
+    let rest = name.strip_prefix(prefix)?.strip_suffix(suffix)?;
+    let pid = if counted {
+        let (pid, n) = rest.split_once('-')?;
+        n.parse::<u32>().ok()?;
+        pid
+    } else {
+        rest
+    };
+    let pid = pid.parse::<u32>().ok()?;
+    (pid != std::process::id() && !alive(pid)).then_some(pid)
+}
+
+/// Finish what a killed process left of a set in `dir`: a set whose journal remains was being put
+/// in place, and is rolled back to the old files; old copies without a journal belong to a set
+/// that was put in place whole, and are removed. Best effort; run before a set is written there.
+fn recover_sets(dir: &Path) {
+    let Ok(names) = entry_names(dir) else {
+        return;
+    };
+    for name in &names {
+        let Some(pid) = dead_pid(name, ".jdbb-set-", ".journal", false) else {
+            continue;
+        };
+        let journal = dir.join(name);
+        let Ok(text) = fs::read_to_string(&journal) else {
+            continue;
+        };
+        let done: Vec<(PathBuf, Option<PathBuf>)> = text
+            .lines()
+            .filter_map(|l| l.split_once('\t'))
+            .map(|(dest, b)| (dir.join(dest), (!b.is_empty()).then(|| dir.join(b))))
+            .collect();
+        // Only what had changed is undone: an old copy not yet made means its file is as it was.
+        let done: Vec<_> = done
+            .into_iter()
+            .filter(|(_, b)| b.as_ref().is_none_or(|b| b.exists()))
+            .collect();
+        roll_back(&done);
+        let _ = fs::remove_file(&journal);
+        let _ = writeln!(
+            io::stderr(),
+            "note: {} held a set of files that a jdbb killed while writing it (process {pid}) had half put in place; the files before it were put back",
+            dir.display()
+        );
+    }
+    sync_dir(dir);
+    for name in entry_names(dir).unwrap_or_default() {
+        let is_old = name.starts_with('.')
+            && name
+                .split_once(".jdbb-")
+                .is_some_and(|(_, rest)| dead_pid(rest, "", ".old", true).is_some());
+        if is_old {
+            let _ = fs::remove_file(dir.join(&name));
+        }
+    }
+}
+
+/// Whether `a` and `b` name the same file: the same file on the disk through any links or
+/// other names (the same device and inode), or the same path.
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    if a == b {
+        return true;
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        if let (Ok(x), Ok(y)) = (fs::metadata(a), fs::metadata(b)) {
+            return x.dev() == y.dev() && x.ino() == y.ino();
+        }
+    }
+    match (fs::canonicalize(a), fs::canonicalize(b)) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    }
+}
+
+/// Refuse an output that is one of the command's inputs: `output` (a file, or a directory
+/// written whole) is one of `inputs` (each with the option that names it, as `--db`), or an
+/// input is inside the directory `output`. Checked before anything is written, so the input is
+/// never replaced, even with `--force`.
+pub fn check_not_input(output: &Path, inputs: &[(&str, &Path)]) -> Result<()> {
+    let out_dir = fs::symlink_metadata(output)
+        .is_ok_and(|m| m.is_dir())
+        .then(|| fs::canonicalize(output).ok())
+        .flatten();
+    for (option, input) in inputs {
+        let inside = out_dir
+            .as_ref()
+            .is_some_and(|d| fs::canonicalize(input).is_ok_and(|i| i.starts_with(d)));
+        if same_file(output, input) || inside {
+            return Err(Error::Usage(format!(
+                "{} would be written over {option} {}, an input of this command: jdbb never replaces its own input (even with --force); choose another output",
+                output.display(),
+                input.display()
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// The file that marks a directory as written whole by [`write_dir`], so `--force` may replace
@@ -428,9 +727,10 @@ pub const DIR_MARK: &str = ".jdbb-output";
 
 /// Write the directory `dest` whole: `write` fills a new directory beside it; then the new
 /// directory takes `dest`'s place in one step (see the module docs). An existing `dest` is
-/// replaced only with `force`, and only if it is empty or was written by `write_dir` (it holds
-/// [`DIR_MARK`]), so nothing of the user's in it is lost.
+/// replaced only with `force`, and only if it is empty or holds only what `write_dir` wrote
+/// there ([`DIR_MARK`] lists it), so nothing of the user's in it is lost.
 pub fn write_dir<T>(dest: &Path, force: bool, write: impl FnOnce(&Path) -> Result<T>) -> Result<T> {
+    let dest = &without_trailing_slash(dest);
     let exists = check_dir_destination(dest, force)?;
     // The directories above it, as `--report a/b/c` always made them.
     fs::create_dir_all(parent_of(dest)).map_err(|source| Error::File {
@@ -438,12 +738,14 @@ pub fn write_dir<T>(dest: &Path, force: bool, write: impl FnOnce(&Path) -> Resul
         path: dest.to_path_buf(),
         source,
     })?;
+    remove_stale_temps(dest);
     let mut stage = None;
     for n in 0..1000 {
         let p = temp_name(dest, n);
+        let mut v = staged();
         match fs::create_dir(&p) {
             Ok(()) => {
-                register(&p);
+                v.push(p.clone());
                 stage = Some(p);
                 break;
             }
@@ -469,8 +771,13 @@ pub fn write_dir<T>(dest: &Path, force: bool, write: impl FnOnce(&Path) -> Resul
         unregister(stage);
     };
     let value = match write(&stage).and_then(|v| {
-        fs::write(stage.join(DIR_MARK), b"written by jdbb as a whole\n")
-            .map_err(write_err(dest))?;
+        // The mark lists what was written, so a later --force replaces only that.
+        let mut mark = String::from(MARK_FIRST_LINE);
+        for name in entry_names(&stage).map_err(write_err(dest))? {
+            mark.push_str(&name);
+            mark.push('\n');
+        }
+        fs::write(stage.join(DIR_MARK), mark).map_err(write_err(dest))?;
         for entry in fs::read_dir(&stage).map_err(write_err(dest))? {
             let entry = entry.map_err(write_err(dest))?;
             File::open(entry.path())
@@ -491,13 +798,16 @@ pub fn write_dir<T>(dest: &Path, force: bool, write: impl FnOnce(&Path) -> Resul
         cleanup(&stage);
         return Err(e);
     }
-    let guard = STAGED.lock();
+    let v = staged();
     let swapped = if exists {
         exchange(&stage, dest)
     } else {
         fs::rename(&stage, dest)
     };
-    drop(guard);
+    if swapped.is_ok() {
+        count_placed(&v, dest, 1);
+    }
+    drop(v);
     if let Err(source) = swapped {
         cleanup(&stage);
         return Err(Error::File {
@@ -512,9 +822,24 @@ pub fn write_dir<T>(dest: &Path, force: bool, write: impl FnOnce(&Path) -> Resul
     Ok(value)
 }
 
+/// The first line of [`DIR_MARK`]; the names [`write_dir`] wrote follow, one a line.
+const MARK_FIRST_LINE: &str = "written by jdbb as a whole; its files:\n";
+
+/// The names in the directory `dir`, sorted.
+fn entry_names(dir: &Path) -> io::Result<Vec<String>> {
+    let mut names = vec![];
+    for e in fs::read_dir(dir)? {
+        names.push(e?.file_name().to_string_lossy().into_owned());
+    }
+    names.sort();
+    Ok(names)
+}
+
 /// Check that [`write_dir`] may write the directory `dest` (nothing there, an empty directory,
-/// or with `force` one it wrote before); returns whether it exists. Touches nothing.
+/// or with `force` one it wrote before that holds nothing else); returns whether it exists.
+/// Touches nothing.
 pub fn check_dir_destination(dest: &Path, force: bool) -> Result<bool> {
+    let dest = &without_trailing_slash(dest);
     let meta = match fs::symlink_metadata(dest) {
         Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(false),
         Err(source) => {
@@ -550,6 +875,36 @@ pub fn check_dir_destination(dest: &Path, force: bool) -> Result<bool> {
         return Err(Error::Usage(format!(
             "{} holds files that jdbb did not write as one output; it is not replaced even with --force: choose another directory, or empty it yourself",
             dest.display()
+        )));
+    }
+    // Only what jdbb wrote there is replaced: anything else (an input, notes) is the user's.
+    let mark = read_input(&dest.join(DIR_MARK), Limit::Document)?;
+    let mark = String::from_utf8_lossy(&mark);
+    let Some(list) = mark.strip_prefix(MARK_FIRST_LINE) else {
+        // A mark of an older jdbb, without the list: nothing in it is known to be jdbb's.
+        return Err(Error::Usage(format!(
+            "{} was written by an older jdbb, which did not list the files it wrote there; it is not replaced even with --force, so nothing of yours in it is lost: choose another directory, or remove it yourself",
+            dest.display()
+        )));
+    };
+    let ours: Vec<&str> = list.lines().collect();
+    let theirs: Vec<String> = entry_names(dest)
+        .map_err(|source| Error::File {
+            action: "cannot read",
+            path: dest.to_path_buf(),
+            source,
+        })?
+        .into_iter()
+        .filter(|n| n != DIR_MARK && !ours.contains(&n.as_str()))
+        .collect();
+    if !theirs.is_empty() {
+        let shown: Vec<&str> = theirs.iter().take(10).map(String::as_str).collect();
+        return Err(Error::Usage(format!(
+            "{} holds {} that jdbb did not write there ({}{}); it is not replaced even with --force, so they are not lost: move them out of it, or choose another directory",
+            dest.display(),
+            if theirs.len() == 1 { "a file" } else { "files" },
+            shown.join(", "),
+            if theirs.len() > shown.len() { ", …" } else { "" }
         )));
     }
     Ok(true)
@@ -671,7 +1026,7 @@ pub fn open_input(path: &Path, limit: Limit) -> Result<LimitedReader<File>> {
         path: path.to_path_buf(),
         source,
     };
-    let file = File::open(path).map_err(bad)?;
+    let file = open_no_wait(path).map_err(bad)?;
     let meta = file.metadata().map_err(bad)?;
     if meta.is_dir() {
         return Err(bad(io::Error::new(
@@ -687,6 +1042,30 @@ pub fn open_input(path: &Path, limit: Limit) -> Result<LimitedReader<File>> {
         left: limit.bytes(),
         limit,
     })
+}
+
+/// Open `path` for reading without waiting at the open: a named pipe with no writer would block
+/// `open` for ever; opened without waiting, it reads as empty (then an empty input, exit 2).
+/// Reads block again as usual once it is open (a pipe that has a writer is read to its end).
+fn open_no_wait(path: &Path) -> io::Result<File> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        use std::os::unix::io::AsRawFd;
+        let file = OpenOptions::new()
+            .read(true)
+            .custom_flags(libc::O_NONBLOCK)
+            .open(path)?;
+        let fd = file.as_raw_fd();
+        // SAFETY: fcntl on a descriptor this function owns; reads and sets its status flags.
+        let flags = unsafe { libc::fcntl(fd, libc::F_GETFL) };
+        if flags < 0 || unsafe { libc::fcntl(fd, libc::F_SETFL, flags & !libc::O_NONBLOCK) } < 0 {
+            return Err(io::Error::last_os_error());
+        }
+        Ok(file)
+    }
+    #[cfg(not(unix))]
+    File::open(path)
 }
 
 /// Read the whole input file `path` (at most `limit` bytes, see [`open_input`]).
@@ -765,7 +1144,7 @@ mod tests {
         fs::write(dir.path().join("b"), "old b").unwrap();
         // Without force nothing is staged over existing files.
         let set = FileSet::new(dir.path(), false).unwrap();
-        assert!(set.check(&["a", "b"]).is_err());
+        assert!(set.check(&["a", "b"], &[]).is_err());
         // A set whose second file cannot be put in place (its name is a directory now).
         let mut set = FileSet::new(dir.path(), true).unwrap();
         set.add("a", b"new a").unwrap();
@@ -824,6 +1203,62 @@ mod tests {
         let e = write_dir(&mine, true, |_| Ok(())).unwrap_err().to_string();
         assert!(e.contains("not replaced"), "{e}");
         assert_eq!(ls(&mine), ["notes"]);
+    }
+
+    #[test]
+    fn force_replaces_only_what_was_written_and_never_an_input() {
+        let root = tempfile::tempdir().unwrap();
+        let d = root.path().join("report");
+        let one = |s: &Path| fs::write(s.join("one"), "1").map_err(write_err(s));
+        write_dir(&d, false, one).unwrap();
+        fs::write(d.join("notes"), "mine").unwrap();
+        let e = write_dir(&d, true, one).unwrap_err().to_string();
+        assert!(e.contains("notes") && !e.contains("one,"), "{e}");
+        assert_eq!(ls(&d), [DIR_MARK, "notes", "one"]);
+        // An input inside the directory, or the same file by another name.
+        let e = check_not_input(&d, &[("--samples", &d.join("one"))]).unwrap_err();
+        assert!(e.to_string().contains("--samples"), "{e}");
+        fs::hard_link(d.join("one"), root.path().join("alias")).unwrap();
+        assert!(check_not_input(&root.path().join("alias"), &[("--db", &d.join("one"))]).is_err());
+        assert!(check_not_input(&root.path().join("new"), &[("--db", &d.join("one"))]).is_ok());
+        // A set removes the old member it replaces under another name, and nothing else.
+        let mut set = FileSet::new(&d, true).unwrap();
+        set.add("two", b"2").unwrap();
+        set.remove("one");
+        set.commit().unwrap();
+        assert_eq!(ls(&d), [DIR_MARK, "notes", "two"]);
+    }
+
+    #[test]
+    #[cfg(unix)]
+    fn a_set_a_killed_process_left_half_in_place_is_rolled_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let mut gone = std::process::Command::new("true").spawn().unwrap();
+        let pid = gone.id();
+        gone.wait().unwrap();
+        // Killed after `a` was replaced (its old copy kept) and `b` (new) put in place.
+        fs::write(d.join("a"), "new a").unwrap();
+        fs::write(d.join(format!(".a.jdbb-{pid}-0.old")), "old a").unwrap();
+        fs::write(d.join("b"), "new b").unwrap();
+        fs::write(
+            d.join(format!(".jdbb-set-{pid}.journal")),
+            format!("a\t.a.jdbb-{pid}-0.old\nb\t\nz\t.z.jdbb-{pid}-2.old\n"),
+        )
+        .unwrap();
+        fs::write(d.join("z"), "z as it was").unwrap();
+        let mut set = FileSet::new(d, true).unwrap();
+        set.add("c", b"c").unwrap();
+        set.commit().unwrap();
+        assert_eq!(fs::read_to_string(d.join("a")).unwrap(), "old a");
+        assert_eq!(fs::read_to_string(d.join("z")).unwrap(), "z as it was");
+        assert_eq!(ls(d), ["a", "c", "z"]);
+        // Old copies of a set that was put in place whole (no journal) are removed.
+        fs::write(d.join(format!(".c.jdbb-{pid}-0.old")), "older c").unwrap();
+        let mut set = FileSet::new(d, true).unwrap();
+        set.add("c", b"c2").unwrap();
+        set.commit().unwrap();
+        assert_eq!(ls(d), ["a", "c", "z"]);
     }
 
     #[test]

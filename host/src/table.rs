@@ -22,6 +22,7 @@
 //! [`Limit::Stream`] (4 GiB), one read whole at most [`Limit::Table`] (256 MiB); a whole-file
 //! document ([`read_text`]: TOML, JSON) at most [`Limit::Document`] (16 MiB). Above a limit the
 //! read stops with an error naming it (exit 2).
+use std::collections::HashMap;
 use std::io::{BufRead, BufReader, Read};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -50,6 +51,8 @@ pub struct Table {
     path: PathBuf,
     reader: Box<dyn BufRead>,
     names: Vec<String>,
+    /// Each name's field index (the first, for repeated empty names).
+    index: HashMap<String, usize>,
     header_text: String,
     header_line: usize,
     /// Line number of the line in `line` (1-based).
@@ -107,6 +110,7 @@ impl Table {
             path: path.to_path_buf(),
             reader,
             names: vec![],
+            index: HashMap::new(),
             header_text: String::new(),
             header_line: 0,
             line_no: 0,
@@ -132,11 +136,14 @@ impl Table {
             .iter()
             .map(|r| t.line[r.clone()].to_string())
             .collect();
+        // Each name's first field, by name: linear in the header's length (a header of 200 000
+        // names is refused or read at once, not compared pair by pair).
+        let mut index = HashMap::with_capacity(t.names.len());
         for (k, name) in t.names.iter().enumerate() {
-            if name.is_empty() {
-                continue;
-            }
-            if let Some(first) = t.names[..k].iter().position(|n| n == name) {
+            if let Some(&first) = index.get(name.as_str()) {
+                if name.is_empty() {
+                    continue;
+                }
                 return Err(Error::input(
                     path,
                     t.header_line,
@@ -148,7 +155,9 @@ impl Table {
                     ),
                 ));
             }
+            index.insert(name.clone(), k);
         }
+        t.index = index;
         Ok(t)
     }
 
@@ -169,13 +178,10 @@ impl Table {
 
     /// The column called `name`, if the header has it.
     pub fn optional(&self, name: &str) -> Option<Column> {
-        self.names
-            .iter()
-            .position(|n| n == name)
-            .map(|index| Column {
-                index,
-                name: name.to_string(),
-            })
+        self.index.get(name).map(|&index| Column {
+            index,
+            name: name.to_string(),
+        })
     }
 
     /// The columns called `names`, in that order; an error naming the first missing one and the

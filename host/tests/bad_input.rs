@@ -344,7 +344,7 @@ fn calibrate_and_recompute_refuse_bad_input() {
     fails(
         &["calibrate", "--samples", &cal, "-o", &cal],
         2,
-        "is an input file",
+        "an input of this command",
     );
     let nominal = write(d, "nominal.toml", b"l1_mm = 50.0\nl2_mm = \"long\"\n");
     fails(
@@ -383,7 +383,7 @@ fn calibrate_and_recompute_refuse_bad_input() {
             &rec,
         ],
         2,
-        "is the record itself",
+        "would be written over the record",
     );
     let out = d.join("out.csv");
     let out = out.to_str().unwrap();

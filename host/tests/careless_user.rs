@@ -379,7 +379,11 @@ fn nothing_is_replaced_without_force() {
         2,
         "--force",
     );
+    // A file an earlier report wrote (its mark lists it) that the new one does not write.
     fs::write(d.join("rep/stale.svg"), "stale").unwrap();
+    let mark = d.join("rep/.jdbb-output");
+    let listed = fs::read_to_string(&mark).unwrap() + "stale.svg\n";
+    fs::write(&mark, listed).unwrap();
     ok_in(
         d,
         &[
@@ -1231,4 +1235,423 @@ fn a_record_with_a_hole_inside_the_data_arcs_is_refused() {
             "p/plan.json",
         ],
     );
+}
+
+// ---------------------------------------------------------------------------------------------
+// Issue 28: files and inputs. `--force` replaces only what jdbb wrote, never an input; a set is
+// old or new after any interruption; every input read with the limits and no wait at open.
+
+#[test]
+/// Finding 2: a report folder jdbb wrote, into which the user copied the record and notes, is
+/// not replaced by `--force`: the command refuses, naming the files, and they are kept.
+fn force_never_deletes_the_users_files_in_a_report_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    samples(d);
+    let diag = [
+        "diagnose",
+        "--samples",
+        "s.csv",
+        "--pitch",
+        "x=10",
+        "--report",
+        "rep",
+    ];
+    ok_in(d, &diag);
+    let report = ls(&d.join("rep"));
+    fs::copy(d.join("s.csv"), d.join("rep/rec.csv")).unwrap();
+    fs::write(d.join("rep/notes.txt"), "spindle warm\n").unwrap();
+    let mut forced = diag.to_vec();
+    forced.push("--force");
+    let e = fails_in(d, &forced, 2, "notes.txt");
+    assert!(e.contains("rec.csv"), "{e}");
+    // The input itself in the folder: refused too.
+    forced[2] = "rep/rec.csv";
+    fails_in(d, &forced, 2, "rep");
+    assert_eq!(
+        fs::read_to_string(d.join("rep/notes.txt")).unwrap(),
+        "spindle warm\n"
+    );
+    assert_eq!(
+        fs::read(d.join("rep/rec.csv")).unwrap(),
+        fs::read(d.join("s.csv")).unwrap()
+    );
+    // What jdbb wrote alone is replaced with --force, as before.
+    fs::remove_file(d.join("rep/notes.txt")).unwrap();
+    fs::remove_file(d.join("rep/rec.csv")).unwrap();
+    forced[2] = "s.csv";
+    ok_in(d, &forced);
+    assert_eq!(ls(&d.join("rep")), report);
+    no_temporaries(d);
+}
+
+#[test]
+/// Finding 12: an output is never one of the command's inputs, by any name (a hard link), even
+/// with `--force`.
+fn an_output_is_never_one_of_the_commands_inputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    diagnosis(d);
+    history(d);
+    let db = fs::read(d.join("h.sqlite")).unwrap();
+    let trend = [
+        "history",
+        "--db",
+        "h.sqlite",
+        "trend",
+        "--machine",
+        "m1",
+        "--csv",
+        "h.sqlite",
+        "--force",
+    ];
+    fails_in(d, &trend, 2, "input");
+    fs::hard_link(d.join("h.sqlite"), d.join("alias.csv")).unwrap();
+    let mut other_name = trend.to_vec();
+    other_name[7] = "alias.csv";
+    fails_in(d, &other_name, 2, "input");
+    other_name[6] = "--plot";
+    fails_in(d, &other_name, 2, "input");
+    assert_eq!(fs::read(d.join("h.sqlite")).unwrap(), db);
+    // simulate -o over its machine file or its plan.
+    ok_in(
+        d,
+        &[
+            "plan", "--radius", "90", "--feed", "1000", "--centre", "0,0,0", "--out", "p",
+        ],
+    );
+    fs::write(d.join("m.toml"), ok_in(d, &["simulate", "--machine"])).unwrap();
+    let machine = fs::read(d.join("m.toml")).unwrap();
+    for out in ["m.toml", "p/plan.json"] {
+        fails_in(
+            d,
+            &[
+                "simulate",
+                "--plan",
+                "p/plan.json",
+                "--machine",
+                "m.toml",
+                "-o",
+                out,
+                "--force",
+            ],
+            2,
+            "input",
+        );
+    }
+    assert_eq!(fs::read(d.join("m.toml")).unwrap(), machine);
+    // record -o over its plan: refused before the port is opened.
+    let plan = fs::read(d.join("p/plan.json")).unwrap();
+    fails_in(
+        d,
+        &[
+            "record",
+            "--port",
+            "/dev/nonexistent",
+            "--plan",
+            "p/plan.json",
+            "-o",
+            "p/plan.json",
+            "--force",
+        ],
+        2,
+        "input",
+    );
+    assert_eq!(fs::read(d.join("p/plan.json")).unwrap(), plan);
+    // compensate --out over the COMP_FILE in force (the table it merges into).
+    fs::write(
+        d.join("x.comp"),
+        "100 0.001 -0.001\n200 0.002 -0.002\n300 0.001 -0.001\n",
+    )
+    .unwrap();
+    fs::write(
+        d.join("cur.ini"),
+        "[JOINT_0]\nCOMP_FILE = x.comp\nCOMP_FILE_TYPE = 1\n",
+    )
+    .unwrap();
+    let comp = fs::read(d.join("x.comp")).unwrap();
+    fails_in(
+        d,
+        &[
+            "compensate",
+            "--diagnosis",
+            "diag.json",
+            "--controller",
+            "linuxcnc",
+            "--current",
+            "cur.ini",
+            "--table-ball",
+            "x=200,y=100",
+            "--out",
+            ".",
+            "--force",
+        ],
+        2,
+        "COMP_FILE x.comp",
+    );
+    assert_eq!(fs::read(d.join("x.comp")).unwrap(), comp);
+    no_temporaries(d);
+}
+
+/// Start `args` in `dir`, send SIGINT after `after` (if it still runs); its exit code and
+/// standard error.
+fn interrupt_capturing(dir: &Path, args: &[&str], after: Duration) -> (Option<i32>, String) {
+    let child = command()
+        .current_dir(dir)
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(after);
+    // SAFETY: a signal to our own child (not yet waited for, so its id is still its own).
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    let o = child.wait_with_output().unwrap();
+    (o.status.code(), stderr(&o))
+}
+
+#[test]
+/// Finding 3: `plan --force` (a set: plan.json and its program) interrupted by Ctrl-C at any
+/// moment leaves the old set or the new set, never a mix, says truly which, and leaves no
+/// temporary or backup file.
+fn ctrl_c_during_a_set_leaves_the_old_set_or_the_new_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let plan = |r: &'static str, out: &'static str| {
+        [
+            "plan", "--radius", r, "--feed", "1000", "--centre", "0,0,0", "--out", out, "--force",
+        ]
+    };
+    let set = |p: &Path| {
+        (
+            fs::read(p.join("plan.json")).unwrap(),
+            fs::read(p.join("ballbar.ngc")).unwrap(),
+        )
+    };
+    ok_in(d, &plan("85", "a"));
+    ok_in(d, &plan("90", "b"));
+    let sets = [set(&d.join("a")), set(&d.join("b"))];
+    assert_ne!(sets[0], sets[1]);
+    ok_in(d, &plan("85", "p"));
+    // How long one run takes here: the interrupts are spread over it.
+    let t0 = Instant::now();
+    ok_in(d, &plan("90", "p"));
+    let run = t0.elapsed();
+    let mut current = 1;
+    let mut interrupted = 0;
+    for k in 0..120u32 {
+        let next = 1 - current;
+        let (code, e) = interrupt_capturing(d, &plan(["85", "90"][next], "p"), run * (k % 40) / 30);
+        assert!(!e.contains("panicked"), "{e}");
+        let now = set(&d.join("p"));
+        let which = sets.iter().position(|s| *s == now);
+        assert!(which.is_some(), "run {k}: a mixed set ({code:?}: {e})");
+        let which = which.unwrap();
+        if e.contains("no output was written") {
+            assert_eq!(
+                which, current,
+                "run {k}: the message says nothing was written: {e}"
+            );
+        }
+        if code == Some(0) {
+            assert_eq!(which, next, "run {k}");
+        }
+        interrupted += usize::from(code == Some(130));
+        current = which;
+        let left: Vec<String> = ls(&d.join("p"))
+            .into_iter()
+            .filter(|n| n != "plan.json" && n != "ballbar.ngc")
+            .collect();
+        assert!(left.is_empty(), "run {k}: left {left:?} ({code:?}: {e})");
+    }
+    assert!(
+        interrupted > 0,
+        "no run was interrupted: the test tested nothing"
+    );
+}
+
+#[test]
+/// Low: `plan --force` with another dialect replaces the old program (no stale program beside
+/// the new plan.json); the user's own files in the folder are kept.
+fn plan_force_with_another_dialect_leaves_one_program() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let plan = [
+        "plan", "--radius", "90", "--feed", "1000", "--centre", "0,0,0", "--out", "p",
+    ];
+    ok_in(d, &plan);
+    fs::write(d.join("p/notes.txt"), "mine").unwrap();
+    let mut grbl = plan.to_vec();
+    grbl.extend(["--dialect", "grbl", "--force"]);
+    ok_in(d, &grbl);
+    assert_eq!(ls(&d.join("p")), ["ballbar.nc", "notes.txt", "plan.json"]);
+}
+
+#[test]
+/// Low: `--out link/` (a trailing slash) names the link, which is refused, not the directory it
+/// points at.
+fn an_output_folder_named_with_a_trailing_slash_is_not_followed() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    fs::create_dir(d.join("real")).unwrap();
+    std::os::unix::fs::symlink("real", d.join("link")).unwrap();
+    fails_in(
+        d,
+        &[
+            "plan", "--radius", "90", "--feed", "1000", "--centre", "0,0,0", "--out", "link/",
+        ],
+        2,
+        "symbolic link",
+    );
+    samples(d);
+    fails_in(
+        d,
+        &[
+            "diagnose",
+            "--samples",
+            "s.csv",
+            "--pitch",
+            "x=10",
+            "--report",
+            "link/",
+        ],
+        2,
+        "symbolic link",
+    );
+    assert!(ls(&d.join("real")).is_empty());
+}
+
+#[test]
+/// Finding 7: the COMP_FILE named in `compensate --current` is read with the 16 MiB limit of
+/// every document.
+fn the_comp_file_in_force_is_read_within_the_limit() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    diagnosis(d);
+    let big = fs::File::create(d.join("x.comp")).unwrap();
+    big.set_len(17 << 20).unwrap();
+    fs::write(d.join("cur.ini"), "[JOINT_0]\nCOMP_FILE = x.comp\n").unwrap();
+    fails_in(
+        d,
+        &[
+            "compensate",
+            "--diagnosis",
+            "diag.json",
+            "--controller",
+            "linuxcnc",
+            "--current",
+            "cur.ini",
+            "--table-ball",
+            "x=200,y=100",
+        ],
+        2,
+        "16 MiB",
+    );
+}
+
+#[test]
+/// Low: an input that is a named pipe nobody writes to does not block at its opening: it reads
+/// as empty (exit 2). A pipe with a writer is read as before.
+fn a_named_pipe_input_without_a_writer_does_not_wait() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    mkfifo(&d.join("fifo.csv"));
+    let mut child = command()
+        .current_dir(d)
+        .args(["diagnose", "--samples", "fifo.csv"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    let code = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s.code();
+        }
+        if t0.elapsed() > HANG {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    assert_eq!(code, Some(2), "blocked at the opening of the pipe");
+}
+
+#[test]
+/// Finding 11: a CSV header of 205 000 names is read in linear time by every table reader: the
+/// error comes within a CPU-time limit (RLIMIT_CPU) the quadratic check of names went far beyond.
+fn a_header_of_200_000_names_is_read_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // Three characters each: 800 kB, under the 1 MiB a line may have.
+    let alphabet: Vec<char> = ('a'..='z').chain('A'..='Z').chain('0'..='9').collect();
+    let names: Vec<String> = (0..205_000)
+        .map(|k| {
+            [k / 3844, k / 62 % 62, k % 62]
+                .map(|i| alphabet[i])
+                .iter()
+                .collect()
+        })
+        .collect();
+    fs::write(d.join("wide.csv"), names.join(",") + "\n").unwrap();
+    for args in [
+        ["diagnose", "--samples", "wide.csv"].as_slice(),
+        ["diagnose-rotary", "--samples", "wide.csv"].as_slice(),
+    ] {
+        let mut c = command();
+        c.current_dir(d).args(args);
+        // SAFETY: an async-signal-safe libc call between fork and exec.
+        unsafe {
+            c.pre_exec(|| {
+                let l = libc::rlimit {
+                    rlim_cur: 10,
+                    rlim_max: 10,
+                };
+                libc::setrlimit(libc::RLIMIT_CPU, &l);
+                Ok(())
+            });
+        }
+        let o = c.output().unwrap();
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {e}");
+        assert!(e.contains("wide.csv:1"), "{args:?}: {e}");
+    }
+}
+
+#[test]
+/// Low: a write past `ulimit -f` fails with an error and the old output kept (no silent death
+/// by SIGXFSZ, no temporary file left); a temporary file of a killed jdbb is removed by the next
+/// write beside it, not left to pile up.
+fn a_file_size_limit_is_an_error_and_a_killed_runs_temporaries_are_cleared() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let sim = ["simulate", "--rate", "200", "-o", "sim.csv", "--force"];
+    ok_in(d, &sim);
+    let old = fs::read(d.join("sim.csv")).unwrap();
+    let mut c = command();
+    c.current_dir(d).args(sim).args(["--radius", "70"]);
+    // SAFETY: an async-signal-safe libc call between fork and exec (SIGXFSZ left at its default).
+    unsafe {
+        c.pre_exec(|| {
+            let l = libc::rlimit {
+                rlim_cur: 2000,
+                rlim_max: 2000,
+            };
+            libc::setrlimit(libc::RLIMIT_FSIZE, &l);
+            Ok(())
+        });
+    }
+    let o = c.output().unwrap();
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("sim.csv"), "{}", stderr(&o));
+    assert_eq!(fs::read(d.join("sim.csv")).unwrap(), old);
+    no_temporaries(d);
+    // A process that has ended (as one killed by SIGKILL) left its temporary file.
+    let mut gone = command().arg("--version").spawn().unwrap();
+    let pid = gone.id();
+    gone.wait().unwrap();
+    fs::write(d.join(format!(".sim.csv.jdbb-{pid}-0.tmp")), "half").unwrap();
+    ok_in(d, &sim);
+    no_temporaries(d);
 }

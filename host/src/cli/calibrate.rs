@@ -5,7 +5,7 @@ use jdbb_core::calib::Calibration;
 
 use super::output::{emit, json_text, print};
 use crate::circular::plan::{Plan, Purpose};
-use crate::instrument::file::{calibration_toml, read_calibration, same_file};
+use crate::instrument::file::{calibration_toml, read_calibration};
 use crate::instrument::fit::{calibrate, Options};
 use crate::instrument::report::{summary, to_json};
 use crate::instrument::run::calibrate_run;
@@ -67,14 +67,16 @@ pub fn run(args: &CalibrateArgs) -> Result<()> {
         }
     };
     if let Some(out) = &args.out {
-        for f in [Some(input), args.plan.as_ref()].into_iter().flatten() {
-            if same_file(out, f) {
-                return Err(Error::Usage(format!(
-                    "-o {} is an input file; the calibration goes to a file of its own: give another -o",
-                    out.display()
-                )));
-            }
-        }
+        let inputs: Vec<(&str, &std::path::Path)> = [
+            ("--samples", &args.samples),
+            ("--record", &args.record),
+            ("--plan", &args.plan),
+            ("--nominal", &args.nominal),
+        ]
+        .into_iter()
+        .filter_map(|(o, p)| p.as_deref().map(|p| (o, p)))
+        .collect();
+        crate::fsio::check_not_input(out, &inputs)?;
         crate::fsio::check_destination(out, args.force)?;
     }
     let opts = Options {

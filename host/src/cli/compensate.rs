@@ -76,7 +76,11 @@ pub fn run(args: &CompensateArgs) -> Result<()> {
     if let Some(dir) = &args.out {
         let mut set = FileSet::new(dir, args.force)?;
         let names: Vec<&str> = p.files.iter().map(|(n, _)| n.as_str()).collect();
-        set.check(&names)?;
+        let mut inputs = vec![("--diagnosis", args.diagnosis.as_path())];
+        inputs.extend(args.current.iter().map(|c| ("--current", c.as_path())));
+        let comp_files = crate::compensate::linuxcnc::comp_files_in_force(&current);
+        inputs.extend(comp_files.iter().map(|c| ("COMP_FILE", c.as_path())));
+        set.check(&names, &inputs)?;
         for (name, content) in &p.files {
             set.add(name, content.as_bytes())?;
         }

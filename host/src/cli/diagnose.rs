@@ -49,7 +49,7 @@ pub struct DiagnoseArgs {
     /// built beside it and swapped in, never a mix of new and stale files.
     #[arg(long)]
     pub report: Option<PathBuf>,
-    /// Replace the --report directory if it exists (only one jdbb wrote; never a link).
+    /// Replace the --report directory if it exists (only one jdbb wrote, holding nothing else; never a link).
     #[arg(long, requires = "report")]
     pub force: bool,
     /// The machine's name, for the report and the history (`jdbb history add`).
@@ -221,11 +221,27 @@ fn check_plan_id(rec: &Record, plan: &Plan, plan_file: &std::path::Path) -> Resu
     }
 }
 
+/// The input files of `args`, each with the option that names it.
+fn inputs(args: &DiagnoseArgs) -> Vec<(&'static str, &std::path::Path)> {
+    [
+        ("--samples", &args.samples),
+        ("--record", &args.record),
+        ("--plan", &args.plan),
+        ("--path", &args.path),
+        ("--calibration", &args.calibration),
+        ("--compensation-file", &args.compensation_file),
+    ]
+    .into_iter()
+    .filter_map(|(o, p)| p.as_deref().map(|p| (o, p)))
+    .collect()
+}
+
 /// Run `jdbb diagnose`.
 pub fn run(args: &DiagnoseArgs) -> Result<()> {
     if let Some(dir) = &args.report {
         // Before the work: a report directory that will be refused is refused at once.
         check_dir_destination(dir, args.force)?;
+        crate::fsio::check_not_input(dir, &inputs(args))?;
     }
     let pitch = match &args.pitch {
         Some(s) => parse_pitch(s)?,

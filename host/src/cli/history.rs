@@ -226,6 +226,15 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             }
             for file in [plot, csv].into_iter().flatten() {
                 crate::fsio::check_destination(file, *force)?;
+                crate::fsio::check_not_input(file, &[("--db", path.as_path())])?;
+            }
+            if let (Some(p), Some(c)) = (plot, csv) {
+                if crate::fsio::same_file(p, c) {
+                    return Err(crate::Error::Usage(format!(
+                        "--plot and --csv are both {}: give each its own file",
+                        p.display()
+                    )));
+                }
             }
             let figure = figure.as_deref().map(trend::Figure::parse).transpose()?;
             let h = History::open_existing(&path)?;

@@ -79,6 +79,8 @@ pub enum Command {
 
 /// Run one parsed command line (see the Ctrl-C note in its body).
 pub fn run(cli: Cli) -> Result<()> {
+    // A write past `ulimit -f` is an error (the output as it was), not a silent SIGXFSZ death.
+    crate::fsio::fail_writes_past_size_limit();
     // Ctrl-C (SIGTERM, SIGHUP) ends every command that computes or writes files at once, with
     // nothing half-written left; the commands that talk to a device end their session cleanly
     // with their own handler instead (a summary, Stop sent).

@@ -156,7 +156,13 @@ pub fn run(args: &PlanArgs) -> Result<()> {
     let program_path = args.out.join(&plan.program);
     // plan.json and its program are one set: both new, or both as they were.
     let mut set = FileSet::new(&args.out, args.force)?;
-    set.check(&["plan.json", &plan.program]).map_err(|e| match e {
+    let inputs: Vec<(&str, &Path)> = args
+        .calibration
+        .iter()
+        .map(|c| ("--calibration", c.as_path()))
+        .collect();
+    set.check(&["plan.json", &plan.program], &inputs)
+        .map_err(|e| match e {
         Error::OutputExists { path } => Error::Usage(format!(
             "{} exists, and a recorded test may refer to it: choose another --out, or add --force to replace it",
             path.display()
@@ -165,6 +171,11 @@ pub fn run(args: &PlanArgs) -> Result<()> {
     })?;
     set.add("plan.json", plan.to_json().as_bytes())?;
     set.add(&plan.program, program.as_bytes())?;
+    // The program of the plan replaced, if of another dialect, goes with it: a folder holds one
+    // plan and its program, never a stale program beside a new plan.json.
+    if let Some(old) = old_program(&json_path).filter(|p| *p != plan.program) {
+        set.remove(old);
+    }
     set.commit()?;
     emit(&setup_text(
         &plan,
@@ -172,6 +183,21 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         &program_path,
         program.lines().count(),
     ))
+}
+
+/// The program named by the plan at `json` (a plan.json jdbb wrote), if it is one of jdbb's
+/// program names: only a program jdbb writes is ever removed with the plan it belongs to.
+fn old_program(json: &Path) -> Option<&'static str> {
+    if !json.is_file() {
+        return None;
+    }
+    let text = crate::table::read_text(json).ok()?;
+    let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let name = v.get("program")?.as_str()?;
+    Dialect::ALL
+        .iter()
+        .map(|d| d.program_name())
+        .find(|p| *p == name)
 }
 
 fn point(p: &[f64; 3]) -> String {

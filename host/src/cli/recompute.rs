@@ -25,6 +25,7 @@ pub struct RecomputeArgs {
 
 /// Run `jdbb recompute`.
 pub fn run(args: &RecomputeArgs) -> Result<()> {
+    crate::fsio::check_not_input(&args.out, &[("--calibration", args.calibration.as_path())])?;
     let cal = read_calibration(&args.calibration)?;
     let rows = recompute(&args.record, &cal, &args.out, args.force)?;
     emit(&format!(

@@ -106,6 +106,9 @@ impl Watch {
 pub fn run(args: &RecordArgs) -> Result<()> {
     args.stream.validate()?;
     check_output(&args.out, args.force)?;
+    if let Some(plan) = &args.plan {
+        crate::fsio::check_not_input(&args.out, &[("--plan", plan.as_path())])?;
+    }
     let plan = args.plan.as_deref().map(Plan::read).transpose()?;
     let head = header(&match &plan {
         Some(p) => vec![(PLAN_ID_KEY, p.id())],

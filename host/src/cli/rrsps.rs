@@ -363,6 +363,9 @@ fn run_simulate(args: &SimulateArgs) -> Result<()> {
     check_d(args.d_mm)?;
     if let Some(path) = &args.out {
         crate::fsio::check_destination(path, args.force)?;
+        let mut inputs = vec![("--design", args.design.as_path())];
+        inputs.extend(args.truth.iter().map(|t| ("--truth", t.as_path())));
+        crate::fsio::check_not_input(path, &inputs)?;
     }
     if !(args.noise_um >= 0.0 && args.noise_um.is_finite()) {
         return Err(Error::Usage(

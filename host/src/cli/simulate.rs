@@ -80,6 +80,9 @@ fn run_plan(
     let plan = Plan::read(plan_file)?;
     let mut machine = Machine::read(machine_file)?;
     if let Some(cal) = &machine.instrument.calibration_file {
+        if let Some(out) = &args.out {
+            crate::fsio::check_not_input(out, &[("the machine's calibration file", cal)])?;
+        }
         machine.instrument.calibration = crate::instrument::file::read_calibration(cal)?;
     }
     if let Some(c) = machine.controller.filter(|c| *c != plan.dialect) {
@@ -137,6 +140,15 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     if let Some(file) = &args.out {
         // Before the work: a destination that will be refused is refused at once.
         check_destination(file, args.force)?;
+        let mut inputs = vec![];
+        inputs.extend(args.plan.iter().map(|p| ("--plan", p.as_path())));
+        inputs.extend(
+            args.machine
+                .iter()
+                .flatten()
+                .map(|m| ("--machine", m.as_path())),
+        );
+        crate::fsio::check_not_input(file, &inputs)?;
     }
     match (&args.plan, &args.machine) {
         (_, Some(None)) => return print(&example()),

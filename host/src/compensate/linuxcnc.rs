@@ -52,7 +52,7 @@
 //! ```
 //! `[AXIS_n]` (LinuxCNC 2.7) counts as `[JOINT_n]`; `COMP_FILE` and `COMP_FILE_TYPE` in a section
 //! are read, as is `[TRAJ] LINEAR_UNITS`; other sections, keys and lines are ignored.
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use super::current::{key_value, number, Current};
 use super::{change, defaults_note, plausible, Block, Change, MachineErrors, Options, Plan};
@@ -75,6 +75,26 @@ fn machine_units(current: &Current) -> (&'static str, f64, usize, bool) {
     }
 }
 
+/// The COMP_FILE in force for joint `k`: its name as `--current` gives it and the file (next to
+/// the `--current` file, as it sits next to the INI).
+fn comp_file(current: &Current, k: usize) -> Option<(&str, PathBuf)> {
+    let name = current.text(&format!("JOINT_{k}.COMP_FILE"))?;
+    let dir = current
+        .source
+        .as_deref()
+        .and_then(Path::parent)
+        .unwrap_or(Path::new("."));
+    Some((name, dir.join(name)))
+}
+
+/// Every COMP_FILE in force that `--current` names (inputs of `compensate`, never its outputs).
+pub fn comp_files_in_force(current: &Current) -> Vec<PathBuf> {
+    Axis::ALL
+        .iter()
+        .filter_map(|a| comp_file(current, a.index()).map(|(_, f)| f))
+        .collect()
+}
+
 /// The comp table in force for joint `k` (named by `--current`, read next to it), as trims
 /// (nominal, forward, reverse) in mm; None if none is in force.
 fn table_in_force(
@@ -82,22 +102,16 @@ fn table_in_force(
     k: usize,
     mm_per_unit: f64,
 ) -> Result<Option<(String, Vec<CompRow>)>> {
-    let Some(name) = current.text(&format!("JOINT_{k}.COMP_FILE")) else {
+    let Some((name, file)) = comp_file(current, k) else {
         return Ok(None);
     };
-    let dir = current
-        .source
-        .as_deref()
-        .and_then(Path::parent)
-        .unwrap_or(Path::new("."));
-    let file = dir.join(name);
     let refuse = |why: String| {
         Error::Usage(format!(
             "joint {k} has COMP_FILE = {name} in force (--current says so), and LinuxCNC ignores BACKLASH while it is set, so the change must be merged into that table: {why}; put a copy of {name} next to the --current file (as it sits next to the INI), or remove COMP_FILE from --current if it is no longer in force"
         ))
     };
-    let text = std::fs::read_to_string(&file)
-        .map_err(|e| refuse(format!("{} cannot be read ({e})", file.display())))?;
+    // Read as every input is (crate::fsio's limit, a pipe or device refused or bounded).
+    let text = crate::table::read_text(&file).map_err(|e| refuse(e.to_string()))?;
     let kind = current
         .get(&format!("JOINT_{k}.COMP_FILE_TYPE"))
         .unwrap_or(0.0);

@@ -62,17 +62,6 @@ pub fn calibration_toml(cal: &Calibration, header: &[String]) -> String {
     s
 }
 
-/// Whether `a` and `b` name the same file (the same path, or one existing file).
-pub fn same_file(a: &Path, b: &Path) -> bool {
-    if a == b {
-        return true;
-    }
-    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
-        (Ok(x), Ok(y)) => x == y,
-        _ => false,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

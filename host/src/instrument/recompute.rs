@@ -13,19 +13,13 @@ use std::path::Path;
 use jdbb_core::calib::Calibration;
 use jdbb_core::geometry::Model;
 
-use super::file::same_file;
 use crate::fsio::Staged;
 use crate::table::Table;
 use crate::{Error, Result};
 
 /// Rewrite `record` to `out` with `d_mm` from `cal` (module docs). Returns the number of rows.
 pub fn recompute(record: &Path, cal: &Calibration, out: &Path, force: bool) -> Result<usize> {
-    if same_file(record, out) {
-        return Err(Error::Usage(format!(
-            "-o {} is the record itself; recompute writes a new file and keeps the record as it was: give another -o",
-            out.display()
-        )));
-    }
+    crate::fsio::check_not_input(out, &[("the record", record)])?;
     let mut w = Staged::create(out, force)?;
     let rows = write_recomputed(record, cal, out, &mut w)?;
     w.commit()?;

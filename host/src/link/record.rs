@@ -312,7 +312,12 @@ pub fn finish_output(partial: &Path, out: &Path, force: bool) -> Result<()> {
         })
     };
     if force {
-        return rename();
+        // What is at `out` now may have changed while recording: a link or a device node that
+        // appeared meanwhile is left alone (the recording stays in `partial`).
+        return match crate::fsio::check_destination(out, true) {
+            Ok(()) => rename(),
+            Err(_) => Err(appeared()),
+        };
     }
     match fs::hard_link(partial, out) {
         Ok(()) => fs::remove_file(partial).map_err(|source| Error::File {
@@ -846,6 +851,18 @@ mod tests {
         // With --force it is replaced.
         finish_output(&partial, &out, true).unwrap();
         assert_eq!(std::fs::read_to_string(&out).unwrap(), CSV_HEADER);
+        // Even with --force, a link that took its place while recording is left alone (issue 28).
+        #[cfg(unix)]
+        {
+            std::fs::write(dir.path().join("theirs.csv"), "theirs\n").unwrap();
+            std::fs::remove_file(&out).unwrap();
+            std::os::unix::fs::symlink("theirs.csv", &out).unwrap();
+            drop(create_partial(&partial, CSV_HEADER).unwrap());
+            let e = finish_output(&partial, &out, true).unwrap_err().to_string();
+            assert!(e.contains("rec.csv.partial"), "{e}");
+            assert!(std::fs::symlink_metadata(&out).unwrap().is_symlink());
+            assert!(partial.exists());
+        }
     }
 
     #[test]
