@@ -62,6 +62,17 @@ impl StreamArgs {
                     protocol::MAX_SAMPLE_RATE_HZ
                 )));
             }
+            if hz > protocol::SUSTAINED_SAMPLE_RATE_HZ {
+                return Err(Error::Usage(format!(
+                    "--rate {hz}: above {} Hz, the rate the board is known to sustain end to end. \
+                     Each sample is ~23 bytes on the link and up to ~1 800 instructions on the chip: \
+                     {hz} Hz needs {} kB/s over USB full speed with one packet in flight and most of \
+                     the CPU, which no board has shown; samples would be dropped (README, \
+                     \"Throughput budget\")",
+                    protocol::SUSTAINED_SAMPLE_RATE_HZ,
+                    hz as u64 * 23 / 1000
+                )));
+            }
         }
         Ok(())
     }
