@@ -60,12 +60,12 @@ pub const MAX_FRAME_LEN: usize = 704;
 pub const MAX_SAMPLE_RATE_HZ: u32 = 20_000;
 
 /// Largest sample rate the board is known to sustain end to end (Hz): the host refuses a rate
-/// above it (README, "Throughput budget"). A sample costs at most ~1 800 instructions on the
-/// chip (`scripts/fw-cycles.sh`: 20 µs at 96 MHz, 1.2 cycles each) and 23 bytes on the link
-/// (`tests::throughput_budget`: 365 bytes per 16-sample frame): at 10 kHz 228 kB/s, ~3 600
-/// full-speed USB packets/s; at 20 kHz 456 kB/s, ~7 100 packets/s (and as many USB interrupts)
-/// with one packet in flight, and 25–35 µs of each 50 µs period in the worst tick — not shown on
-/// a board, and overruns are likely there.
+/// above it (README, "Throughput budget"). A sample costs ~1 824 instructions on the chip
+/// (`scripts/fw-cycles.sh`: sample path and frame encoding; 23–29 µs at 96 MHz) and 23 bytes on
+/// the link (`tests::throughput_budget`: 365 bytes per 16-sample frame): at 10 kHz 23–29 % of
+/// the CPU, 228 kB/s, ~3 600 full-speed USB packets/s; at 20 kHz 46–57 % of the CPU before the
+/// USB interrupts, 456 kB/s, ~7 100 packets/s with one packet in flight — not shown on a board,
+/// and overruns are likely there.
 pub const SUSTAINED_SAMPLE_RATE_HZ: u32 = 10_000;
 
 const CRC32C: Crc<u32> = Crc::<u32>::new(&CRC_32_ISCSI);

@@ -947,7 +947,11 @@ pub fn describe_info(info: &DeviceInfo) -> String {
         },
         info.unhandled_irq
             .map(|n| format!(" (an interrupt without a handler, IRQ {n}, reset it)"))
-            .unwrap_or_default(),
+            .unwrap_or_default()
+            + &(0..2)
+                .filter(|&k| info.index_disabled[k])
+                .map(|k| format!(", INDEX {} SWITCHED OFF (it interrupted faster than an index can: a noisy or mis-wired line)", k + 1))
+                .collect::<String>(),
         match info.clock {
             ClockSource::Crystal => "crystal",
             ClockSource::Internal =>
