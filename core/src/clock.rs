@@ -213,6 +213,18 @@ mod tests {
     }
 
     #[test]
+    fn the_init_panic_code_is_unlike_every_running_pattern() {
+        // Ten flashes in a 2 s period (the running patterns have at most 4), all period long.
+        let rises = |f: &dyn Fn(u32) -> bool| {
+            (1..BLINK_PERIOD_MS).filter(|&t| !f(t - 1) && f(t)).count() + usize::from(f(0))
+        };
+        assert_eq!(rises(&panic_blink), 10);
+        for flashes in 1..=4 {
+            assert!(rises(&|t| blink(flashes, t)) <= 4);
+        }
+    }
+
+    #[test]
     fn blink_patterns_flash_the_number_of_times_and_repeat() {
         for flashes in 1..=4u32 {
             // Count the dark → lit transitions over 3 periods, at 1 ms steps.
