@@ -37,5 +37,6 @@ pub mod sampler;
 pub mod scenario;
 pub mod sim;
 pub mod store;
+pub mod ticks;
 
 pub use calib::{Calibration, EncoderCal, FrameCal, Param};

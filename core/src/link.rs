@@ -276,6 +276,9 @@ mod tests {
             index: [status; 2],
             overruns: 0,
             clock: ClockSource::Crystal,
+            calibration_kept: crate::protocol::CalKept::NotSent,
+            unhandled_irq: None,
+            index_disabled: [false; 2],
         };
         let hello = DeviceMsg::Hello(Hello::of(&info));
         let mut buf = [0u8; MAX_FRAME_LEN];

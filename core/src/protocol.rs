@@ -33,6 +33,12 @@
 //! - **3**: [`DeviceInfo::clock`] ([`ClockSource`]) ends the description: whether the device's
 //!   clocks, and so every `t_us`, run from the crystal or, because it did not start, from the
 //!   chip's internal oscillator (±1 %).
+//! - **4**: [`DeviceInfo::calibration_kept`] ([`CalKept`]): what became of the last calibration
+//!   the host sent — kept in flash and read back equal, or why not (issue 32: a failed store was
+//!   only logged over the debug probe, and the host reported success); then
+//!   [`DeviceInfo::unhandled_irq`]: the interrupt without a handler that made the firmware reset
+//!   itself (reported before as a watchdog reset, after the stray interrupt spun until it bit);
+//!   then [`DeviceInfo::index_disabled`]: an index input switched off for interrupting too fast.
 
 use crc::{Crc, CRC_32_ISCSI};
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
@@ -41,7 +47,7 @@ use crate::calib::{Calibration, CalibrationError};
 
 /// Version of this wire format. Bump on any change to a message or the framing.
 /// See the module docs' *Versions*.
-pub const PROTOCOL_VERSION: u16 = 3;
+pub const PROTOCOL_VERSION: u16 = 4;
 
 /// Samples per [`SampleBatch`].
 pub const BATCH_LEN: usize = 16;
@@ -52,6 +58,15 @@ pub const MAX_FRAME_LEN: usize = 704;
 
 /// Largest sample rate the firmware accepts (Hz).
 pub const MAX_SAMPLE_RATE_HZ: u32 = 20_000;
+
+/// Largest sample rate the board is known to sustain end to end (Hz): the host refuses a rate
+/// above it (README, "Throughput budget"). A sample costs ~1 824 instructions on the chip
+/// (`scripts/fw-cycles.sh`: sample path and frame encoding; 23–29 µs at 96 MHz) and 23 bytes on
+/// the link (`tests::throughput_budget`: 365 bytes per 16-sample frame): at 10 kHz 23–29 % of
+/// the CPU, 228 kB/s, ~3 600 full-speed USB packets/s; at 20 kHz 46–57 % of the CPU before the
+/// USB interrupts, 456 kB/s, ~7 100 packets/s with one packet in flight — not shown on a board,
+/// and overruns are likely there.
+pub const SUSTAINED_SAMPLE_RATE_HZ: u32 = 10_000;
 
 const CRC32C: Crc<u32> = Crc::<u32>::new(&CRC_32_ISCSI);
 
@@ -185,13 +200,37 @@ impl ResetCause {
 pub enum ClockSource {
     /// The board's crystal, through the PLL: time as good as the crystal (tens of ppm).
     Crystal,
-    /// The crystal did not start, or is not of the frequency the firmware was built for: the
-    /// chip's internal RC oscillator (the STM32F411's HSI,
-    /// factory-trimmed to ±1 % at 25 °C). Time stamps and the sample rate are off by up to 1 %
-    /// (1 % of D's time axis, not of D), and USB, which needs ±0.25 %, may fail.
+    /// The crystal did not start, or is another supported crystal than the one the firmware was
+    /// built for: the chip's internal RC oscillator (the STM32F411's HSI, ±1 % at 25 °C, ±4 %
+    /// over −10…85 °C, DS10314). Time stamps and the sample rate are off by up to 4 % (of D's
+    /// time axis, not of D), and USB, which needs ±0.25 %, does not run on it: the device is
+    /// reached over USB only if the HSI happens to be within that, so this is mostly seen in the
+    /// debug log and on the LED (two flashes).
     Internal,
     /// QEMU's virtual clock (the QEMU build).
     Emulated,
+}
+
+/// What became of the last calibration the host sent ([`Command::SetCalibration`]), in the
+/// device's non-volatile store. Whatever it says, the calibration sent is in force until the
+/// next power cycle; only [`CalKept::Stored`] means it is still in force after one. (v4)
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum CalKept {
+    /// No calibration was sent since the device started.
+    NotSent,
+    /// Written to flash and read back equal: it survives a power cycle.
+    Stored,
+    /// Not kept: the device has no room for the store (an STM32F411xC, 256 KiB, has no sectors
+    /// 6 and 7).
+    NoRoom,
+    /// Not kept: erasing the store's spare flash sector failed (the flash reported an error).
+    EraseFailed,
+    /// Not kept: programming the record failed (the flash's status flags reported an error:
+    /// write protection, a programming sequence, alignment or parallelism error).
+    WriteFailed,
+    /// Not kept: the record was written without an error, but the flash read back differs.
+    ReadBackDiffers,
 }
 
 /// The device's description of itself: sent at start-up and in reply to [`Command::GetInfo`].
@@ -222,6 +261,17 @@ pub struct DeviceInfo {
     pub overruns: u32,
     /// What the clocks run from: the accuracy of the time stamps. (v3)
     pub clock: ClockSource,
+    /// What became of the last calibration sent: kept in flash (read back equal), or why not.
+    /// In the reply to [`Command::SetCalibration`] it is that command's store. (v4)
+    pub calibration_kept: CalKept,
+    /// With [`ResetCause::FAULT`]: the interrupt that had no handler and made the firmware reset
+    /// itself, as its IRQ number (negative for a core exception, as CMSIS numbers them); `None`
+    /// for any other start. (v4)
+    pub unhandled_irq: Option<i16>,
+    /// Per encoder: its index input was switched off because it interrupted faster than an
+    /// index can (a mis-wired or noisy line, `quadrature::IndexRateLimit`); it stays off until
+    /// the next power-up. (v4)
+    pub index_disabled: [bool; 2],
 }
 
 /// The device's greeting: who it is and why it started — [`DeviceInfo`] without the calibration,
@@ -509,6 +559,9 @@ mod tests {
             ],
             overruns: 2,
             clock: ClockSource::Internal,
+            calibration_kept: CalKept::ReadBackDiffers,
+            unhandled_irq: Some(-3),
+            index_disabled: [false, true],
         })
     }
 
@@ -611,7 +664,7 @@ mod tests {
         0x03, 0x59, 0x40, 0x05, 0x50, 0x2e, 0x61, 0xe0, 0x00,
     ];
     const GOLDEN_INFO: &[u8] = &[
-        0x01, 0x02, 0x03, 0x02, 0x01, 0x05, 0x01, 0xe8, 0x07, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01,
+        0x01, 0x02, 0x04, 0x02, 0x01, 0x05, 0x01, 0xe8, 0x07, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01,
         0x03, 0x49, 0x40, 0x01, 0x01, 0x01, 0x01, 0x01, 0x07, 0x49, 0x40, 0x80, 0x80, 0x80, 0x04,
         0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01,
         0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x05, 0x80, 0x80, 0x80, 0x04,
@@ -621,8 +674,8 @@ mod tests {
         0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01,
         0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01,
         0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x02, 0x30, 0x02, 0x2d, 0x0b, 0x10, 0x51, 0x33, 0x39,
-        0x38, 0x31, 0x35, 0x32, 0x49, 0x01, 0x03, 0x03, 0x01, 0x02, 0x01, 0x01, 0x07, 0x02, 0x01,
-        0x37, 0xf9, 0xb0, 0x7a, 0x00,
+        0x38, 0x31, 0x35, 0x32, 0x49, 0x01, 0x03, 0x03, 0x01, 0x02, 0x01, 0x01, 0x06, 0x02, 0x01,
+        0x05, 0x01, 0x05, 0x06, 0x01, 0x52, 0x16, 0xba, 0x49, 0x00,
     ];
     const GOLDEN_SET_CALIBRATION: &[u8] = &[
         0x02, 0x03, 0x01, 0x01, 0x01, 0x01, 0x01, 0x03, 0x49, 0x40, 0x01, 0x01, 0x01, 0x01, 0x09,
@@ -637,8 +690,8 @@ mod tests {
         0x12, 0x29, 0x97, 0x00,
     ];
     const GOLDEN_HELLO: &[u8] = &[
-        0x03, 0x04, 0x03, 0x02, 0x01, 0x06, 0x01, 0xe8, 0x07, 0x01, 0x30, 0x02, 0x2d, 0x0e, 0x10,
-        0x51, 0x33, 0x39, 0x38, 0x31, 0x35, 0x32, 0x49, 0xee, 0xe9, 0xd9, 0x79, 0x00,
+        0x03, 0x04, 0x04, 0x02, 0x01, 0x06, 0x01, 0xe8, 0x07, 0x01, 0x30, 0x02, 0x2d, 0x0e, 0x10,
+        0x51, 0x33, 0x39, 0x38, 0x31, 0x35, 0x32, 0x49, 0x6d, 0x98, 0xee, 0x5a, 0x00,
     ];
     const GOLDEN_START: &[u8] = &[0x01, 0x05, 0x51, 0x53, 0x7d, 0x52, 0x00];
     const GOLDEN_RATE: &[u8] = &[8, 2, 144, 78, 148, 88, 14, 6, 0];
@@ -706,8 +759,47 @@ mod tests {
             index: [worst_index; 2],
             overruns: u32::MAX,
             clock: ClockSource::Emulated,
+            calibration_kept: CalKept::ReadBackDiffers,
+            unhandled_irq: Some(i16::MIN),
+            index_disabled: [true; 2],
         });
         assert!(enc_vec(&info).len() <= MAX_FRAME_LEN);
+    }
+
+    /// Issue 32 §3: the link's load at 5, 10 and 20 kHz, from the frames the device sends: full
+    /// batches of realistic samples an hour into a run (t_us 5 varint bytes, counts of a 2²³
+    /// counts/rev encoder 4 bytes, D 8 bytes).
+    #[test]
+    fn throughput_budget() {
+        let mut samples = heapless::Vec::new();
+        for i in 0..BATCH_LEN as u64 {
+            samples
+                .push(Sample {
+                    t_us: 3_600_000_000 + 50 * i,
+                    enc1: 1_500_000 + 3 * i as i64,
+                    enc2: -2_700_000 - 5 * i as i64,
+                    d_mm: 100.012_345 + 1e-6 * i as f64,
+                    status: Status(Status::ENC1_REFERENCED | Status::ENC2_REFERENCED),
+                })
+                .unwrap();
+        }
+        let batch = DeviceMsg::Batch(SampleBatch {
+            seq: 72_000_000,
+            dropped: 3,
+            samples,
+        });
+        let frame = enc_vec(&batch).len();
+        let per_sample = frame as f64 / BATCH_LEN as f64;
+        assert!((22.0..=24.0).contains(&per_sample), "{frame} bytes a batch");
+        for (hz, max_kb_s) in [(5_000.0, 120.0), (10_000.0, 240.0), (20_000.0, 480.0)] {
+            let bytes_s = per_sample * hz;
+            let packets_s = (bytes_s / 64.0).ceil();
+            assert!(bytes_s / 1e3 <= max_kb_s, "{hz} Hz: {bytes_s} B/s");
+            std::println!(
+                "{hz} Hz: {frame} B per {BATCH_LEN}-sample frame, {:.0} kB/s, {packets_s} packets/s",
+                bytes_s / 1e3
+            );
+        }
     }
 
     #[test]

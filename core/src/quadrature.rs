@@ -250,6 +250,44 @@ impl<const BITS: u32> Encoder<BITS> {
     }
 }
 
+/// Guards the board's index interrupts against a storm (issue 32 §4): a mis-wired or noisy
+/// index line can interrupt at the pin's full rate, starving every task below it until the
+/// watchdog resets the chip, over and over. A real index comes once per revolution, a few times
+/// a second at most by hand; more than [`IndexRateLimit::MAX_EDGES`] edges within
+/// [`IndexRateLimit::WINDOW_MS`] is not an index, and the board switches that line's interrupt
+/// off (until the next power-up) and reports it.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct IndexRateLimit {
+    window_start_ms: u32,
+    edges: u32,
+}
+
+impl IndexRateLimit {
+    /// Edges allowed per window: 32 revolutions' worth (both edges of each pulse) in 100 ms.
+    pub const MAX_EDGES: u32 = 64;
+    /// Length of the window (ms).
+    pub const WINDOW_MS: u32 = 100;
+
+    /// A limit with no edge seen.
+    pub const fn new() -> Self {
+        IndexRateLimit {
+            window_start_ms: 0,
+            edges: 0,
+        }
+    }
+
+    /// An index edge at `now_ms` (a wrapping ms clock); false when the edges came too fast (the
+    /// caller disables the line).
+    pub fn on_edge(&mut self, now_ms: u32) -> bool {
+        if now_ms.wrapping_sub(self.window_start_ms) >= Self::WINDOW_MS {
+            self.window_start_ms = now_ms;
+            self.edges = 0;
+        }
+        self.edges += 1;
+        self.edges <= Self::MAX_EDGES
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -480,5 +518,27 @@ mod tests {
         fn extension_follows_any_walk_32(start in any::<u32>(), steps in prop::collection::vec(-2_000_000_000i32..=2_000_000_000, 0..200)) {
             check_walk::<32>(start, &steps)?;
         }
+    }
+
+    #[test]
+    fn an_index_storm_is_stopped_and_a_real_index_is_not() {
+        // A real index: both edges of one pulse per revolution, 10 rev/s for a minute.
+        let mut l = IndexRateLimit::new();
+        for rev in 0..600u32 {
+            let t = 5 + rev * 100;
+            assert!(l.on_edge(t) && l.on_edge(t + 1), "rev {rev}");
+        }
+        // A storm: an edge every 10 µs (100 kHz) trips within the first window.
+        let mut l = IndexRateLimit::new();
+        let tripped = (0..10_000u32).position(|k| !l.on_edge(k / 100)).unwrap();
+        assert_eq!(tripped as u32, IndexRateLimit::MAX_EDGES);
+        // Across the clock's wrap.
+        let mut l = IndexRateLimit::new();
+        assert!(l.on_edge(u32::MAX - 10));
+        assert!((0..IndexRateLimit::MAX_EDGES - 1).all(|_| l.on_edge(u32::MAX)));
+        assert!(
+            !l.on_edge(5),
+            "still the same 100 ms window across the wrap"
+        );
     }
 }

@@ -11,6 +11,15 @@ pub const MARK_PANIC: u32 = 0x5041_4e43; // "PANC"
 pub const MARK_FAULT: u32 = 0x4641_4c54; // "FALT"
 /// What the board writes over the mark once read, so the next reset starts clean.
 pub const MARK_NONE: u32 = 0;
+/// Upper half of the mark the default interrupt handler leaves ("IR"): an interrupt without a
+/// handler fired; the lower half is its IRQ number ([`mark_unhandled_irq`]).
+const MARK_IRQ_TAG: u32 = 0x4952_0000;
+
+/// The mark the default handler leaves for an interrupt without a handler: [`MARK_IRQ_TAG`] and
+/// the IRQ number (negative for a core exception, as `cortex-m-rt`'s `DefaultHandler` gets it).
+pub const fn mark_unhandled_irq(irqn: i16) -> u32 {
+    MARK_IRQ_TAG | irqn as u16 as u32
+}
 
 /// `RCC_CSR` reset flags of the STM32F4 (bit numbers from RM0383 §6.3.20).
 const CSR_BORRSTF: u32 = 1 << 25;
@@ -43,10 +52,19 @@ pub fn from_stm32f4(csr: u32, mark: u32) -> ResetCause {
         match mark {
             MARK_PANIC => bits |= ResetCause::PANIC,
             MARK_FAULT => bits |= ResetCause::FAULT,
+            m if m & 0xffff_0000 == MARK_IRQ_TAG => bits |= ResetCause::FAULT,
             _ => {}
         }
     }
     ResetCause(bits)
+}
+
+/// The interrupt without a handler that made the firmware reset itself, from the same `RCC_CSR`
+/// and RAM mark as [`from_stm32f4`] (reported with [`ResetCause::FAULT`]); `None` for any other
+/// start.
+pub fn unhandled_irq(csr: u32, mark: u32) -> Option<i16> {
+    let software_only = csr & CSR_SFTRSTF != 0 && csr & (CSR_PORRSTF | CSR_BORRSTF) == 0;
+    (software_only && mark & 0xffff_0000 == MARK_IRQ_TAG).then_some(mark as u16 as i16)
 }
 
 #[cfg(test)]
@@ -81,6 +99,26 @@ mod tests {
         );
         // A brown-out during the reset: RAM is not trusted.
         assert!(!from_stm32f4(sw | CSR_BORRSTF, MARK_PANIC).crashed());
+    }
+
+    #[test]
+    fn an_unhandled_interrupt_is_a_fault_with_its_number() {
+        // Issue 32 §4: a stray interrupt resets through the default handler, not the watchdog.
+        let sw = CSR_SFTRSTF | CSR_PINRSTF;
+        for irqn in [0i16, 28, 85, -1, -14] {
+            let mark = mark_unhandled_irq(irqn);
+            let c = from_stm32f4(sw, mark);
+            assert!(
+                c.has(ResetCause::FAULT) && !c.has(ResetCause::WATCHDOG),
+                "{irqn}"
+            );
+            assert_eq!(unhandled_irq(sw, mark), Some(irqn));
+            // After a power-on the RAM word means nothing.
+            assert_eq!(unhandled_irq(CSR_PORRSTF | CSR_PINRSTF, mark), None);
+        }
+        assert_eq!(unhandled_irq(sw, MARK_FAULT), None);
+        assert_eq!(unhandled_irq(sw, MARK_PANIC), None);
+        assert_eq!(unhandled_irq(sw, MARK_NONE), None);
     }
 
     #[test]

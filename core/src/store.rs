@@ -44,6 +44,7 @@
 use embedded_storage::nor_flash::NorFlash;
 
 use crate::calib::Calibration;
+use crate::protocol::CalKept;
 
 /// Bytes per record slot (a multiple of every write size in use: 1, 4, 8, 16, 32).
 pub const SLOT: usize = 256;
@@ -60,13 +61,38 @@ const CRC32C: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum StoreError<E> {
-    /// The flash failed (its own error).
+    /// Reading or programming the flash failed (its own error).
     Flash(E),
+    /// Erasing a block failed (the flash's own error).
+    Erase(E),
     /// The region does not fit the flash: blocks not a multiple of the erase size and of
     /// [`SLOT`], [`SLOT`] not a multiple of the write and read sizes, or beyond the capacity.
     Geometry,
     /// The calibration does not fit a slot (cannot happen with [`FORMAT_VERSION`] 1).
     TooLarge,
+    /// The flash accepted the record, but reading it back gave other bytes (a write that did
+    /// not take: worn, protected or failing flash, or a driver that missed an error).
+    ReadBack,
+}
+
+impl<E> StoreError<E> {
+    /// What the device reports to the host for a store that failed this way.
+    pub fn kept(&self) -> CalKept {
+        match self {
+            StoreError::Flash(_) | StoreError::TooLarge => CalKept::WriteFailed,
+            StoreError::Erase(_) => CalKept::EraseFailed,
+            StoreError::Geometry => CalKept::NoRoom,
+            StoreError::ReadBack => CalKept::ReadBackDiffers,
+        }
+    }
+}
+
+/// What the device reports to the host for the result of [`CalStore::store`].
+pub fn kept<E>(result: &Result<(), StoreError<E>>) -> CalKept {
+    match result {
+        Ok(()) => CalKept::Stored,
+        Err(e) => e.kept(),
+    }
 }
 
 /// A record found in the log.
@@ -151,7 +177,7 @@ impl<F: NorFlash> CalStore<F> {
         let from = self.base + (1 - self.current_block()) * self.block;
         self.flash
             .erase(from, from + self.block)
-            .map_err(StoreError::Flash)?;
+            .map_err(StoreError::Erase)?;
         self.spare_erased = true;
         Ok(true)
     }
@@ -176,7 +202,9 @@ impl<F: NorFlash> CalStore<F> {
         self.newest.map(|n| n.cal)
     }
 
-    /// Store `cal` as the newest record (see the module docs for what a power loss leaves).
+    /// Store `cal` as the newest record (see the module docs for what a power loss leaves), and
+    /// read it back: `Ok` only when the flash holds exactly the record written
+    /// ([`StoreError::ReadBack`] otherwise; the calibration stored before stays the newest).
     pub fn store(&mut self, cal: &Calibration) -> Result<(), StoreError<F::Error>> {
         let seq = self.newest.map_or(0, |n| n.seq.wrapping_add(1));
         let mut rec = [0xFFu8; SLOT];
@@ -208,6 +236,15 @@ impl<F: NorFlash> CalStore<F> {
         self.flash
             .write(at, &rec[..len])
             .map_err(StoreError::Flash)?;
+        // Only a record read back equal counts as kept: a write whose error was missed, or that
+        // did not take, must not be reported as stored.
+        let mut back = [0u8; SLOT];
+        self.flash
+            .read(at, &mut back[..len])
+            .map_err(StoreError::Flash)?;
+        if back[..len] != rec[..len] {
+            return Err(StoreError::ReadBack);
+        }
         if slot.0 != block {
             // The log moved: the block it left is the spare now, full of old records.
             self.spare_erased = false;
@@ -281,6 +318,8 @@ mod tests {
         erases: Vec<u32>,
         cut: Option<usize>,
         dead: bool,
+        /// Writes report success but program nothing (a write the driver did not see fail).
+        deaf: bool,
     }
 
     #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -308,6 +347,7 @@ mod tests {
                 erases: std::vec![0; size / ERASE],
                 cut: None,
                 dead: false,
+                deaf: false,
             }
         }
         /// Power back on: the memory as the loss left it.
@@ -368,6 +408,9 @@ mod tests {
             let o = offset as usize;
             if self.mem[o..o + bytes.len()].iter().any(|&b| b != 0xFF) {
                 return Err(FlashError::NotErased);
+            }
+            if self.deaf {
+                return Ok(());
             }
             for (i, &b) in bytes.iter().enumerate() {
                 if let Some(c) = self.cut.as_mut() {
@@ -552,6 +595,44 @@ mod tests {
                 Err(StoreError::Geometry)
             ));
         }
+    }
+
+    #[test]
+    fn a_write_that_does_not_take_is_not_reported_stored() {
+        // Issue 32 §1: the store reads its record back; a write that reported success but left
+        // the flash unchanged is `ReadBack`, and the calibration stored before stays the newest.
+        let mut s = reopen(RamFlash::new(8 * ERASE));
+        s.store(&cal(1)).unwrap();
+        s.flash.deaf = true;
+        let r = s.store(&cal(2));
+        assert_eq!(r, Err(StoreError::ReadBack));
+        assert_eq!(kept(&r), CalKept::ReadBackDiffers);
+        assert_eq!(s.load(), Some(cal(1)));
+        let mut f = s.into_inner();
+        f.deaf = false;
+        assert_eq!(reopen(f.clone()).load(), Some(cal(1)));
+        // A flash that fails outright is the flash's own error.
+        f.dead = true;
+        let mut s = CalStore {
+            flash: f,
+            base: BASE,
+            block: BLOCK,
+            newest: None,
+            spare_erased: true,
+        };
+        let r = s.store(&cal(3));
+        assert_eq!(r, Err(StoreError::Flash(FlashError::PowerLost)));
+        assert_eq!(kept(&r), CalKept::WriteFailed);
+        s.spare_erased = false;
+        let r = s.erase_spare().map(|_| ());
+        assert_eq!(r, Err(StoreError::Erase(FlashError::PowerLost)));
+        assert_eq!(kept(&r), CalKept::EraseFailed);
+        assert_eq!(kept::<FlashError>(&Ok(())), CalKept::Stored);
+        // Working again, the next store lands in a fresh slot.
+        s.flash.dead = false;
+        let mut s = reopen(s.into_inner());
+        s.store(&cal(4)).unwrap();
+        assert_eq!(reopen(s.into_inner()).load(), Some(cal(4)));
     }
 
     #[test]

@@ -11,7 +11,7 @@
 //! | `index_apply` | 3    | SPI4 vector, pended by `index1/2` (board only) | the queued index edges → `Encoder::on_index_edge` |
 //! | `usb_rx` / `uart_rx` | 2 | OTG_FS (board) / USART2 (qemu) | services the link, greets a host that configured the device, decodes commands, replies through the queue |
 //! | `writer`  | 1        | queue (async)              | frames each message and writes it to the link without blocking the others; discards (and counts) while no host reads |
-//! | `upkeep`  | 1        | spawned by `Stop`          | erases the calibration store's spare block ahead while not sampling |
+//! | `upkeep`  | 1        | spawned by `Stop`          | erases the calibration store's spare block ahead while not sampling, once every reply has left and the host has been quiet for `UPKEEP_QUIET_MS` |
 //! | idle      | 0        | —                          | feeds the watchdog, sets the status LED, sleeps (`wfi`) |
 //! | SysTick   | 1 (board) / 3 (qemu) | monotonic tick | time base of the writer's waits (and of the qemu pacer); below the sample task on the board |
 //!
@@ -69,6 +69,12 @@ pub const DEFAULT_RATE_HZ: u32 = 1_000;
 pub const LINK_TIMEOUT_US: u32 = 20_000;
 const LINK_POLL_US: u32 = 250;
 
+/// How long the link must have been quiet (no command, nothing left to send) before `upkeep`
+/// erases (ms): the erase stalls the whole CPU, so it waits until the host is not waiting.
+pub const UPKEEP_QUIET_MS: u32 = 300;
+/// Monotonic tick of the last command frame received (for `upkeep`).
+static LAST_COMMAND: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::new(0);
+
 /// Batches in the queue (taken by the sample task, given back by the writer).
 static BATCHES: BatchQuota = BatchQuota::new(BATCH_QUOTA);
 
@@ -81,8 +87,9 @@ mod app {
     use jdbb_core::geometry::Kernel;
     use jdbb_core::link::{Outgoing, Presence, ProbeStep};
     use jdbb_core::protocol::{
-        self, ClockSource, Command, CommandError, Decoder, DeviceInfo, DeviceMsg, FrameError,
-        Hello, ResetCause, SampleBatch, MAX_FRAME_LEN, MAX_SAMPLE_RATE_HZ, PROTOCOL_VERSION,
+        self, CalKept, ClockSource, Command, CommandError, Decoder, DeviceInfo, DeviceMsg,
+        FrameError, Hello, ResetCause, SampleBatch, MAX_FRAME_LEN, MAX_SAMPLE_RATE_HZ,
+        PROTOCOL_VERSION,
     };
     use jdbb_core::quadrature::IndexEdge;
     use jdbb_core::sampler::{SampleClock, Sampler};
@@ -135,7 +142,10 @@ mod app {
         reply_tx: Tx,
         chip_id: [u8; 12],
         reset_cause: ResetCause,
+        unhandled_irq: Option<i16>,
         clock: ClockSource,
+        /// What became of the last calibration sent (reported in every `DeviceInfo`).
+        kept: CalKept,
     }
 
     #[init(local = [index_q1: IndexQueue = IndexQueue::new(), index_q2: IndexQueue = IndexQueue::new()])]
@@ -172,7 +182,9 @@ mod app {
                 reply_tx: reply_tx.clone(),
                 chip_id: parts.chip_id,
                 reset_cause: parts.reset_cause,
+                unhandled_irq: parts.unhandled_irq,
                 clock: parts.clock,
+                kept: CalKept::NotSent,
             },
         };
         if board::LINK_UP_AT_START {
@@ -196,6 +208,8 @@ mod app {
         if kept.is_some() {
             defmt::info!("calibration kept from before the last power-up in force");
         }
+        // From here a panic resets the chip (reported as PANIC); before, it shows on the LED.
+        board::init_done();
         (
             Shared {
                 sampler,
@@ -229,14 +243,33 @@ mod app {
     }
 
     /// While not sampling: erase the calibration store's spare block ahead (on the board up to
-    /// 4 s with the whole CPU stalled), so that no store while sampling has to. Spawned by `Stop`.
-    #[task(priority = 1, shared = [timer, control])]
+    /// 4 s with the whole CPU stalled, USB included), so that no store while sampling has to.
+    /// Spawned by `Stop`. The erase never holds up a reply the host waits for: it waits until
+    /// every queued message has left the link and no command came for [`super::UPKEEP_QUIET_MS`]
+    /// (the Stop reply, and whatever the host asks right after it, are answered first).
+    #[task(priority = 1, shared = [timer, control, link])]
     async fn upkeep(cx: upkeep::Context) {
         let upkeep::SharedResources {
             mut timer,
             mut control,
+            mut link,
             ..
         } = cx.shared;
+        loop {
+            Mono::delay(super::UPKEEP_QUIET_MS.millis()).await;
+            let since_ms = Mono::now()
+                .ticks()
+                .wrapping_sub(super::LAST_COMMAND.load(core::sync::atomic::Ordering::Relaxed))
+                as u64
+                * 1_000
+                / super::MONO_HZ as u64;
+            let idle = since_ms >= super::UPKEEP_QUIET_MS as u64
+                && control.lock(|c| c.state.reply_tx.is_empty())
+                && link.lock(|l| l.drained());
+            if idle {
+                break;
+            }
+        }
         // Under the control lock no command (a Start) can come between the check and the erase.
         control.lock(|c| {
             if !timer.lock(|t| t.is_running()) {
@@ -352,21 +385,40 @@ mod app {
     /// Encoder 1's index edges (board only), at the highest priority, above the sample task: the
     /// edge's count is read from CCR3 before the pulse's other edge can overwrite it, and handed
     /// to `index_apply` (see README, "Index pulses").
+    /// An index line that interrupts faster than an index can (`IndexRateLimit`) is switched
+    /// off and reported (`DeviceInfo.index_disabled`), instead of starving every task below it
+    /// until the watchdog resets the chip, over and over.
     #[cfg(feature = "board-f411")]
-    #[task(binds = TIM2, priority = 4, local = [index_tx1])]
+    #[task(binds = TIM2, priority = 4, local = [index_tx1, limit: jdbb_core::quadrature::IndexRateLimit = jdbb_core::quadrature::IndexRateLimit::new()])]
     fn index1(cx: index1::Context) {
         while let Some(edge) = board::take_index(0) {
+            if !cx.local.limit.on_edge(now_ms()) {
+                board::disable_index(0);
+                defmt::error!("index of encoder 1 interrupts too fast: switched off");
+                return;
+            }
             hand_over(cx.local.index_tx1, 0, edge);
         }
     }
 
     /// Encoder 2's index edges (board only); as `index1`.
     #[cfg(feature = "board-f411")]
-    #[task(binds = TIM5, priority = 4, local = [index_tx2])]
+    #[task(binds = TIM5, priority = 4, local = [index_tx2, limit: jdbb_core::quadrature::IndexRateLimit = jdbb_core::quadrature::IndexRateLimit::new()])]
     fn index2(cx: index2::Context) {
         while let Some(edge) = board::take_index(1) {
+            if !cx.local.limit.on_edge(now_ms()) {
+                board::disable_index(1);
+                defmt::error!("index of encoder 2 interrupts too fast: switched off");
+                return;
+            }
             hand_over(cx.local.index_tx2, 1, edge);
         }
+    }
+
+    /// Milliseconds of the monotonic (wrapping).
+    #[cfg(feature = "board-f411")]
+    fn now_ms() -> u32 {
+        (Mono::now().ticks() as u64 * 1_000 / super::MONO_HZ as u64) as u32
     }
 
     /// An index edge captured on encoder `ch` goes to `index_apply` (pended); one that finds the
@@ -540,6 +592,9 @@ mod app {
             index: sampler.index_status(),
             overruns: sampler.overruns(),
             clock: control.clock,
+            calibration_kept: control.kept,
+            unhandled_irq: control.unhandled_irq,
+            index_disabled: board::index_disabled(),
         }
     }
 
@@ -577,6 +632,7 @@ mod app {
                 break;
             }
             presence.lock(|p| p.on_host_activity());
+            super::LAST_COMMAND.store(Mono::now().ticks(), core::sync::atomic::Ordering::Relaxed);
             decoder.feed::<Command>(&buf[..n], |cmd| {
                 let reply_msg = execute(cmd, &mut sampler, &mut timer, state);
                 if state.reply_tx.try_send(reply(reply_msg)).is_err() {
@@ -669,9 +725,14 @@ mod app {
                 // only for the copy.
                 let kernel = Kernel::new(&new);
                 sampler.lock(|s| s.set_kernel(kernel));
-                // Kept for the next power-up (board: flash; QEMU: RAM).
-                if !control.cal_memory.store(&new) {
-                    defmt::warn!("the calibration is in force but could not be kept in flash");
+                // Kept for the next power-up (board: flash; QEMU: RAM), read back; the reply says
+                // whether it was (the host reports "stored" only for `CalKept::Stored`).
+                control.kept = control.cal_memory.store(&new);
+                if control.kept != CalKept::Stored {
+                    defmt::warn!(
+                        "the calibration is in force but was not kept in flash: {}",
+                        control.kept
+                    );
                 }
             }
             Command::Zero => sampler.lock(|s| s.zero_here()),

@@ -44,21 +44,22 @@ const TIM1_SMCR_ECM1_ITR3: u32 = 0b111 | (0b011 << 4);
 pub const RATE_WRITE_MARGIN_US: u32 = 2;
 
 /// The sample task's view of the tick counter: TIM1:TIM4, the 32-bit count of TIM3 update events
-/// (wraps after 2³² ticks, 2.5 days at 20 kHz), reset to 0 by [`SampleTimer::start`].
+/// (wraps after 2³² ticks, 2.5 days at 20 kHz), reset to 0 by [`SampleTimer::start`]. TIM1 counts
+/// TIM4's overflow a few timer clocks late (its slave controller resynchronises the trigger):
+/// [`jdbb_core::ticks::read_tick_count`] waits that out when TIM4 reads 0 (proved there against
+/// a model of the two timers), so the count is never 65 536 low.
 #[inline]
 pub fn tick_count() -> u32 {
     // SAFETY: read-only access to counters configured in `SampleTimer::new` and written only by
     // `SampleTimer::start`.
     let (lo, hi) = unsafe { (&*pac::TIM4::ptr(), &*pac::TIM1::ptr()) };
-    let h1 = hi.cnt().read().bits() & 0xffff;
-    let l = lo.cnt().read().bits() & 0xffff;
-    let h2 = hi.cnt().read().bits() & 0xffff;
-    if h1 == h2 {
-        (h1 << 16) | l
-    } else {
-        // TIM4 wrapped between the reads: its count now belongs to h2.
-        (h2 << 16) | (lo.cnt().read().bits() & 0xffff)
-    }
+    jdbb_core::ticks::read_tick_count(
+        || lo.cnt().read().bits() as u16,
+        || hi.cnt().read().bits() as u16,
+        // ≥ 32 CPU cycles (timer clock = CPU clock): far more than the resynchronisation's 2–3
+        // timer clocks, far less than a sample period (≥ 4 800 cycles at 20 kHz).
+        || cortex_m::asm::delay(32),
+    )
 }
 
 /// TIM3 as the sample clock, TIM4 counting its ticks, both from a `clock_hz` timer clock.

@@ -15,6 +15,27 @@ use jdbb_core::scenario::{decode_record, Header, ScenarioError, HEADER_LEN, RECO
 pub const BLOCK_RECORDS: usize = 256;
 const PATH_MAX: usize = 256;
 
+/// A command-line argument that is not a scenario: `flash-fault=MODE` makes the QEMU build's
+/// calibration flash fail (see `board::qemu`, `FlashFault`).
+pub const FLASH_FAULT_ARG: &[u8] = b"flash-fault=";
+
+/// The `flash-fault=` argument's value (`MODE`) on the semihosting command line, if any, into
+/// `buf`.
+pub fn flash_fault_arg(buf: &mut [u8; 32]) -> Option<&[u8]> {
+    let mut line = [0u8; PATH_MAX];
+    let block = [line.as_mut_ptr() as usize, line.len() - 1];
+    // SAFETY: SYS_GET_CMDLINE writes at most block[1] bytes and a NUL into `line`.
+    if unsafe { syscall(nr::GET_CMDLINE, &block) } != 0 {
+        return None;
+    }
+    let end = line.iter().position(|&b| b == 0).unwrap_or(line.len());
+    let space = line[..end].iter().position(|&b| b == b' ')?;
+    let arg = line[space + 1..end].strip_prefix(FLASH_FAULT_ARG)?;
+    let n = arg.len().min(buf.len());
+    buf[..n].copy_from_slice(&arg[..n]);
+    Some(&buf[..n])
+}
+
 /// Why the scenario named on the command line cannot be played.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, defmt::Format)]
 pub enum OpenError {
@@ -79,7 +100,7 @@ impl Scenario {
         // The first word is the program's name; the rest (spaces included) is the path.
         let space = line[..end].iter().position(|&b| b == b' ')?;
         let path = &line[space + 1..=end]; // NUL-terminated
-        if path.len() <= 1 {
+        if path.len() <= 1 || path.starts_with(FLASH_FAULT_ARG) {
             return None;
         }
         Some(Self::open(path))

@@ -55,6 +55,9 @@ pub enum Error {
     /// What the device reports holding differs from what was sent to it.
     #[error("{port} accepted the calibration but reports holding another one: {differences}. Send it again; if it persists, the firmware does not keep what it is sent")]
     ReadBackMismatch { port: String, differences: String },
+    /// The device put the calibration in force but did not keep it across power cycles.
+    #[error("{port} put the calibration in force but did NOT store it: {reason}. It is lost at the next power cycle. Send it again; if it persists, power-cycle the device (a flash error left by the bootloader is cleared at every store, a persistent one is a fault of the board's flash)")]
+    NotStored { port: String, reason: String },
     /// Writing the recording failed (e.g. a full disk); the file was cut back to whole lines.
     #[error("cannot write {path}: {source}. The file ends with whole lines ({position}); free some space or choose another --out, then record again")]
     RecordWrite {

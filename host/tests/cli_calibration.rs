@@ -33,6 +33,8 @@ enum Behaviour {
     Alter,
     /// Answer pings, nothing else.
     Mute,
+    /// Put it in force and report it, but report that the flash write failed (issue 32 §1).
+    NotStored,
 }
 
 /// A fake device on the master side of a pty; jdbb opens `slave_path`.
@@ -115,7 +117,11 @@ fn serve(mut master: File, behaviour: Behaviour, stop: &AtomicBool) -> Vec<Comma
                     if behaviour == Behaviour::Alter {
                         cal.l1_mm = f64::from_bits(cal.l1_mm.to_bits() + 1);
                     }
-                    DeviceMsg::Info(info(cal))
+                    let mut reply = info(cal);
+                    if behaviour == Behaviour::NotStored {
+                        reply.calibration_kept = jdbb_core::protocol::CalKept::WriteFailed;
+                    }
+                    DeviceMsg::Info(reply)
                 }
                 _ => DeviceMsg::Info(info(cal)),
             };
@@ -146,6 +152,9 @@ fn info(calibration: Calibration) -> DeviceInfo {
         }; 2],
         overruns: 0,
         clock: jdbb_core::protocol::ClockSource::Emulated,
+        calibration_kept: jdbb_core::protocol::CalKept::Stored,
+        unhandled_irq: None,
+        index_disabled: [false; 2],
     }
 }
 
@@ -250,6 +259,23 @@ fn a_device_holding_another_calibration_is_an_error() {
     assert!(err.contains("reports holding another one"), "{err}");
     assert!(err.contains("l1_mm: sent"), "{err}");
     assert!(!out.contains("identical"), "{out}");
+}
+
+#[test]
+fn a_calibration_in_force_but_not_stored_is_an_error() {
+    // The device's reply holds the calibration sent, bit for bit, but says the flash write
+    // failed: the host must not say it was stored.
+    let o = send_example_to(Behaviour::NotStored);
+    let (out, err) = text(&o);
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "{out}
+{err}"
+    );
+    assert!(err.contains("did NOT store it"), "{err}");
+    assert!(err.contains("programming the flash failed"), "{err}");
+    assert!(!out.contains("stored"), "{out}");
 }
 
 #[test]

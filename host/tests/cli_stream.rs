@@ -176,6 +176,9 @@ fn info() -> DeviceInfo {
         }; 2],
         overruns: 0,
         clock: jdbb_core::protocol::ClockSource::Emulated,
+        calibration_kept: jdbb_core::protocol::CalKept::NotSent,
+        unhandled_irq: None,
+        index_disabled: [false; 2],
     }
 }
 
@@ -462,6 +465,21 @@ fn bad_option_values_are_refused() {
     let o = jdbb(&["live", "--port", "/dev/null", "--rate", "0"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("--rate"), "{}", stderr(&o));
+    // Issue 32 §3: above the sustained rate, refused with the reason (the port is not opened).
+    let o = jdbb(&[
+        "record",
+        "--port",
+        "/dev/null",
+        "--out",
+        "x.csv",
+        "--rate",
+        "20000",
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("known to sustain"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("kB/s"), "{}", stderr(&o));
+    let o = jdbb(&["live", "--port", "/dev/null", "--rate", "10001"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
 }
 
 #[test]

@@ -75,11 +75,20 @@ fn base_command(elf: &Path, icount: bool) -> Command {
 /// The QEMU command for `elf`; with `scenario`, the semihosting command line names it, as
 /// `scripts/qemu-run.sh --scenario` does (commas doubled for QEMU's option syntax).
 fn base_command_with(elf: &Path, icount: bool, scenario: Option<&Path>) -> Command {
-    let mut semihosting = String::from("enable=on,target=native");
-    if let Some(file) = scenario {
+    let arg = scenario.map(|file| {
         let abs = std::fs::canonicalize(file).expect("the scenario file exists");
-        let path = abs.to_str().expect("a UTF-8 path").replace(',', ",,");
-        semihosting.push_str(&format!(",arg=jdbb-firmware,arg={path}"));
+        abs.to_str().expect("a UTF-8 path").to_string()
+    });
+    base_command_arg(elf, icount, arg.as_deref())
+}
+
+/// The QEMU command for `elf`; with `arg`, the semihosting command line is `jdbb-firmware ARG`
+/// (commas doubled for QEMU's option syntax).
+fn base_command_arg(elf: &Path, icount: bool, arg: Option<&str>) -> Command {
+    let mut semihosting = String::from("enable=on,target=native");
+    if let Some(arg) = arg {
+        let arg = arg.replace(',', ",,");
+        semihosting.push_str(&format!(",arg=jdbb-firmware,arg={arg}"));
     }
     let mut c = Command::new("qemu-system-arm");
     c.args([
@@ -135,6 +144,13 @@ impl Qemu {
     /// [`Self::start_with_pty`], the encoders playing `scenario` (`jdbb_core::scenario`).
     pub fn start_with_scenario(elf: &Path, scenario: &Path) -> (Qemu, PathBuf) {
         Self::start_pty(base_command_with(elf, true, Some(scenario)))
+    }
+
+    /// [`Self::start_with_pty`], the calibration flash failing as `mode` says (`leftover`,
+    /// `protected` or `deaf`: see `FlashFault` in the firmware's `board::qemu`).
+    pub fn start_with_flash_fault(elf: &Path, mode: &str) -> (Qemu, PathBuf) {
+        let arg = format!("flash-fault={mode}");
+        Self::start_pty(base_command_arg(elf, true, Some(&arg)))
     }
 
     fn start_pty(mut c: Command) -> (Qemu, PathBuf) {

@@ -13,15 +13,28 @@
 //!    dropped and to `DeviceInfo.overruns`, with the time stamps skipping exactly gap × period.
 //! 3. `Stop` erases the spare (block 1) ahead; after `Start`, stores 10–13 (the 13th moves to
 //!    block 1) lose nothing.
+//!
+//! Issue 32 §1, with the RAM flash failing as the semihosting command line says
+//! (`flash-fault=...`, the firmware's `FlashFault`): a store that fails is in the reply, and the
+//! host says "stored" only for a record the device read back equal.
+//!
+//! - `protected`: every program sets WRPERR: `jdbb calibration send` fails, naming the reason;
+//!   the calibration is in force (until the next power cycle), `DeviceInfo` says `WriteFailed`.
+//! - `deaf`: programming reports success and changes nothing: only the device's read-back finds
+//!   it (`ReadBackDiffers`), and the host reports it.
+//! - `leftover`: an error flag set at power-up (as the ROM bootloader can leave it before a DFU
+//!   `:leave`): the firmware clears the flags before every program, so the store succeeds.
 mod common;
 
 use common::collect_run;
 use std::time::{Duration, Instant};
 
+use jdbb::link::calibration::{connect, read_calibration, send_calibration};
 use jdbb::link::stream::{Poll, SeqSample, Stream};
-use jdbb_core::protocol::Command;
+use jdbb::Error;
+use jdbb_core::protocol::{CalKept, Command};
 use jdbb_core::Calibration;
-use jdbb_tests::{qemu_available, qemu_elf, Qemu};
+use jdbb_tests::{jdbb_bin, qemu_available, qemu_elf, Qemu};
 
 const RATE_HZ: u32 = 5_000;
 const PERIOD_US: u64 = 1_000_000 / RATE_HZ as u64;
@@ -132,7 +145,10 @@ fn stores_erase_ahead_and_an_erase_while_sampling_shows_as_an_exact_gap() {
         .request(&Command::Stop, Duration::from_secs(10))
         .unwrap()
         .unwrap();
-    // The erase runs after the reply (the upkeep task); a ping answered means it is over.
+    // The erase runs after the reply (the upkeep task), once the link has been quiet for 300 ms
+    // (emulated; idle time is skipped under `-icount sleep=off`); a ping answered after that
+    // means it is over.
+    std::thread::sleep(Duration::from_secs(2));
     assert!(stream.handshake(Duration::from_secs(30)).unwrap());
     stream.send(&Command::Start).unwrap();
     let mut run = collect_run(&mut stream, 500, Duration::from_secs(60));
@@ -152,4 +168,76 @@ fn stores_erase_ahead_and_an_erase_while_sampling_shows_as_an_exact_gap() {
         "after Stop (spare erased ahead): stores 10–13, {} samples, no gap",
         run.len()
     );
+}
+
+#[test]
+fn a_store_that_fails_is_reported_and_never_called_stored() {
+    let elf = qemu_elf("jdbb-firmware");
+    if !qemu_available(&elf) {
+        return;
+    }
+    let t = Duration::from_secs(10);
+
+    // Write-protected: the command line reports the failure and its reason, not "stored".
+    let (qemu, pty) = Qemu::start_with_flash_fault(&elf, "protected");
+    let port = pty.to_str().unwrap().to_string();
+    {
+        let mut stream = Stream::open(&port).expect("open QEMU pty");
+        connect(&mut stream, Duration::from_secs(30)).expect("the firmware answers a ping");
+        assert_eq!(
+            read_calibration(&mut stream, t).unwrap().calibration_kept,
+            CalKept::NotSent
+        );
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("cal.toml");
+    std::fs::write(
+        &file,
+        jdbb::instrument::file::calibration_toml(&cal(1), &[]),
+    )
+    .unwrap();
+    let o = std::process::Command::new(jdbb_bin())
+        .args(["calibration", "send", "--port", &port, "--file"])
+        .arg(&file)
+        .output()
+        .expect("run jdbb");
+    let (out, err) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
+    assert_eq!(o.status.code(), Some(1), "{out}\n{err}");
+    assert!(err.contains("did NOT store it"), "{err}");
+    assert!(err.contains("programming the flash failed"), "{err}");
+    assert!(!out.contains("stored"), "{out}");
+    // In force, not kept: the device says so to anyone who asks.
+    let mut stream = Stream::open(&port).expect("open QEMU pty");
+    connect(&mut stream, Duration::from_secs(30)).unwrap();
+    let info = read_calibration(&mut stream, t).unwrap();
+    assert_eq!(info.calibration, cal(1));
+    assert_eq!(info.calibration_kept, CalKept::WriteFailed);
+    println!("write-protected flash: {}", err.trim());
+    drop((stream, qemu));
+
+    // Programming that silently does nothing: only the read-back finds it.
+    let (qemu, pty) = Qemu::start_with_flash_fault(&elf, "deaf");
+    let mut stream = Stream::open(pty.to_str().unwrap()).expect("open QEMU pty");
+    connect(&mut stream, Duration::from_secs(30)).unwrap();
+    match send_calibration(&mut stream, &cal(2), t) {
+        Err(e @ Error::NotStored { .. }) => {
+            let msg = e.to_string();
+            assert!(msg.contains("reads back different"), "{msg}");
+        }
+        other => panic!("a store that did not take was reported as {other:?}"),
+    }
+    drop((stream, qemu));
+
+    // An error flag left set from before the firmware started: cleared before the program, so
+    // the store succeeds (and is read back equal).
+    let (_qemu, pty) = Qemu::start_with_flash_fault(&elf, "leftover");
+    let mut stream = Stream::open(pty.to_str().unwrap()).expect("open QEMU pty");
+    connect(&mut stream, Duration::from_secs(30)).unwrap();
+    let report =
+        send_calibration(&mut stream, &cal(3), t).expect("stored despite the leftover flag");
+    assert_eq!(report.reply.calibration_kept, CalKept::Stored);
+    assert_eq!(report.read_back.calibration_kept, CalKept::Stored);
 }

@@ -106,6 +106,9 @@ fn main() -> ! {
             index: [Encoder::<32>::new(0).index_status(); 2],
             overruns: 0,
             clock: jdbb_core::protocol::ClockSource::Emulated,
+            calibration_kept: jdbb_core::protocol::CalKept::NotSent,
+            unhandled_irq: None,
+            index_disabled: [false; 2],
         }));
         let kernel = Kernel::new(&cal);
         let c1 = (FRAME_RANGE_RAD / cal.enc1.rad_per_count()) as i64;

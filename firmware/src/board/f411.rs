@@ -35,8 +35,10 @@
 //! 84 MHz). `init` first returns the clocks to their reset state (HSI, PLL off: the ROM DFU
 //! bootloader leaves its PLL running), then starts the crystal and locks the PLL once itself, every
 //! wait bounded, before the HAL (whose waits are not) programs them; the crystal is measured
-//! against HSI first (`crystal_measure`, `jdbb_core::clock`). No crystal, or not the build's: the
-//! firmware runs on HSI, `DeviceInfo.clock` says `Internal` and the LED flashes twice every 2 s; a PLL that does not lock: nothing runs, the LED
+//! against HSI first (`crystal_measure`, `jdbb_core::clock`): only a reading that is another
+//! supported crystal rejects it (the log names the build to use), a reading that is no supported
+//! crystal is treated like none. No crystal, or another supported one: the firmware runs on HSI
+//! (±4 % over temperature: USB, which needs ±0.25 %, does not run on it), `DeviceInfo.clock` says `Internal` and the LED flashes twice every 2 s; a PLL that does not lock: nothing runs, the LED
 //! flashes three times. The independent watchdog (started first, fed from the idle loop) resets a
 //! firmware that hangs, after 5.6–15.4 s; `DeviceInfo.reset_cause` then says `WATCHDOG`.
 
@@ -45,8 +47,8 @@ use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use super::Parts;
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
-use jdbb_core::clock::{crystal_check, crystal_hz};
-use jdbb_core::protocol::{Board, ClockSource, ResetCause, SampleBatch};
+use jdbb_core::clock::{crystal_hz, crystal_verdict, crystal_verdict_too_fast, CrystalVerdict};
+use jdbb_core::protocol::{Board, CalKept, ClockSource, ResetCause, SampleBatch};
 use jdbb_core::quadrature::IndexEdge;
 use jdbb_core::reset;
 use jdbb_core::sampler::Sampler;
@@ -101,8 +103,9 @@ const UID_ADDR: usize = 0x1fff_7a10;
 #[link_section = ".uninit.jdbb_crash_mark"]
 static mut CRASH_MARK: MaybeUninit<u32> = MaybeUninit::uninit();
 
-/// Why the chip started: `RCC_CSR`'s reset flags and the crash mark, both cleared for next time.
-fn take_reset_cause(rcc: &pac::RCC) -> ResetCause {
+/// Why the chip started: `RCC_CSR`'s reset flags and the crash mark, both cleared for next time;
+/// and the interrupt without a handler that caused it, if one did.
+fn take_reset_cause(rcc: &pac::RCC) -> (ResetCause, Option<i16>) {
     let csr = rcc.csr().read().bits();
     rcc.csr().modify(|_, w| w.rmvf().set_bit());
     // SAFETY: single-threaded start-up; the word is plain RAM (random after power-on, which
@@ -113,7 +116,10 @@ fn take_reset_cause(rcc: &pac::RCC) -> ResetCause {
         core::ptr::write_volatile(p, reset::MARK_NONE);
         mark
     };
-    reset::from_stm32f4(csr, mark)
+    (
+        reset::from_stm32f4(csr, mark),
+        reset::unhandled_irq(csr, mark),
+    )
 }
 
 /// Leave `mark` for the next start and reset the chip.
@@ -125,12 +131,20 @@ fn crash_reset(mark: u32) -> ! {
 
 /// A field instrument must not hang: log the panic (non-blocking RTT; nothing waits for a probe),
 /// leave the mark and reset. The next `DeviceInfo` reports `ResetCause::PANIC`.
+///
+/// A panic during start-up (before [`init_done`]) would do the same again after every reset, with
+/// the LED dark: there the firmware stops and flickers the LED instead (5 Hz, see
+/// `jdbb_core::clock::panic_blink`), feeding the watchdog, until the board is power-cycled.
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     static PANICKED: AtomicBool = AtomicBool::new(false);
     cortex_m::interrupt::disable();
     if !PANICKED.swap(true, Ordering::Relaxed) {
         defmt::error!("panic: {}", defmt::Display2Format(info));
+    }
+    if !INIT_DONE.load(Ordering::Relaxed) {
+        defmt::error!("the panic was during start-up: LED flickers, power-cycle after fixing");
+        init_panic_blink();
     }
     // No `defmt::flush`: it waits for the probe whenever probe-rs left the channel in blocking
     // mode, even after the probe is gone.
@@ -142,6 +156,39 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 #[cortex_m_rt::exception]
 unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
     crash_reset(reset::MARK_FAULT)
+}
+
+/// An interrupt or exception that has no handler (a peripheral left enabled, a wrong vector):
+/// reset at once rather than spin until the watchdog bites, and leave its number for the next
+/// start (`ResetCause::FAULT` with `DeviceInfo.unhandled_irq`).
+#[cortex_m_rt::exception]
+unsafe fn DefaultHandler(irqn: i16) {
+    cortex_m::interrupt::disable();
+    crash_reset(reset::mark_unhandled_irq(irqn))
+}
+
+/// Set once start-up is over ([`init_done`]): a panic then resets the chip.
+static INIT_DONE: AtomicBool = AtomicBool::new(false);
+
+/// Start-up is over: from now a panic resets the chip (`ResetCause::PANIC`).
+pub fn init_done() {
+    INIT_DONE.store(true, Ordering::Relaxed);
+}
+
+/// The LED code of a panic during start-up, forever (interrupts are off). The LED's GPIO is set
+/// up again (the panic may have come before `led_init`); the clock may be HSI (16 MHz) or the PLL
+/// (96 MHz): counting at 16 MHz, the flicker is 5 Hz on HSI and 30 Hz at most otherwise, both
+/// unlike any other code (steady 2 s patterns).
+fn init_panic_blink() -> ! {
+    // SAFETY: RCC's AHB1ENR GPIOC bit; interrupts are off and nothing else runs.
+    led_init(unsafe { &*pac::RCC::ptr() });
+    let mut t_ms: u32 = 0;
+    loop {
+        feed_watchdog();
+        led(jdbb_core::clock::panic_blink(t_ms));
+        cortex_m::asm::delay(HSI_HZ / 1000);
+        t_ms = t_ms.wrapping_add(1);
+    }
 }
 
 /// The chip's unique ID, as it lies in memory.
@@ -170,7 +217,7 @@ fn serial_number(id: &[u8; 12]) -> &'static str {
 /// with index and sample latches, the sample clock at `rate_hz`, the calibration store (its spare
 /// block erased ahead), USB.
 pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
-    let reset_cause = take_reset_cause(&dp.RCC);
+    let (reset_cause, unhandled_irq) = take_reset_cause(&dp.RCC);
     // First, so that every wait after it is bounded by it too.
     watchdog_start(&dp.IWDG, &dp.DBGMCU);
     led_init(&dp.RCC);
@@ -191,29 +238,37 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
     let mut crystal = hse_start(&dp.RCC);
     if crystal {
         // Only a crystal of the build's frequency may drive the PLL (see `jdbb_core::clock`).
-        match crystal_measure(&dp.RCC) {
-            Reading::Hz(hz) if crystal_check(hz, HSE_HZ) => {
-                defmt::info!("crystal measured at {=u32} Hz against HSI", hz);
-            }
+        let verdict = match crystal_measure(&dp.RCC) {
             Reading::Hz(hz) => {
-                defmt::error!(
-                    "crystal measured at {=u32} Hz, the build is for {=u32} Hz: not used \
-                     (build with the matching hse-... feature)",
-                    hz,
-                    HSE_HZ
-                );
-                crystal = false;
+                let v = crystal_verdict(hz, HSE_HZ);
+                if v == CrystalVerdict::Build {
+                    defmt::info!("crystal measured at {=u32} Hz against HSI", hz);
+                } else if v == CrystalVerdict::Nonsense {
+                    defmt::warn!(
+                        "crystal measured at {=u32} Hz: no supported crystal, the reading is not \
+                         trusted; used as built ({=u32} Hz)",
+                        hz,
+                        HSE_HZ
+                    );
+                }
+                v
             }
-            Reading::TooFast => {
-                defmt::error!(
-                    "crystal far faster than the build's {=u32} Hz: not used",
-                    HSE_HZ
-                );
-                crystal = false;
-            }
+            Reading::TooFast => crystal_verdict_too_fast(HSE_HZ),
             Reading::NoEdges => {
                 defmt::warn!("the crystal could not be measured: used as built");
+                CrystalVerdict::Build
             }
+        };
+        if let CrystalVerdict::Other(hz, how) = verdict {
+            // Only a reading that is another supported crystal rejects it (`jdbb_core::clock`).
+            defmt::error!(
+                "the crystal is a {=u32} Hz one, the build is for {=u32} Hz: not used; build \
+                 with {=str}",
+                hz,
+                HSE_HZ,
+                how
+            );
+            crystal = false;
         }
         if !crystal {
             hse_stop(&dp.RCC);
@@ -243,8 +298,9 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
         defmt::info!("clocks from the {=u32} Hz crystal", HSE_HZ);
     } else {
         defmt::error!(
-            "not running from the {=u32} Hz crystal: on the internal oscillator (HSI, ±1 %: \
-             time stamps and the USB clock are off by up to 1 %; LED flashes twice)",
+            "not running from the {=u32} Hz crystal: on the internal oscillator (HSI: ±1 % at \
+             25 °C, ±4 % over -10..85 °C; time stamps off by up to 4 %; USB needs ±0.25 % and \
+             will not run on it; LED flashes twice)",
             HSE_HZ
         );
     }
@@ -337,6 +393,7 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
         index_raw: None,
         chip_id,
         reset_cause,
+        unhandled_irq,
         cal_memory,
         clock: if crystal {
             ClockSource::Crystal
@@ -555,7 +612,7 @@ fn clock_failure(flashes: u32) -> ! {
 static LED_FLASHES: AtomicU32 = AtomicU32::new(1);
 
 /// The Black Pill's LED: PC13, lit when low.
-fn led_init(rcc: &pac::RCC) {
+fn led_init(rcc: &pac::rcc::RegisterBlock) {
     rcc.ahb1enr().modify(|_, w| w.gpiocen().set_bit());
     cortex_m::asm::dsb();
     led(false);
@@ -620,8 +677,34 @@ const CAL_BASE: u32 = 0x4_0000;
 /// One block of the store: a 128 KiB sector (sectors 6 and 7).
 const CAL_BLOCK: u32 = 0x2_0000;
 
+/// `FLASH_SR`'s error flags (RM0383 §3.8.4: OPERR, WRPERR, PGAERR, PGPERR, PGSERR), cleared by
+/// writing 1.
+const FLASH_SR_ERRORS: u32 = (1 << 1) | (1 << 4) | (1 << 5) | (1 << 6) | (1 << 7);
+/// `FLASH_CR.LOCK`.
+const FLASH_CR_LOCK: u32 = 1 << 31;
+
 /// The flash, unlocked only for the length of each erase or write.
 pub struct BoardFlash(LockedFlash);
+
+impl BoardFlash {
+    /// Before every erase or program: the flash as the HAL expects it. The error flags stay set
+    /// until cleared, and the HAL neither clears them nor tells a leftover flag from a new one:
+    /// one left set (by the ROM bootloader before a DFU `:leave`, which is not a reset, or by an
+    /// earlier failure) would fail every later store. And the HAL writes the unlock keys without
+    /// checking the lock: on a flash left unlocked that is a wrong key sequence (bus error, and
+    /// the HAL's assertion panics), so an unlocked flash is locked first.
+    fn prepare() {
+        // SAFETY: FLASH_CR's LOCK bit and FLASH_SR's write-1-to-clear error flags only; the
+        // flash is used by this driver alone, with no operation in progress between calls.
+        unsafe {
+            let f = &*pac::FLASH::ptr();
+            if f.cr().read().bits() & FLASH_CR_LOCK == 0 {
+                f.cr().modify(|r, w| w.bits(r.bits() | FLASH_CR_LOCK));
+            }
+            f.sr().write(|w| w.bits(FLASH_SR_ERRORS));
+        }
+    }
+}
 
 impl ErrorType for BoardFlash {
     type Error = stm32f4xx_hal::flash::Error;
@@ -644,10 +727,12 @@ impl NorFlash for BoardFlash {
     const ERASE_SIZE: usize = 128 * 1024;
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        Self::prepare();
         NorFlash::erase(&mut self.0.unlocked(), from, to)
     }
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        Self::prepare();
         NorFlash::write(&mut self.0.unlocked(), offset, bytes)
     }
 }
@@ -672,17 +757,25 @@ impl CalMemory {
         self.0.as_ref().and_then(CalStore::load)
     }
 
-    /// Keep `cal` in flash; whether it was kept. Writes one record (~2 ms); erases a sector first
-    /// (2–4 s, the whole CPU stalled) only if the spare was not erased ahead.
-    pub fn store(&mut self, cal: &Calibration) -> bool {
+    /// Keep `cal` in flash and read it back; what became of it (the reply reports it). Writes
+    /// one record (~2 ms); erases a sector first (2–4 s, the whole CPU stalled) only if the spare
+    /// was not erased ahead.
+    pub fn store(&mut self, cal: &Calibration) -> CalKept {
         let Some(s) = self.0.as_mut() else {
-            return false;
+            return CalKept::NoRoom;
         };
         if s.store_would_erase().unwrap_or(false) {
             defmt::warn!("this store erases a flash sector: the CPU stalls for 2-4 s");
         }
         feed_watchdog();
-        s.store(cal).is_ok()
+        let r = s.store(cal);
+        if let Err(
+            jdbb_core::store::StoreError::Flash(e) | jdbb_core::store::StoreError::Erase(e),
+        ) = r
+        {
+            defmt::warn!("calibration store: flash error {}", defmt::Debug2Format(&e));
+        }
+        jdbb_core::store::kept(&r)
     }
 
     /// Erase the store's spare sector if it is not erased yet (2–4 s, the whole CPU stalled:
@@ -807,6 +900,30 @@ pub fn take_index(ch: usize) -> Option<(u32, u32, IndexEdge)> {
         return Some((at, now, edge));
     }
     None
+}
+
+/// Index lines switched off for interrupting too fast.
+static INDEX_OFF: [AtomicBool; 2] = [AtomicBool::new(false), AtomicBool::new(false)];
+
+/// Switch encoder `ch`'s index interrupt off (until the next power-up): its line interrupts
+/// faster than an index can (`jdbb_core::quadrature::IndexRateLimit`).
+pub fn disable_index(ch: usize) {
+    let tim = encoder_timer(ch);
+    // SAFETY: clears CC3IE only (DIER holds nothing else this firmware sets on these timers),
+    // then the pending flags, from the index task that owns them.
+    tim.dier()
+        .modify(|r, w| unsafe { w.bits(r.bits() & !DIER_CC3IE) });
+    tim.sr()
+        .write(|w| unsafe { w.bits(!(SR_CC3IF | SR_CC3OF)) });
+    INDEX_OFF[ch].store(true, Ordering::Relaxed);
+}
+
+/// Which index lines were switched off ([`disable_index`]); reported in `DeviceInfo`.
+pub fn index_disabled() -> [bool; 2] {
+    [
+        INDEX_OFF[0].load(Ordering::Relaxed),
+        INDEX_OFF[1].load(Ordering::Relaxed),
+    ]
 }
 
 /// Level of encoder `ch`'s index pin (PB10, PA2).

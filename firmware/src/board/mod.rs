@@ -16,7 +16,7 @@
 //!   (non-blocking), whether it came up or went down, and its transmit buffer;
 //! - [`LINK_UP_AT_START`]: whether a host may be listening at power-up (UART) or only once the
 //!   link reports it came up (USB).
-//! - `CalMemory::{load, store, erase_ahead}`: where the calibration is kept across power cycles —
+//! - `CalMemory::{load, store, erase_ahead}` (`store` returns the `CalKept` the reply reports): where the calibration is kept across power cycles —
 //!   [`jdbb_core::store`] over flash sectors 6 and 7 on the board, over a RAM "flash" whose erase
 //!   stalls the CPU on QEMU, which does not emulate flash writes (so there it lasts until QEMU is
 //!   restarted); `erase_ahead` erases the spare block while not sampling.
@@ -51,6 +51,8 @@ pub struct Parts {
     pub chip_id: [u8; 12],
     /// Why the device started.
     pub reset_cause: jdbb_core::protocol::ResetCause,
+    /// The interrupt without a handler that reset the device, if that is why it started.
+    pub unhandled_irq: Option<i16>,
     /// The calibration kept across power cycles.
     pub cal_memory: CalMemory,
     /// What the clocks run from (the crystal, or the internal oscillator when it did not start).

@@ -34,7 +34,7 @@
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use super::Parts;
-use jdbb_core::protocol::{Board, ResetCause, SampleBatch};
+use jdbb_core::protocol::{Board, CalKept, ResetCause, SampleBatch};
 use jdbb_core::sampler::Sampler;
 use jdbb_core::scenario::raw_of;
 use jdbb_core::sim::CircularTest;
@@ -80,6 +80,7 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
         // QEMU models no unique ID (reading its address would fault) and no reset flags.
         chip_id: [0; 12],
         reset_cause: ResetCause::default(),
+        unhandled_irq: None,
         cal_memory: {
             let mut m = CalMemory::open();
             m.erase_ahead();
@@ -364,9 +365,69 @@ const RAM_FLASH_BLOCK: u32 = 1024;
 /// to see a stall in the stream.
 pub const ERASE_STALL_US: u32 = 200_000;
 
+/// `FLASH_SR`'s error flags as the board's flash has them (RM0383 §3.8.4): OPERR, WRPERR,
+/// PGAERR, PGPERR, PGSERR; set by a failed operation, kept until cleared.
+const SR_ERRORS: u32 = (1 << 1) | (1 << 4) | (1 << 5) | (1 << 6) | (1 << 7);
+/// `FLASH_SR.WRPERR`: programming or erasing a write-protected sector.
+const SR_WRPERR: u32 = 1 << 4;
+/// `FLASH_SR.PGSERR`: a programming sequence error, the flag a DFU `:leave` can leave set.
+const SR_PGSERR: u32 = 1 << 7;
+
+/// How the QEMU build's calibration flash misbehaves: the semihosting command line's
+/// `flash-fault=MODE` (`tests/tests/qemu_store.rs`); none by default.
+#[derive(Clone, Copy, PartialEq, Eq, defmt::Format)]
+pub enum FlashFault {
+    /// A working flash.
+    None,
+    /// An error flag (PGSERR) is set at power-up, as the ROM bootloader can leave it before a
+    /// DFU `:leave` jump: every store fails unless the driver clears the flags first.
+    Leftover,
+    /// The store's sectors are write-protected: every program and erase sets WRPERR and changes
+    /// nothing.
+    Protected,
+    /// Programming reports success but changes nothing (only reading back finds it out).
+    Deaf,
+}
+
+impl FlashFault {
+    fn from_command_line() -> Self {
+        let mut buf = [0u8; 32];
+        match crate::scenario::flash_fault_arg(&mut buf) {
+            Some(b"leftover") => FlashFault::Leftover,
+            Some(b"protected") => FlashFault::Protected,
+            Some(b"deaf") => FlashFault::Deaf,
+            _ => FlashFault::None,
+        }
+    }
+}
+
 /// NOR flash in RAM for the calibration store, with the NOR rules that matter (erased = 0xFF,
-/// whole-block erases) and an erase that stalls the CPU like the board's ([`ERASE_STALL_US`]).
-pub struct RamFlash(&'static mut [u8; 2 * RAM_FLASH_BLOCK as usize]);
+/// whole-block erases), an erase that stalls the CPU like the board's ([`ERASE_STALL_US`]), and
+/// the board's error flags: an operation fails when any flag is set after it, a leftover one
+/// included, as the HAL checks them; the driver clears them before every operation, as the
+/// board's `BoardFlash` does ([`FlashFault`] injects the failures).
+pub struct RamFlash {
+    mem: &'static mut [u8; 2 * RAM_FLASH_BLOCK as usize],
+    /// The modelled `FLASH_SR`.
+    sr: u32,
+    fault: FlashFault,
+}
+
+impl RamFlash {
+    /// Before every erase or program, as on the board: clear the error flags.
+    fn prepare(&mut self) {
+        self.sr &= !SR_ERRORS;
+    }
+
+    /// After an operation, as the HAL: any error flag fails it.
+    fn status(&self) -> Result<(), embedded_storage::nor_flash::NorFlashErrorKind> {
+        if self.sr & SR_ERRORS != 0 {
+            Err(embedded_storage::nor_flash::NorFlashErrorKind::Other)
+        } else {
+            Ok(())
+        }
+    }
+}
 
 impl embedded_storage::nor_flash::ErrorType for RamFlash {
     type Error = embedded_storage::nor_flash::NorFlashErrorKind;
@@ -378,7 +439,7 @@ impl embedded_storage::nor_flash::ReadNorFlash for RamFlash {
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
         let o = offset as usize;
         let src = self
-            .0
+            .mem
             .get(o..o + bytes.len())
             .ok_or(Self::Error::OutOfBounds)?;
         bytes.copy_from_slice(src);
@@ -386,7 +447,7 @@ impl embedded_storage::nor_flash::ReadNorFlash for RamFlash {
     }
 
     fn capacity(&self) -> usize {
-        self.0.len()
+        self.mem.len()
     }
 }
 
@@ -395,31 +456,39 @@ impl embedded_storage::nor_flash::NorFlash for RamFlash {
     const ERASE_SIZE: usize = RAM_FLASH_BLOCK as usize;
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        self.prepare();
         let range = self
-            .0
+            .mem
             .get_mut(from as usize..to as usize)
             .ok_or(Self::Error::OutOfBounds)?;
-        range.fill(0xff);
-        cortex_m::interrupt::free(|_| {
-            let t0 = pace_clock_raw_us();
-            while pace_clock_raw_us().wrapping_sub(t0) < ERASE_STALL_US {
-                cortex_m::asm::delay(10_000);
-            }
-        });
-        Ok(())
+        if self.fault == FlashFault::Protected {
+            self.sr |= SR_WRPERR;
+        } else {
+            range.fill(0xff);
+            cortex_m::interrupt::free(|_| {
+                let t0 = pace_clock_raw_us();
+                while pace_clock_raw_us().wrapping_sub(t0) < ERASE_STALL_US {
+                    cortex_m::asm::delay(10_000);
+                }
+            });
+        }
+        self.status()
     }
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        self.prepare();
         let o = offset as usize;
         let dst = self
-            .0
+            .mem
             .get_mut(o..o + bytes.len())
             .ok_or(Self::Error::OutOfBounds)?;
-        // NOR programming only clears bits.
-        for (d, b) in dst.iter_mut().zip(bytes) {
-            *d &= *b;
+        match self.fault {
+            FlashFault::Protected => self.sr |= SR_WRPERR,
+            FlashFault::Deaf => {}
+            // NOR programming only clears bits.
+            _ => dst.iter_mut().zip(bytes).for_each(|(d, b)| *d &= *b),
         }
-        Ok(())
+        self.status()
     }
 }
 
@@ -430,9 +499,24 @@ pub struct CalMemory(Option<CalStore<RamFlash>>);
 
 impl CalMemory {
     fn open() -> Self {
+        let fault = FlashFault::from_command_line();
+        if fault != FlashFault::None {
+            defmt::warn!("calibration flash fault injected: {}", fault);
+        }
         let mem = cortex_m::singleton!(: [u8; 2 * RAM_FLASH_BLOCK as usize] =
             [0xff; 2 * RAM_FLASH_BLOCK as usize]);
-        CalMemory(mem.and_then(|m| CalStore::open(RamFlash(m), 0, RAM_FLASH_BLOCK).ok()))
+        CalMemory(mem.and_then(|mem| {
+            let flash = RamFlash {
+                mem,
+                sr: if fault == FlashFault::Leftover {
+                    SR_PGSERR
+                } else {
+                    0
+                },
+                fault,
+            };
+            CalStore::open(flash, 0, RAM_FLASH_BLOCK).ok()
+        }))
     }
 
     /// The calibration stored last, if any.
@@ -440,16 +524,16 @@ impl CalMemory {
         self.0.as_ref().and_then(CalStore::load)
     }
 
-    /// Keep `cal`; whether it was kept. Erases a block first (a stall of [`ERASE_STALL_US`]) only
-    /// if the spare was not erased ahead.
-    pub fn store(&mut self, cal: &jdbb_core::Calibration) -> bool {
+    /// Keep `cal` and read it back; what became of it (the reply reports it). Erases a block
+    /// first (a stall of [`ERASE_STALL_US`]) only if the spare was not erased ahead.
+    pub fn store(&mut self, cal: &jdbb_core::Calibration) -> CalKept {
         let Some(s) = self.0.as_mut() else {
-            return false;
+            return CalKept::NoRoom;
         };
         if s.store_would_erase().unwrap_or(false) {
             defmt::warn!("this store erases a block: the CPU stalls");
         }
-        s.store(cal).is_ok()
+        jdbb_core::store::kept(&s.store(cal))
     }
 
     /// Erase the store's spare block if it is not erased yet (call it only while not sampling);
@@ -460,6 +544,14 @@ impl CalMemory {
             .is_some_and(|s| s.erase_spare().unwrap_or(false))
     }
 }
+
+/// No index interrupts in the QEMU build: never switched off.
+pub fn index_disabled() -> [bool; 2] {
+    [false; 2]
+}
+
+/// No LED in QEMU's model (its panic handler, panic-probe, exits QEMU).
+pub fn init_done() {}
 
 /// No watchdog in QEMU's model: nothing to feed.
 #[inline]

@@ -67,7 +67,7 @@ fn send(args: &SendArgs) -> Result<()> {
         describe_info(&report.read_back)
     );
     text.push_str(&describe(&report.read_back.calibration));
-    text.push_str("read back: identical");
+    text.push_str("read back: identical\nstored: written to flash and read back equal (kept across power cycles)");
     emit(&text)
 }
 

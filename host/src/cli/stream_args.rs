@@ -21,9 +21,14 @@ pub struct StreamArgs {
     /// away).
     #[arg(long, value_name = "N", value_parser = super::args::seconds)]
     pub seconds: Option<f64>,
-    /// Set the device's sample clock (Hz) before starting.
+    /// Set the device's sample clock (Hz) before starting: at most the rate the board is known
+    /// to sustain (10 kHz, README "Throughput budget") unless `--unsustained-rate`.
     #[arg(long, value_name = "HZ")]
     pub rate: Option<u32>,
+    /// Accept a `--rate` above the sustained rate, up to the device's 20 kHz (the first-flash
+    /// check of the tick chain): samples may be dropped (counted).
+    #[arg(long)]
+    pub unsustained_rate: bool,
     /// Listen only: send no Start (and no Stop at the end) to a device that is already streaming.
     #[arg(long)]
     pub no_start: bool,
@@ -60,6 +65,18 @@ impl StreamArgs {
                 return Err(Error::Usage(format!(
                     "--rate {hz}: the device samples at 1 to {} Hz",
                     protocol::MAX_SAMPLE_RATE_HZ
+                )));
+            }
+            if hz > protocol::SUSTAINED_SAMPLE_RATE_HZ && !self.unsustained_rate {
+                return Err(Error::Usage(format!(
+                    "--rate {hz}: above {} Hz, the rate the board is known to sustain end to end. \
+                     Each sample is ~23 bytes on the link and up to ~1 800 instructions on the chip: \
+                     {hz} Hz needs {} kB/s over USB full speed with one packet in flight and most of \
+                     the CPU, which no board has shown; samples would be dropped (README, \
+                     \"Throughput budget\"). To check the tick chain anyway, add \
+                     --unsustained-rate",
+                    protocol::SUSTAINED_SAMPLE_RATE_HZ,
+                    hz as u64 * 23 / 1000
                 )));
             }
         }

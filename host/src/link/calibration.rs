@@ -8,7 +8,7 @@ use std::io::{Read, Write};
 use std::time::Duration;
 
 use jdbb_core::calib::{Calibration, EncoderCal, FrameCal};
-use jdbb_core::protocol::{Command, CommandError, DeviceInfo};
+use jdbb_core::protocol::{CalKept, Command, CommandError, DeviceInfo};
 
 use super::stream::Stream;
 use crate::instrument::file::why;
@@ -52,11 +52,14 @@ pub fn connect<P: Read + Write>(stream: &mut Stream<P>, timeout: Duration) -> Re
 }
 
 /// Send `cal` (checked with [`Calibration::validate`] first) and read it back: the device's
-/// answer to `SetCalibration` and a fresh `GetInfo` must both report `cal` bit for bit.
+/// answer to `SetCalibration` and a fresh `GetInfo` must both report `cal` bit for bit, and the
+/// answer must say the device stored it ([`CalKept::Stored`]: written to flash and read back
+/// equal).
 ///
 /// Errors: [`Error::CommandRefused`] naming the reason when the device refuses it,
 /// [`Error::NoReply`] when it does not answer within `timeout`, [`Error::ReadBackMismatch`]
-/// listing the fields that differ. Call [`connect`] first.
+/// listing the fields that differ, [`Error::NotStored`] when the calibration is in force but was
+/// not kept (with the device's reason). Call [`connect`] first.
 pub fn send_calibration<P: Read + Write>(
     stream: &mut Stream<P>,
     cal: &Calibration,
@@ -70,9 +73,31 @@ pub fn send_calibration<P: Read + Write>(
     })?;
     let reply = answer(stream, &Command::SetCalibration(*cal), timeout)?;
     check_same(stream, cal, &reply.calibration)?;
+    if reply.calibration_kept != CalKept::Stored {
+        return Err(Error::NotStored {
+            port: stream.name().to_string(),
+            reason: kept_reason(reply.calibration_kept).into(),
+        });
+    }
     let read_back = answer(stream, &Command::GetInfo, timeout)?;
     check_same(stream, cal, &read_back.calibration)?;
     Ok(SendReport { reply, read_back })
+}
+
+/// Words for what became of the last calibration sent ([`DeviceInfo::calibration_kept`]).
+pub fn kept_reason(kept: CalKept) -> &'static str {
+    match kept {
+        CalKept::NotSent => "no calibration was sent since the device started",
+        CalKept::Stored => "stored in flash and read back equal",
+        CalKept::NoRoom => "the device has no room in flash for it (an STM32F411xC has no sectors 6 and 7)",
+        CalKept::EraseFailed => "erasing the flash sector failed",
+        CalKept::WriteFailed => {
+            "programming the flash failed (the flash reported an error: write protection, or a programming error)"
+        }
+        CalKept::ReadBackDiffers => {
+            "the flash was written without an error but reads back different (worn or failing flash)"
+        }
+    }
 }
 
 /// The device's description of itself, with the calibration in force. Call [`connect`] first.

@@ -932,7 +932,7 @@ pub fn describe_info(info: &DeviceInfo) -> String {
     let [a, b, c] = info.firmware_version;
     let serial = serial_number(info);
     format!(
-        "{:?}, firmware {a}.{b}.{c}, protocol {}, {} Hz, L1 {} mm, L2 {} mm, {}, serial {serial}, reset {:#04x}{}, clock {}",
+        "{:?}, firmware {a}.{b}.{c}, protocol {}, {} Hz, L1 {} mm, L2 {} mm, {}, serial {serial}, reset {:#04x}{}{}, clock {}",
         info.board,
         info.protocol_version,
         info.sample_rate_hz,
@@ -945,10 +945,17 @@ pub fn describe_info(info: &DeviceInfo) -> String {
         } else {
             ""
         },
+        info.unhandled_irq
+            .map(|n| format!(" (an interrupt without a handler, IRQ {n}, reset it)"))
+            .unwrap_or_default()
+            + &(0..2)
+                .filter(|&k| info.index_disabled[k])
+                .map(|k| format!(", INDEX {} SWITCHED OFF (it interrupted faster than an index can: a noisy or mis-wired line)", k + 1))
+                .collect::<String>(),
         match info.clock {
             ClockSource::Crystal => "crystal",
             ClockSource::Internal =>
-                "INTERNAL (the crystal did not start: time stamps and the sample rate are off by up to 1 %)",
+                "INTERNAL (no usable crystal: time stamps and the sample rate are off by up to 4 %, and USB does not run on it)",
             ClockSource::Emulated => "emulated",
         }
     )
@@ -1036,6 +1043,9 @@ pub(crate) mod tests {
             }; 2],
             overruns: 0,
             clock: protocol::ClockSource::Emulated,
+            calibration_kept: protocol::CalKept::NotSent,
+            unhandled_irq: None,
+            index_disabled: [false; 2],
         })
     }
 
@@ -1081,7 +1091,7 @@ pub(crate) mod tests {
         i.clock = ClockSource::Internal;
         let line = describe_info(&i);
         assert!(line.contains("clock INTERNAL"), "{line}");
-        assert!(line.contains("off by up to 1 %"), "{line}");
+        assert!(line.contains("off by up to 4 %"), "{line}");
     }
 
     #[test]
