@@ -51,6 +51,7 @@ use super::runs::{
     MAX_RUN_STEP_RAD,
 };
 use super::zone::{circle_zones, CircleZone};
+use crate::numerics::correlation;
 use crate::numerics::lsq::{least_squares, GramAccumulator, LsqOptions, Subset};
 use crate::numerics::select::{
     confounded_names, forward_select, null_space, solve, sub, Group, SelectOptions,
@@ -69,6 +70,9 @@ pub struct Options {
     pub select: SelectOptions,
     /// Number of angle harmonics reported for the residual.
     pub harmonics: usize,
+    /// Account for correlated noise (the residual's integrated autocorrelation time, see
+    /// [`Diagnosis::noise_tau_int`]); off, every sample counts as independent, as before.
+    pub correlated_noise: bool,
 }
 
 impl Default for Options {
@@ -80,6 +84,7 @@ impl Default for Options {
                 ..SelectOptions::default()
             },
             harmonics: 8,
+            correlated_noise: true,
         }
     }
 }
@@ -214,6 +219,11 @@ pub struct Diagnosis {
     /// tried — the part that differs can carry them where the data are good — but where one of
     /// the group is named, the others are its alternative on this arc.
     pub weak_on_arc: Vec<WeakOnArc>,
+    /// How many samples the residual's noise makes one independent sample: its integrated
+    /// autocorrelation time τ_int (`numerics::correlation`), 1 for white noise. Above
+    /// [`CORRELATED_TAU`] the selection counted m/τ_int samples and every σ is √τ_int larger
+    /// than a white-noise fit's.
+    pub noise_tau_int: f64,
 }
 
 /// A candidate a partial arc barely tells from others (see [`Diagnosis::weak_on_arc`]).
@@ -718,6 +728,24 @@ fn trial_gaps_um(path: &Path, y_um: &[f64]) -> [f64; 3] {
 /// Diagnose a circular test: baseline, set-up, forward selection of machine effects, exact refit,
 /// residual harmonics, G and H. See the module docs.
 pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> {
+    let white = diagnose_counting(path, d_mm, opts, 1.0)?;
+    if !opts.correlated_noise || white.noise_tau_int <= CORRELATED_TAU {
+        return Ok(white);
+    }
+    // Correlated noise: select and state σ again as for m/τ independent samples.
+    let tau = white.noise_tau_int;
+    let mut d = diagnose_counting(path, d_mm, opts, tau)?;
+    d.noise_tau_int = tau;
+    Ok(d)
+}
+
+/// Residuals whose integrated autocorrelation time (samples) is at most this count as white: the
+/// batch-means estimate reads white noise at 1.0–1.8 ([`correlation::integrated_time`]).
+pub const CORRELATED_TAU: f64 = 2.0;
+
+/// [`diagnose`] with the samples worth `tau_int` each: the selection counts m/τ_int independent
+/// samples and the standard errors grow by √τ_int (`numerics::correlation`).
+fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) -> Result<Diagnosis> {
     let m = d_mm.len();
     if m != path.len() || m < MIN_SAMPLES {
         return Err(Error::Numerics(format!(
@@ -933,9 +961,15 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
                 }
             })
             .collect();
-        let sel = forward_select(&design.gram, m, &setup_free, &groups, &opts.select, &|i| {
-            design.col_name(i)
-        })?;
+        let m_independent = ((m as f64 / tau_int).round() as usize).clamp(2, m);
+        let sel = forward_select(
+            &design.gram,
+            m_independent,
+            &setup_free,
+            &groups,
+            &opts.select,
+            &|i| design.col_name(i),
+        )?;
         for mut g in sel.confounded.clone() {
             g.dedup();
             if !confounded.contains(&g) {
@@ -1109,6 +1143,12 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
             if psig.iter().all(|s| s.is_none()) {
                 sigma = None;
             }
+            // The refit's σ is a white-noise σ: correlated samples are worth fewer.
+            let inflate = |s: Option<f64>| s.map(|s| s * tau_int.sqrt());
+            sigma = inflate(sigma);
+            for s in psig.iter_mut() {
+                *s = inflate(*s);
+            }
             // A spike's height h·e^(−δt/τ) moves by h·δt/τ when the reversal's time is off by δt.
             // And a dead band on the same axis, taken up over Δθ ≈ √(2b/R) after the reversal,
             // ends when the axis moves at v·√(2b/R): mistimed by δt, it leaves a misfit of about
@@ -1263,6 +1303,9 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         harmonics(&angle, &resid, opts.harmonics)
     };
     let zones = circle_zones(path, &angle, &meas, &circles, &runs)?;
+    // Blocks up to the longest the estimate allows: the effects live at the circle's low
+    // harmonics and a drift over the whole test, where a slow wander competes with them.
+    let noise_tau_int = correlation::integrated_time(&resid, m);
     let g = zones.iter().map(CircleZone::g_um).fold(0.0, f64::max);
     let h = zones.iter().map(|z| z.h_um).fold(0.0, f64::max);
     // Each machine effect alone, with the plotted curve's set-up removal: its share of the error.
@@ -1340,6 +1383,7 @@ pub fn diagnose(path: &Path, d_mm: &[f64], opts: &Options) -> Result<Diagnosis> 
         pitch_mm: path.pitch_mm,
         arcs,
         weak_on_arc: weak,
+        noise_tau_int,
     })
 }
 
@@ -1628,6 +1672,73 @@ mod tests {
 
     fn ev(effect: Effect, params: Vec<f64>) -> super::super::simulate::EffectValue {
         super::super::simulate::EffectValue { effect, params }
+    }
+
+    /// AR(1) noise of ρ 0.8 (τ_int = 9) on a circle with 5 µm of X play: counting every sample as
+    /// independent names noise as effects (issue 26 measured 40 % of null runs), counting m/τ_int
+    /// names the play alone, and its σ then covers its scatter over the seeds.
+    #[test]
+    fn correlated_noise_is_not_named_and_widens_sigma() {
+        use super::super::simulate::{distances_mm, nominal_path, PathSpec};
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let spec = PathSpec {
+            radii_mm: vec![50.0],
+            heights_mm: vec![0.0],
+            plane: (0, 1, 2),
+            feed_mm_min: 1000.0,
+            rate_hz: 400.0,
+        };
+        let (t, p) = nominal_path(&spec);
+        let path = Path::new(t, p, [None; 3]);
+        let clean = distances_mm(&path, &[ev(Effect::Backlash(Axis::X), vec![5.0])]).unwrap();
+        let white_opts = Options {
+            correlated_noise: false,
+            ..Options::default()
+        };
+        let (mut white_alarms, mut alarms, mut z) = (0, 0, vec![]);
+        let named = |d: &Diagnosis| -> Vec<String> {
+            d.effects
+                .iter()
+                .filter(|f| !f.effect.is_setup())
+                .map(|f| f.effect.name())
+                .collect()
+        };
+        for seed in 0..8 {
+            let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+            let normal = Normal::new(0.0, 0.3 * (1.0f64 - 0.64).sqrt()).unwrap();
+            let mut x = 0.3 * Normal::new(0.0, 1.0).unwrap().sample(&mut rng);
+            let noisy: Vec<f64> = clean
+                .iter()
+                .map(|d| {
+                    x = 0.8 * x + normal.sample(&mut rng);
+                    d + x * 1e-3
+                })
+                .collect();
+            let white = diagnose(&path, &noisy, &white_opts).unwrap();
+            if named(&white) != ["backlash_x"] {
+                white_alarms += 1;
+            }
+            let d = diagnose(&path, &noisy, &Options::default()).unwrap();
+            assert!(
+                d.noise_tau_int > 5.0 && d.noise_tau_int < 14.0,
+                "seed {seed}: τ_int {}",
+                d.noise_tau_int
+            );
+            if named(&d) != ["backlash_x"] {
+                alarms += 1;
+                continue;
+            }
+            let b = &d.effects[2];
+            z.push((b.value - 5.0) / b.sigma.unwrap());
+        }
+        assert!(
+            white_alarms >= 3,
+            "white-noise counting named noise in {white_alarms} of 8"
+        );
+        assert_eq!(alarms, 0, "named noise in {alarms} of 8");
+        let sd = (z.iter().map(|v| v * v).sum::<f64>() / z.len() as f64).sqrt();
+        assert!((0.4..1.6).contains(&sd), "z-scores {z:?}: RMS {sd:.2}");
     }
 
     #[test]

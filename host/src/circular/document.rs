@@ -406,6 +406,7 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
         "final",
         "residual_share",
         "gain",
+        "noise_tau_int",
         "harmonics_um",
         "lsq_setup",
         "circular_deviation_g_um",

@@ -85,6 +85,10 @@
 //! final.rms_um             RMS of the residual of the exact refit, µm (the test's noise)
 //! residual_share           the residual's share of the error (see *Shares*)
 //! gain                     baseline.rms_um / final.rms_um
+//! noise_tau_int            how many samples of the residual make one independent sample (its
+//!                          integrated autocorrelation time; 1 = white noise). Above 2 the
+//!                          selection counted samples / noise_tau_int and every σ is
+//!                          √noise_tau_int larger than a white-noise fit's
 //! harmonics_um[]           amplitude of residual harmonics 1..8 against the angle in the plane
 //!                          of the two axes with the largest travel, µm
 //! lsq_setup                {x_um, y_um, z_um, e_um}: the least-squares set-up of all samples,
@@ -270,6 +274,16 @@ pub fn summary(d: &Diagnosis) -> String {
             _ => String::new(),
         }
     );
+    if d.noise_tau_int > crate::circular::diagnose::CORRELATED_TAU {
+        let _ = writeln!(
+            s,
+            "noise: correlated, {:.1} samples make one independent sample: the selection and every \
+             σ count {} of the {} samples",
+            d.noise_tau_int,
+            (d.samples as f64 / d.noise_tau_int).round(),
+            d.samples
+        );
+    }
     let normal = ['x', 'y', 'z'][3 - d.plane.0 - d.plane.1];
     for (k, c) in d.circle_zones.iter().enumerate() {
         let g = |z: &Option<crate::numerics::mzc::MinimumZone>| match z {
@@ -429,6 +443,7 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
         "final": {"rms_um": num(d.final_rms_um)},
         "residual_share": num(d.residual_share),
         "gain": num(d.gain),
+        "noise_tau_int": num(d.noise_tau_int),
         "harmonics_um": d.harmonics_um,
         "lsq_setup": {
             "x_um": num(d.lsq_setup_um[0]),

@@ -18,16 +18,20 @@ use crate::{Error, Result};
 /// output until QEMU notices the open; a USB device may still be enumerating).
 pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
 
-/// How long the device has to answer `GetInfo`.
-pub const REPLY_TIMEOUT: Duration = Duration::from_secs(3);
+/// How long the device has to answer `GetInfo`: a reply takes milliseconds, but a command that
+/// arrives while the device erases its calibration store's spare block ahead (which it starts only
+/// after the link has been quiet, and which stalls the CPU for up to 4 s, DS10314) is answered
+/// after it. The wait covers that erase, so it delays a reply but never fails one.
+pub const REPLY_TIMEOUT: Duration = Duration::from_secs(5);
 
-/// How long the device has to answer `SetCalibration`: [`REPLY_TIMEOUT`] plus the worst case of
+/// How long the device has to answer `SetCalibration`: [`REPLY_TIMEOUT`] (which covers an erase
+/// ahead under way when the command came) plus the worst case of
 /// keeping the calibration in flash, a 128 KiB sector erase of the STM32F411 (4 s max, DS10314's
 /// "Flash memory programming" table at x8 parallelism, which the firmware uses) and one record
 /// written (~110 bytes at 100 µs max each). The firmware erases ahead, so a store rarely erases;
 /// when it does, the reply comes after the erase, and a shorter wait would report a failed send
 /// of a calibration that was kept.
-pub const STORE_REPLY_TIMEOUT: Duration = Duration::from_secs(8);
+pub const STORE_REPLY_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// What the device said after [`send_calibration`].
 #[derive(Debug, Clone, Copy, PartialEq)]

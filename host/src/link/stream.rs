@@ -52,11 +52,15 @@ const READ_CHUNK: usize = 16 * 1024;
 pub const READ_TIMEOUT: Duration = Duration::from_millis(50);
 
 /// An [`DeviceMsg::Info`] arriving this long after a command was sent is taken as its reply; any
-/// other Info after samples have flowed means the device restarted.
-const INFO_REPLY_WINDOW: Duration = Duration::from_secs(2);
+/// other Info after samples have flowed means the device restarted. As long as
+/// [`START_ACK_TIMEOUT`]: a reply can wait behind the device's erase ahead.
+const INFO_REPLY_WINDOW: Duration = Duration::from_secs(5);
 
-/// How long after [`Command::Start`] the device has to acknowledge it (answer with its Info).
-pub const START_ACK_TIMEOUT: Duration = Duration::from_secs(3);
+/// How long after [`Command::Start`] the device has to acknowledge it (answer with its Info): it
+/// covers the device's erase ahead of its calibration store (up to 4 s with the CPU stalled), which
+/// it starts only while the link is quiet, so a Start sent just then is answered late, not lost
+/// ([`crate::link::calibration::REPLY_TIMEOUT`]).
+pub const START_ACK_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// How often [`Stream::handshake`] repeats its ping.
 pub const HANDSHAKE_RESEND: Duration = Duration::from_millis(250);
