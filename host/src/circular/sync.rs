@@ -57,6 +57,7 @@
 #![allow(clippy::needless_range_loop)]
 use std::path::{Path as FsPath, PathBuf};
 
+use super::glitch::Glitch;
 use super::path::{median_interval, Path, Reversal};
 use super::plan::{ArcRole, LineRole, Plan, Segment, Sense};
 use crate::numerics::lsq::{least_squares, LsqOptions, Problem};
@@ -78,6 +79,10 @@ pub const MAX_DATA_SAMPLES: usize = 2_000_000;
 /// backlash of f µm at the ramps' ends shifts them by about f/(2v) — so the one or two samples
 /// straddling it cannot be told from a mistimed step.
 pub const REVERSAL_GUARD_S: f64 = 1e-3;
+
+/// A record with more than one glitch in this many samples is refused: not glitches but a
+/// faulty instrument or cable.
+pub const MAX_GLITCH_SHARE: usize = 100;
 
 /// Feed factors (measured over programmed) outside this range are not a machine running the
 /// plan: the record belongs to another program or the run was disturbed.
@@ -150,6 +155,11 @@ pub struct Record {
     pub plan_id: Option<String>,
     /// Line number of each sample in the file (errors name it).
     lines: Vec<u32>,
+    /// The samples set aside as glitches ([`super::glitch`]): not in `t_s` and `d_mm`.
+    pub glitches: Vec<Glitch>,
+    /// Samples the recorder marked as suspect (`# suspect:` comment lines among the data),
+    /// skipped as every comment line.
+    pub marked: u64,
 }
 
 impl Record {
@@ -173,6 +183,8 @@ impl Record {
                 .header_comment(super::plan::PLAN_ID_KEY)
                 .map(str::to_string),
             lines: vec![],
+            glitches: vec![],
+            marked: 0,
         };
         let mut prev: Option<f64> = None;
         while let Some(row) = t.next_row()? {
@@ -199,6 +211,20 @@ impl Record {
             rec.d_mm.push(d);
             rec.lines.push(row.line().min(u32::MAX as usize) as u32);
         }
+        rec.marked = t.data_comments();
+        let read = rec.t_s.len();
+        rec.set_glitches_aside();
+        if rec.glitches.len() > read / MAX_GLITCH_SHARE {
+            return Err(Error::input(
+                path,
+                rec.glitches[0].line,
+                0,
+                format!(
+                    "{} of {read} samples lie far off the samples around them (glitches; the first here): more than one in {MAX_GLITCH_SHARE} is not a glitch but a faulty instrument or cable. Check the cable and the instrument, then record the test again",
+                    rec.glitches.len()
+                ),
+            ));
+        }
         if rec.t_s.len() < 10 {
             return Err(Error::input(
                 path,
@@ -210,17 +236,83 @@ impl Record {
         Ok(rec)
     }
 
+    /// Take the glitches ([`super::glitch::find`]) out of `t_s`, `d_mm` and `lines` into
+    /// `glitches`.
+    fn set_glitches_aside(&mut self) {
+        let found = super::glitch::find(&self.d_mm);
+        if found.is_empty() {
+            return;
+        }
+        let mut next = found.iter().peekable();
+        let mut keep = 0;
+        for i in 0..self.t_s.len() {
+            if next.peek() == Some(&&i) {
+                next.next();
+                self.glitches.push(Glitch {
+                    line: self.line_of(i),
+                    t_s: self.t_s[i],
+                    d_mm: self.d_mm[i],
+                });
+                continue;
+            }
+            self.t_s[keep] = self.t_s[i];
+            self.d_mm[keep] = self.d_mm[i];
+            self.lines[keep] = self.lines[i];
+            keep += 1;
+        }
+        self.t_s.truncate(keep);
+        self.d_mm.truncate(keep);
+        self.lines.truncate(keep);
+    }
+
+    /// Whether line `line` of the file is a sample the record holds (not set aside, not a
+    /// comment).
+    pub fn holds_line(&self, line: usize) -> bool {
+        self.lines
+            .binary_search(&(line.min(u32::MAX as usize) as u32))
+            .is_ok()
+    }
+
+    /// What was set aside (glitches, samples the recorder marked) and where, in words; None if
+    /// nothing was. `sync` places the glitches in its circles.
+    pub fn set_aside_note(&self, sync: Option<&Sync>) -> Option<String> {
+        let circle_of = |t: f64| {
+            sync?
+                .circles
+                .iter()
+                .position(|c| t >= c.feed_in.profile.t0_s && t <= c.feed_out.profile.end_s())
+        };
+        let glitches = super::glitch::describe(&self.glitches, &circle_of);
+        let marked = (self.marked > 0).then(|| {
+            format!(
+                "{} sample{} the recorder marked as suspect (`# suspect:` lines) left out",
+                self.marked,
+                if self.marked == 1 { "" } else { "s" }
+            )
+        });
+        match (glitches, marked) {
+            (None, None) => None,
+            (Some(g), None) => Some(g),
+            (None, Some(m)) => Some(m),
+            (Some(g), Some(m)) => Some(format!("{g}; {m}")),
+        }
+    }
+
     /// A record from times (s) and distances (mm) in memory; `path` names it in errors.
     pub fn from_samples(path: &FsPath, t_s: Vec<f64>, d_mm: Vec<f64>) -> Record {
         let lines = (0..t_s.len()).map(|i| (i + 2) as u32).collect();
-        Record {
+        let mut rec = Record {
             path: path.to_path_buf(),
             t0_us: 0.0,
             t_s,
             d_mm,
             plan_id: None,
             lines,
-        }
+            glitches: vec![],
+            marked: 0,
+        };
+        rec.set_glitches_aside();
+        rec
     }
 
     fn len(&self) -> usize {
