@@ -238,3 +238,92 @@ fn glitches_gaps_and_spikes_never_panic_and_a_few_glitches_change_nothing() {
         }
     }
 }
+
+/// The numbers of a JSON value, flattened in order.
+fn numbers(v: &serde_json::Value, out: &mut Vec<f64>) {
+    match v {
+        serde_json::Value::Number(n) => out.push(n.as_f64().unwrap()),
+        serde_json::Value::Array(a) => a.iter().for_each(|x| numbers(x, out)),
+        serde_json::Value::Object(m) => m.values().for_each(|x| numbers(x, out)),
+        _ => {}
+    }
+}
+
+#[test]
+fn calibrate_record_sets_a_glitch_aside_and_calibrates_the_rest() {
+    // Issue 28 (1): one sample at D = 50 mm made `calibrate --record --plan` panic in nalgebra.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok_in(
+        d,
+        &[
+            "plan",
+            "--calibration-test",
+            "--centre",
+            "100,50,-20",
+            "--feed",
+            "2000",
+            "--distance",
+            "85",
+            "--distance",
+            "97",
+            "--out",
+            "cal",
+        ],
+    );
+    fs::write(
+        d.join("inst.toml"),
+        "[instrument]\nsample_rate_hz = 250\nnoise_um = 0.2\nstart_delay_s = 2\nseed = 3\n",
+    )
+    .unwrap();
+    ok_in(
+        d,
+        &[
+            "simulate",
+            "--plan",
+            "cal/plan.json",
+            "--machine",
+            "inst.toml",
+            "-o",
+            "rec.csv",
+        ],
+    );
+    let calibrate = |rec: &str| {
+        jdbb_in(
+            d,
+            &[
+                "calibrate",
+                "--record",
+                rec,
+                "--plan",
+                "cal/plan.json",
+                "--json",
+            ],
+        )
+    };
+    let clean = calibrate("rec.csv");
+    assert!(clean.status.success(), "{}", stderr(&clean));
+    let (head, mut data) = split(&fs::read_to_string(d.join("rec.csv")).unwrap());
+    let k = data.len() / 2;
+    data[k] = with_d(&data[k], 50.0);
+    fs::write(d.join("g.csv"), [head.clone(), data].concat().join("\n")).unwrap();
+    let glitched = calibrate("g.csv");
+    let e = stderr(&glitched);
+    assert_eq!(glitched.status.code(), Some(0), "{e}");
+    assert!(
+        e.contains("set aside 1 glitch sample")
+            && e.contains(&format!("line {} at ", head.len() + k + 1)),
+        "{e}"
+    );
+    let cal = |o: &std::process::Output| {
+        let v: serde_json::Value = serde_json::from_str(&stdout(o)).unwrap();
+        let mut n = vec![];
+        numbers(&v["calibration"], &mut n);
+        n
+    };
+    let (a, b) = (cal(&clean), cal(&glitched));
+    assert_eq!(a.len(), b.len());
+    for (x, y) in a.iter().zip(&b) {
+        assert!((x - y).abs() <= 1e-6 + 1e-3 * x.abs(), "{a:?} vs {b:?}");
+    }
+}

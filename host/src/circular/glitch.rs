@@ -136,7 +136,7 @@ pub fn describe(glitches: &[Glitch], circle_of: &dyn Fn(f64) -> Option<usize>) -
         return None;
     }
     let mut s = format!(
-        "set aside {} glitch sample{} (D far off the samples around {}: a loose cable, an encoder miscount; the rest is diagnosed): ",
+        "set aside {} glitch sample{} (D far off the samples around {}: a loose cable, an encoder miscount; the rest is used): ",
         glitches.len(),
         if glitches.len() == 1 { "" } else { "s" },
         if glitches.len() == 1 { "it" } else { "them" }

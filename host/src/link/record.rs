@@ -704,7 +704,7 @@ mod tests {
         assert!(e.to_string().contains("cannot create"), "{e}");
     }
 
-    use crate::link::stream::tests::{frame, info, run, Duplex};
+    use crate::link::stream::tests::{batch, frame, info, run, Duplex};
     use jdbb_core::protocol::{Command, DeviceMsg};
     use std::io::Cursor;
 
@@ -799,6 +799,35 @@ mod tests {
         assert_eq!(rows.len(), 80);
         assert_one_run(&rows);
         assert_eq!((st.before_start, st.resets, st.lost), (64, 0, 0));
+    }
+
+    #[test]
+    fn a_corrupted_time_mid_batch_is_marked_and_the_record_reads_back() {
+        // Issue 28 (10): t_us = 2⁶⁴ − 1 on one sample with a valid D, mid-batch.
+        let mut input = frame(&info());
+        input.extend(frame(&batch(0, 0, 16, 0)));
+        let DeviceMsg::Batch(mut b) = batch(16, 0, 16, 16_000) else {
+            unreachable!()
+        };
+        b.samples[5].t_us = u64::MAX;
+        input.extend(frame(&DeviceMsg::Batch(b)));
+        input.extend(frame(&batch(32, 0, 16, 32_000)));
+        let (end, out, _) = record_bytes(input, Cursor::new(Vec::new()));
+        assert!(matches!(end, End::Lost(_)), "{end:?}");
+        assert_eq!(out.check.suspects.time_ahead, 1);
+        assert_eq!(out.check.suspects.total(), 1);
+        assert_eq!(out.lines, 47);
+        let text = String::from_utf8(out.file.get_ref().clone()).unwrap();
+        assert!(
+            text.contains("# suspect: 21,18446744073709551615,"),
+            "{text}"
+        );
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("rec.csv");
+        std::fs::write(&f, format!("{CSV_HEADER}{text}")).unwrap();
+        let rec = crate::circular::sync::Record::read(&f).unwrap();
+        assert_eq!(rec.t_s.len(), 47);
+        assert_eq!(rec.marked, 1);
     }
 
     #[test]
