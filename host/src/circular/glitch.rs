@@ -95,12 +95,25 @@ pub fn find(d_mm: &[f64]) -> Vec<usize> {
             }
         }
         let x = d_mm[i];
+        // Cheap first: a side's median lies within its range, so a sample within the base
+        // threshold of a side's range (both ways) is no glitch of that side.
+        let near = |s: &[f64]| {
+            let (lo, hi) = s
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+                    (a.min(v), b.max(v))
+                });
+            !s.is_empty() && x <= lo + base && x >= hi - base
+        };
+        if near(&left) || near(&right) {
+            continue;
+        }
         let sides: Vec<f64> = [&mut left, &mut right]
             .into_iter()
             .filter(|s| !s.is_empty())
             .map(|s| x - median(s))
             .collect();
-        // Cheap first: a sample within the base threshold of either side is no glitch.
+        // A sample within the base threshold of either side's median is no glitch.
         let lo = sides.iter().fold(f64::INFINITY, |m, v| m.min(v.abs()));
         let same_sign = sides.iter().all(|v| v > &0.0) || sides.iter().all(|v| v < &0.0);
         if lo <= base || !same_sign {

@@ -80,6 +80,13 @@ pub const MAX_DATA_SAMPLES: usize = 2_000_000;
 /// straddling it cannot be told from a mistimed step.
 pub const REVERSAL_GUARD_S: f64 = 1e-3;
 
+/// Most samples a record is read with ([`Record::read`]): the record is held whole (time, D and
+/// line: 20 bytes a sample) while it is synchronised, so this bounds the memory a diagnosis or a
+/// calibration of any record takes (about 1 GB at the bound, the data arcs binned to
+/// [`MAX_DATA_SAMPLES`]). 10 million samples is 33 min at 5 kHz, 2.8 h at 1 kHz: a ballbar test
+/// lasts minutes.
+pub const MAX_RECORD_SAMPLES: usize = 10_000_000;
+
 /// A record with more than one glitch in this many samples is refused: not glitches but a
 /// faulty instrument or cable.
 pub const MAX_GLITCH_SHARE: usize = 100;
@@ -169,9 +176,15 @@ impl Record {
     }
 
     /// Read a `jdbb record` file (`seq,t_us,enc1,enc2,d_mm`; only `t_us` and `d_mm` are used,
-    /// extra columns ignored). Time must increase strictly (a record holds one run) and D be
-    /// positive.
+    /// extra columns ignored). Time must increase strictly (a record holds one run), D be
+    /// positive, and the samples at most [`MAX_RECORD_SAMPLES`]; glitches are set aside
+    /// ([`Record::glitches`]).
     pub fn read(path: &FsPath) -> Result<Record> {
+        Record::read_at_most(path, MAX_RECORD_SAMPLES)
+    }
+
+    /// [`Record::read`] with at most `max` samples.
+    fn read_at_most(path: &FsPath, max: usize) -> Result<Record> {
         let mut t = Table::open(path)?;
         let cols = t.require(&["t_us", "d_mm"])?;
         let mut rec = Record {
@@ -188,6 +201,14 @@ impl Record {
         };
         let mut prev: Option<f64> = None;
         while let Some(row) = t.next_row()? {
+            if rec.t_s.len() >= max {
+                return Err(row.error(
+                    &cols[0],
+                    format!(
+                        "more than {max} samples (33 min at 5 kHz, 2.8 h at 1 kHz), the most a record is read with (in bounded memory, about 1 GB): a ballbar test lasts minutes. Record the test alone (`jdbb record --plan` stops at the program's end), or at a lower --rate"
+                    ),
+                ));
+            }
             let t_us = row.number(&cols[0])?;
             let d = row.number(&cols[1])?;
             if let Some(p) = prev {
@@ -2411,6 +2432,77 @@ fn feed_segments(plan: &Plan, k: usize) -> (usize, usize) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A record of `n` samples at 1 kHz, D 90 mm with a slow wave, header on line 1.
+    fn record_text(n: usize) -> Vec<String> {
+        (0..n)
+            .map(|i| {
+                format!(
+                    "{i},{},0,0,{:.7}",
+                    1000 * i,
+                    90.0 + 0.001 * (i as f64 * 0.01).sin()
+                )
+            })
+            .collect()
+    }
+
+    fn write_record(dir: &FsPath, lines: &[String]) -> PathBuf {
+        let f = dir.join("rec.csv");
+        std::fs::write(
+            &f,
+            format!("seq,t_us,enc1,enc2,d_mm\n{}\n", lines.join("\n")),
+        )
+        .unwrap();
+        f
+    }
+
+    #[test]
+    fn glitches_are_set_aside_with_their_lines_and_marked_samples_counted() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut lines = record_text(1000);
+        lines[500] = "500,500000,0,0,50.0".into();
+        lines[700] = "# suspect: 700,700000,0,0,NaN: D is not finite".into();
+        let rec = Record::read(&write_record(dir.path(), &lines)).unwrap();
+        assert_eq!(rec.t_s.len(), 998);
+        assert_eq!(rec.marked, 1);
+        assert_eq!(
+            rec.glitches,
+            [Glitch {
+                line: 502,
+                t_s: 0.5,
+                d_mm: 50.0
+            }]
+        );
+        assert!(!rec.holds_line(502) && rec.holds_line(503) && !rec.holds_line(702));
+        assert!(rec.d_mm.iter().all(|&d| (d - 90.0).abs() < 0.01));
+        let note = rec.set_aside_note(None).unwrap();
+        assert!(
+            note.contains("set aside 1 glitch sample") && note.contains("line 502 at 0.500 s"),
+            "{note}"
+        );
+        assert!(note.contains("1 sample the recorder marked"), "{note}");
+        // Glitches everywhere are no glitches but a broken instrument: refused.
+        for k in (0..1000).step_by(50) {
+            lines[k + 3] = format!("{},{},0,0,50.0", k + 3, 1000 * (k + 3));
+        }
+        let e = Record::read(&write_record(dir.path(), &lines))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("faulty instrument or cable"), "{e}");
+    }
+
+    #[test]
+    fn a_record_longer_than_the_bound_is_refused_where_it_passes_it() {
+        // Issue 28 (8): memory is bounded by the samples a record is read with.
+        let dir = tempfile::tempdir().unwrap();
+        let f = write_record(dir.path(), &record_text(50));
+        assert_eq!(Record::read_at_most(&f, 50).unwrap().t_s.len(), 50);
+        let e = Record::read_at_most(&f, 40).unwrap_err().to_string();
+        assert!(
+            e.contains("rec.csv:42:") && e.contains("more than 40 samples"),
+            "{e}"
+        );
+    }
 
     #[test]
     fn profiles_are_trapezoids_and_invert() {
