@@ -831,6 +831,23 @@ mod tests {
     }
 
     #[test]
+    fn a_corrupted_time_as_a_batchs_last_sample_does_not_end_the_record() {
+        // The stream took the next batch's first time, below 2⁶⁴ − 1, for a restart.
+        let mut input = frame(&info());
+        let DeviceMsg::Batch(mut b) = batch(0, 0, 16, 0) else {
+            unreachable!()
+        };
+        b.samples[15].t_us = u64::MAX;
+        input.extend(frame(&DeviceMsg::Batch(b)));
+        input.extend(frame(&batch(16, 0, 16, 16_000)));
+        let (end, out, st) = record_bytes(input, Cursor::new(Vec::new()));
+        assert!(matches!(end, End::Lost(_)), "{end:?}");
+        assert_eq!(st.resets, 0);
+        assert_eq!(out.lines, 31);
+        assert_eq!(out.check.suspects.time_ahead, 1);
+    }
+
+    #[test]
     fn restart_mid_record_stops_with_whole_lines() {
         let mut input = frame(&info());
         input.extend(run(0, 4));
