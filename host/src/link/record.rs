@@ -83,9 +83,8 @@ pub struct Suspects {
     pub counts_out_of_range: u64,
     /// `t_us` is before the previous sample's.
     pub time_back: u64,
-    /// `t_us` runs ahead of the host's clock since the record's first sample by more than
-    /// [`MAX_CLOCK_LEAD_US`] (+ 1 %): a corrupted time, which would make every later sample
-    /// seem to go back.
+    /// `t_us` jumps more than [`MAX_TIME_JUMP_US`] ahead of the previous sample's: a corrupted
+    /// time (2⁶⁴ − 1), which would make every later sample seem to go back.
     pub time_ahead: u64,
     /// `t_us` equals the previous sample's.
     pub time_still: u64,
@@ -133,7 +132,7 @@ pub const SUSPECT_PREFIX: &str = "# suspect:";
 /// the instrument's physical range (and the plan's, with `--plan`), counts within a turn, time
 /// strictly increasing and not ahead of the host's clock. A sample that fails is counted
 /// ([`Suspects`]) and written as a [`SUSPECT_PREFIX`] comment line, never silently; the samples
-/// after it are checked against the last data line, so one bad time costs one sample.
+/// after it are checked against the last time that held, so one bad time costs one sample.
 #[derive(Debug, Clone)]
 pub struct SampleCheck {
     d_min_mm: f64,
@@ -141,10 +140,11 @@ pub struct SampleCheck {
     /// The plan's range of D, widened by [`PLAN_RANGE_MARGIN_MM`] (`--plan` only).
     plan_mm: Option<(f64, f64)>,
     counts_max: i64,
-    /// The last data line's `t_us`.
+    /// The last `t_us` that held (not back, still or ahead), whatever that sample's D.
     last_t_us: Option<u64>,
-    /// The host's clock and the device's at the first data line.
-    origin: Option<(Instant, u64)>,
+    /// The time of the last sample, if it was set aside for jumping ahead: a next sample that
+    /// goes on from it shows the jump was real.
+    ahead_t_us: Option<u64>,
     /// The samples set aside so far.
     pub suspects: Suspects,
 }
@@ -157,10 +157,10 @@ pub const RANGE_SLACK_MM: f64 = 0.1;
 /// sample is called off the plan: set-up errors (the table ball's placement) are far smaller.
 pub const PLAN_RANGE_MARGIN_MM: f64 = 1.0;
 
-/// How far (µs) the device's clock may run ahead of the host's since the record's first sample
-/// (besides 1 % of the time elapsed): a sample read at once after it was taken is at most the
-/// link's latency behind, never seconds ahead.
-pub const MAX_CLOCK_LEAD_US: u64 = 2_000_000;
+/// The longest step (µs) of `t_us` from one sample to the next taken as it is: 10 s. A longer
+/// one is a corrupted time unless the next sample goes on from it (samples the device dropped
+/// over a long stall of the link), which then costs that one sample, marked.
+pub const MAX_TIME_JUMP_US: u64 = 10_000_000;
 
 impl Default for SampleCheck {
     fn default() -> Self {
@@ -170,7 +170,7 @@ impl Default for SampleCheck {
             plan_mm: None,
             counts_max: 0,
             last_t_us: None,
-            origin: None,
+            ahead_t_us: None,
             suspects: Suspects::default(),
         };
         c.set_calibration(&jdbb_core::calib::Calibration::DEFAULT);
@@ -204,10 +204,18 @@ impl SampleCheck {
     fn verdict(&mut self, s: &SeqSample) -> Option<&'static str> {
         let x = &s.sample;
         let last = self.last_t_us;
-        let ahead = self.origin.is_some_and(|(host, t0)| {
-            let host_us = u64::try_from(host.elapsed().as_micros()).unwrap_or(u64::MAX);
-            x.t_us.saturating_sub(t0) > host_us.saturating_add(host_us / 100 + MAX_CLOCK_LEAD_US)
-        });
+        let ahead = last.is_some_and(|l| x.t_us > l.saturating_add(MAX_TIME_JUMP_US))
+            && !self
+                .ahead_t_us
+                .is_some_and(|a| x.t_us > a && x.t_us - a <= MAX_TIME_JUMP_US);
+        // The next sample's time is checked against this one's if this one's time holds,
+        // whatever its D: a corrupted time costs one sample, not every one after it.
+        if ahead {
+            self.ahead_t_us = Some(x.t_us);
+        } else if last.is_none_or(|l| x.t_us > l) {
+            self.last_t_us = Some(x.t_us);
+            self.ahead_t_us = None;
+        }
         let why = if !x.d_mm.is_finite() {
             self.suspects.d_not_finite += 1;
             "D is not finite"
@@ -231,10 +239,8 @@ impl SampleCheck {
             "t_us stands still"
         } else if ahead {
             self.suspects.time_ahead += 1;
-            "t_us runs ahead of the host's clock"
+            "t_us jumps ahead by more than 10 s"
         } else {
-            self.last_t_us = Some(x.t_us);
-            self.origin.get_or_insert((Instant::now(), x.t_us));
             return None;
         };
         Some(why)
@@ -620,19 +626,22 @@ mod tests {
             s(5, 510, 0, 50.0),
             s(6, 600, 1 << 30, 100.0),
             s(7, 90, 0, 100.0),
-            s(8, 100, 0, 100.0),
+            s(8, 600, 0, 100.0),
             s(9, 700, 0, 90.0),
             // A corrupted time mid-batch: set aside, and the next samples are data.
             s(10, u64::MAX, 0, 90.0),
             s(11, 800, 0, 90.0),
-            s(12, 800 + MAX_CLOCK_LEAD_US + 1_000_000, 0, 90.0),
+            s(12, 800 + MAX_TIME_JUMP_US + 1, 0, 90.0),
             s(13, 900, 0, 90.0),
+            // A real jump (a long stall of the link): the sample after it goes on from it.
+            s(14, 900 + 2 * MAX_TIME_JUMP_US, 0, 90.0),
+            s(15, 1900 + 2 * MAX_TIME_JUMP_US, 0, 90.0),
         ];
         check.lines(&mut lines, &mut good, &samples);
         let text = String::from_utf8(lines).unwrap();
         assert_eq!(
             good.iter().map(|g| g.seq).collect::<Vec<_>>(),
-            [0, 9, 11, 13],
+            [0, 9, 11, 13, 15],
             "{text}"
         );
         let n = check.suspects;
@@ -645,23 +654,23 @@ mod tests {
                 n.time_still,
                 n.time_ahead
             ),
-            (2, 3, 1, 1, 1, 2)
+            (2, 3, 1, 1, 1, 3)
         );
         assert_eq!(
             text.lines()
                 .filter(|l| l.starts_with(SUSPECT_PREFIX))
                 .count(),
-            10
+            11
         );
         assert!(
             text.contains("# suspect: 1,200,0,5,NaN: D is not finite"),
             "{text}"
         );
         assert!(
-            text.contains("# suspect: 10,18446744073709551615,0,5,90: t_us runs ahead"),
+            text.contains("# suspect: 10,18446744073709551615,0,5,90: t_us jumps ahead"),
             "{text}"
         );
-        assert!(n.to_string().starts_with("suspect samples 10 "), "{n}");
+        assert!(n.to_string().starts_with("suspect samples 11 "), "{n}");
         // With a plan: D outside its range (and the margin) is marked too.
         let mut check = SampleCheck::default();
         check.set_plan_range(89.0, 91.0);
@@ -682,7 +691,7 @@ mod tests {
             seqs.push(r.integer(&c[0]).unwrap());
             assert!(r.number(&c[1]).unwrap() > 0.0);
         }
-        assert_eq!(seqs, [0, 9, 11, 13]);
+        assert_eq!(seqs, [0, 9, 11, 13, 15]);
     }
 
     #[test]
