@@ -93,7 +93,7 @@ fn diagnose(dir: &Path, rec: &str, json: bool) -> std::process::Output {
     jdbb_in(dir, &args)
 }
 
-/// Exit 0, or 2 with a message naming the file; never a panic.
+/// Exit 0, or 2 with a message naming the file; never a panic. A corrupted time is refused.
 fn clean_exit(o: &std::process::Output, what: &str) {
     let e = stderr(o);
     assert!(
@@ -101,7 +101,10 @@ fn clean_exit(o: &std::process::Output, what: &str) {
         "{what}: {e}"
     );
     match o.status.code() {
-        Some(0) => {}
+        Some(0) => assert!(
+            !what.contains("t_us"),
+            "{what}: a time going back was taken"
+        ),
         Some(2) => assert!(
             e.contains("f.csv"),
             "{what}: exit 2 without the file's name: {e}"
@@ -177,9 +180,9 @@ fn glitches_gaps_and_spikes_never_panic_and_a_few_glitches_change_nothing() {
     let clean = named(&stdout(&diagnose(d, "rec.csv", true)));
     let (head, data) = split(&fs::read_to_string(d.join("rec.csv")).unwrap());
     let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
-    for case in 0..24 {
+    for case in 0..25 {
         let mut v = data.clone();
-        let kind = case % 4;
+        let kind = case % 5;
         let what = match kind {
             // A few glitches, anywhere (the dwell, the ramps, the circle), each alone or in a run
             // of up to three: the diagnosis names what the clean record names.
@@ -205,6 +208,15 @@ fn glitches_gaps_and_spikes_never_panic_and_a_few_glitches_change_nothing() {
                 let len = 1 + rng.below(3000).min(v.len() - at - 1);
                 v.drain(at..at + len);
                 format!("case {case}: a gap of {len} samples at {at}")
+            }
+            // A corrupted time (a file written before the recorder marked them, or by hand).
+            4 => {
+                let at = 1 + rng.below(v.len() - 2);
+                let t = [u64::MAX, 0, 1 << 40][rng.below(3)];
+                let mut f: Vec<String> = v[at].split(',').map(str::to_string).collect();
+                f[1] = t.to_string();
+                v[at] = f.join(",");
+                format!("case {case}: t_us {t} at {at}")
             }
             // A spike: D off by up to 3 mm for up to 200 samples.
             _ => {
