@@ -194,8 +194,8 @@ impl SampleCheck {
     }
 
     /// Check D against the range the plan's program moves the instrument through, `lo..hi`
-    /// (mm; [`crate::circular::plan::Plan::mounted_d_range_mm`]: the segments after the stop), widened by
-    /// [`PLAN_RANGE_MARGIN_MM`].
+    /// (mm; [`crate::circular::plan::Plan::mounted_d_range_mm`]: the segments after the stop),
+    /// widened by [`PLAN_RANGE_MARGIN_MM`].
     pub fn set_plan_range(&mut self, lo: f64, hi: f64) {
         self.plan_mm = Some((lo - PLAN_RANGE_MARGIN_MM, hi + PLAN_RANGE_MARGIN_MM));
     }
