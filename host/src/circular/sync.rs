@@ -83,8 +83,8 @@ pub const REVERSAL_GUARD_S: f64 = 1e-3;
 /// Most samples a record is read with ([`Record::read`]): the record is held whole (time, D and
 /// line: 20 bytes a sample) while it is synchronised, so this bounds the memory a diagnosis or a
 /// calibration of any record takes (the data arcs binned to [`MAX_DATA_SAMPLES`]: 9.8 million
-/// samples were diagnosed in 580 MB; a calibration holds the counts too, about 1 GB). 10 million samples is 33 min at 5 kHz, 2.8 h at 1 kHz: a ballbar test
-/// lasts minutes.
+/// samples were diagnosed in 580 MB; a calibration holds the counts too, about 1 GB). 10
+/// million samples is 33 min at 5 kHz, 2.8 h at 1 kHz: a ballbar test lasts minutes.
 pub const MAX_RECORD_SAMPLES: usize = 10_000_000;
 
 /// A record with more than one glitch in this many samples is refused: not glitches but a
