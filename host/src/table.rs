@@ -67,6 +67,8 @@ pub struct Table {
     comments: Vec<String>,
     /// Whether a data row has been read (comments after it are not the header's).
     data_started: bool,
+    /// Comment lines read after the first data row (see [`Table::data_comments`]).
+    data_comments: u64,
 }
 
 impl Table {
@@ -120,6 +122,7 @@ impl Table {
             columns: vec![],
             comments: vec![],
             data_started: false,
+            data_comments: 0,
         };
         if !t.advance()? {
             return Err(Error::input(
@@ -169,6 +172,12 @@ impl Table {
     /// The column names, in file order.
     pub fn names(&self) -> &[String] {
         &self.names
+    }
+
+    /// Comment lines read so far after the first data row: `jdbb record` writes each sample it
+    /// marks as suspect so (`# suspect: …`), and a reader may say how many it skipped.
+    pub fn data_comments(&self) -> u64 {
+        self.data_comments
     }
 
     /// Line number of the header.
@@ -282,6 +291,9 @@ impl Table {
             };
             let trimmed = text.trim();
             if trimmed.is_empty() || trimmed.starts_with('#') {
+                if self.data_started && !trimmed.is_empty() {
+                    self.data_comments += 1;
+                }
                 if !self.data_started && self.comments.len() < 64 {
                     self.comments
                         .push(trimmed[trimmed.len().min(1)..].trim().to_string());

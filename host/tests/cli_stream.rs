@@ -877,7 +877,7 @@ fn record_sets_suspect_samples_aside_and_says_so() {
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{stdout}{}", stderr(&o));
     assert!(
-        stdout.contains("suspect samples 7 (D not finite 2, D impossible 2, counts out of range 1, time back 1, time standing still 1)"),
+        stdout.contains("suspect samples 7 (D not finite 2, D impossible 2, D off the plan 0, counts out of range 1, time back 1, time ahead 0, time standing still 1)"),
         "{stdout}"
     );
     let text = std::fs::read_to_string(&out).unwrap();

@@ -14,8 +14,8 @@
 //!   [`document`] reads that JSON back (the input contract of compensation and history);
 //!   [`html`] is the report a person reads (`report.html`).
 //! - [`plan`]: the program a test runs (plan.json and G-code for four controller dialects);
-//!   [`sync`]: a recording lined up with its plan from D alone; [`planned`]: its diagnosis, the
-//!   ramps read again through the errors it finds.
+//!   [`sync`]: a recording lined up with its plan from D alone (its glitches set aside first,
+//!   [`glitch`]); [`planned`]: its diagnosis, the ramps read again through the errors it finds.
 //! - [`machine`] (the machine TOML) and [`record_sim`]: a plan's program run on a machine and
 //!   recorded as `jdbb record` records it; [`progress`]: where a recording stands against its
 //!   plan while it is made.
@@ -27,6 +27,7 @@
 //! document stands alone (it reads files, not diagnoses).
 pub mod diagnose;
 pub mod document;
+pub mod glitch;
 pub mod html;
 pub mod input;
 pub mod machine;

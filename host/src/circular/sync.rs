@@ -57,6 +57,7 @@
 #![allow(clippy::needless_range_loop)]
 use std::path::{Path as FsPath, PathBuf};
 
+use super::glitch::Glitch;
 use super::path::{median_interval, Path, Reversal};
 use super::plan::{ArcRole, LineRole, Plan, Segment, Sense};
 use crate::numerics::lsq::{least_squares, LsqOptions, Problem};
@@ -78,6 +79,17 @@ pub const MAX_DATA_SAMPLES: usize = 2_000_000;
 /// backlash of f µm at the ramps' ends shifts them by about f/(2v) — so the one or two samples
 /// straddling it cannot be told from a mistimed step.
 pub const REVERSAL_GUARD_S: f64 = 1e-3;
+
+/// Most samples a record is read with ([`Record::read`]): the record is held whole (time, D and
+/// line: 20 bytes a sample) while it is synchronised, so this bounds the memory a diagnosis or a
+/// calibration of any record takes (the data arcs binned to [`MAX_DATA_SAMPLES`]: 9.8 million
+/// samples were diagnosed in 580 MB; a calibration holds the counts too, about 1 GB). 10
+/// million samples is 33 min at 5 kHz, 2.8 h at 1 kHz: a ballbar test lasts minutes.
+pub const MAX_RECORD_SAMPLES: usize = 10_000_000;
+
+/// A record with more than one glitch in this many samples is refused: not glitches but a
+/// faulty instrument or cable.
+pub const MAX_GLITCH_SHARE: usize = 100;
 
 /// Feed factors (measured over programmed) outside this range are not a machine running the
 /// plan: the record belongs to another program or the run was disturbed.
@@ -150,6 +162,11 @@ pub struct Record {
     pub plan_id: Option<String>,
     /// Line number of each sample in the file (errors name it).
     lines: Vec<u32>,
+    /// The samples set aside as glitches ([`super::glitch`]): not in `t_s` and `d_mm`.
+    pub glitches: Vec<Glitch>,
+    /// Samples the recorder marked as suspect (`# suspect:` comment lines among the data),
+    /// skipped as every comment line.
+    pub marked: u64,
 }
 
 impl Record {
@@ -159,9 +176,15 @@ impl Record {
     }
 
     /// Read a `jdbb record` file (`seq,t_us,enc1,enc2,d_mm`; only `t_us` and `d_mm` are used,
-    /// extra columns ignored). Time must increase strictly (a record holds one run) and D be
-    /// positive.
+    /// extra columns ignored). Time must increase strictly (a record holds one run), D be
+    /// positive, and the samples at most [`MAX_RECORD_SAMPLES`]; glitches are set aside
+    /// ([`Record::glitches`]).
     pub fn read(path: &FsPath) -> Result<Record> {
+        Record::read_at_most(path, MAX_RECORD_SAMPLES)
+    }
+
+    /// [`Record::read`] with at most `max` samples.
+    fn read_at_most(path: &FsPath, max: usize) -> Result<Record> {
         let mut t = Table::open(path)?;
         let cols = t.require(&["t_us", "d_mm"])?;
         let mut rec = Record {
@@ -173,9 +196,19 @@ impl Record {
                 .header_comment(super::plan::PLAN_ID_KEY)
                 .map(str::to_string),
             lines: vec![],
+            glitches: vec![],
+            marked: 0,
         };
         let mut prev: Option<f64> = None;
         while let Some(row) = t.next_row()? {
+            if rec.t_s.len() >= max {
+                return Err(row.error(
+                    &cols[0],
+                    format!(
+                        "more than {max} samples (33 min at 5 kHz, 2.8 h at 1 kHz), the most a record is read with (in bounded memory, about 1 GB): a ballbar test lasts minutes. Record the test alone (`jdbb record --plan` stops at the program's end), or at a lower --rate"
+                    ),
+                ));
+            }
             let t_us = row.number(&cols[0])?;
             let d = row.number(&cols[1])?;
             if let Some(p) = prev {
@@ -199,6 +232,20 @@ impl Record {
             rec.d_mm.push(d);
             rec.lines.push(row.line().min(u32::MAX as usize) as u32);
         }
+        rec.marked = t.data_comments();
+        let read = rec.t_s.len();
+        rec.set_glitches_aside();
+        if rec.glitches.len() > read / MAX_GLITCH_SHARE {
+            return Err(Error::input(
+                path,
+                rec.glitches[0].line,
+                0,
+                format!(
+                    "{} of {read} samples lie far off the samples around them (glitches; the first here): more than one in {MAX_GLITCH_SHARE} is not a glitch but a faulty instrument or cable. Check the cable and the instrument, then record the test again",
+                    rec.glitches.len()
+                ),
+            ));
+        }
         if rec.t_s.len() < 10 {
             return Err(Error::input(
                 path,
@@ -210,17 +257,83 @@ impl Record {
         Ok(rec)
     }
 
+    /// Take the glitches ([`super::glitch::find`]) out of `t_s`, `d_mm` and `lines` into
+    /// `glitches`.
+    fn set_glitches_aside(&mut self) {
+        let found = super::glitch::find(&self.d_mm);
+        if found.is_empty() {
+            return;
+        }
+        let mut next = found.iter().peekable();
+        let mut keep = 0;
+        for i in 0..self.t_s.len() {
+            if next.peek() == Some(&&i) {
+                next.next();
+                self.glitches.push(Glitch {
+                    line: self.line_of(i),
+                    t_s: self.t_s[i],
+                    d_mm: self.d_mm[i],
+                });
+                continue;
+            }
+            self.t_s[keep] = self.t_s[i];
+            self.d_mm[keep] = self.d_mm[i];
+            self.lines[keep] = self.lines[i];
+            keep += 1;
+        }
+        self.t_s.truncate(keep);
+        self.d_mm.truncate(keep);
+        self.lines.truncate(keep);
+    }
+
+    /// Whether line `line` of the file is a sample the record holds (not set aside, not a
+    /// comment).
+    pub fn holds_line(&self, line: usize) -> bool {
+        self.lines
+            .binary_search(&(line.min(u32::MAX as usize) as u32))
+            .is_ok()
+    }
+
+    /// What was set aside (glitches, samples the recorder marked) and where, in words; None if
+    /// nothing was. `sync` places the glitches in its circles.
+    pub fn set_aside_note(&self, sync: Option<&Sync>) -> Option<String> {
+        let circle_of = |t: f64| {
+            sync?
+                .circles
+                .iter()
+                .position(|c| t >= c.feed_in.profile.t0_s && t <= c.feed_out.profile.end_s())
+        };
+        let glitches = super::glitch::describe(&self.glitches, &circle_of);
+        let marked = (self.marked > 0).then(|| {
+            format!(
+                "{} sample{} the recorder marked as suspect (`# suspect:` lines) left out",
+                self.marked,
+                if self.marked == 1 { "" } else { "s" }
+            )
+        });
+        match (glitches, marked) {
+            (None, None) => None,
+            (Some(g), None) => Some(g),
+            (None, Some(m)) => Some(m),
+            (Some(g), Some(m)) => Some(format!("{g}; {m}")),
+        }
+    }
+
     /// A record from times (s) and distances (mm) in memory; `path` names it in errors.
     pub fn from_samples(path: &FsPath, t_s: Vec<f64>, d_mm: Vec<f64>) -> Record {
         let lines = (0..t_s.len()).map(|i| (i + 2) as u32).collect();
-        Record {
+        let mut rec = Record {
             path: path.to_path_buf(),
             t0_us: 0.0,
             t_s,
             d_mm,
             plan_id: None,
             lines,
-        }
+            glitches: vec![],
+            marked: 0,
+        };
+        rec.set_glitches_aside();
+        rec
     }
 
     fn len(&self) -> usize {
@@ -2319,6 +2432,77 @@ fn feed_segments(plan: &Plan, k: usize) -> (usize, usize) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A record of `n` samples at 1 kHz, D 90 mm with a slow wave, header on line 1.
+    fn record_text(n: usize) -> Vec<String> {
+        (0..n)
+            .map(|i| {
+                format!(
+                    "{i},{},0,0,{:.7}",
+                    1000 * i,
+                    90.0 + 0.001 * (i as f64 * 0.01).sin()
+                )
+            })
+            .collect()
+    }
+
+    fn write_record(dir: &FsPath, lines: &[String]) -> PathBuf {
+        let f = dir.join("rec.csv");
+        std::fs::write(
+            &f,
+            format!("seq,t_us,enc1,enc2,d_mm\n{}\n", lines.join("\n")),
+        )
+        .unwrap();
+        f
+    }
+
+    #[test]
+    fn glitches_are_set_aside_with_their_lines_and_marked_samples_counted() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut lines = record_text(1000);
+        lines[500] = "500,500000,0,0,50.0".into();
+        lines[700] = "# suspect: 700,700000,0,0,NaN: D is not finite".into();
+        let rec = Record::read(&write_record(dir.path(), &lines)).unwrap();
+        assert_eq!(rec.t_s.len(), 998);
+        assert_eq!(rec.marked, 1);
+        assert_eq!(
+            rec.glitches,
+            [Glitch {
+                line: 502,
+                t_s: 0.5,
+                d_mm: 50.0
+            }]
+        );
+        assert!(!rec.holds_line(502) && rec.holds_line(503) && !rec.holds_line(702));
+        assert!(rec.d_mm.iter().all(|&d| (d - 90.0).abs() < 0.01));
+        let note = rec.set_aside_note(None).unwrap();
+        assert!(
+            note.contains("set aside 1 glitch sample") && note.contains("line 502 at 0.500 s"),
+            "{note}"
+        );
+        assert!(note.contains("1 sample the recorder marked"), "{note}");
+        // Glitches everywhere are no glitches but a broken instrument: refused.
+        for k in (0..1000).step_by(50) {
+            lines[k + 3] = format!("{},{},0,0,50.0", k + 3, 1000 * (k + 3));
+        }
+        let e = Record::read(&write_record(dir.path(), &lines))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("faulty instrument or cable"), "{e}");
+    }
+
+    #[test]
+    fn a_record_longer_than_the_bound_is_refused_where_it_passes_it() {
+        // Issue 28 (8): memory is bounded by the samples a record is read with.
+        let dir = tempfile::tempdir().unwrap();
+        let f = write_record(dir.path(), &record_text(50));
+        assert_eq!(Record::read_at_most(&f, 50).unwrap().t_s.len(), 50);
+        let e = Record::read_at_most(&f, 40).unwrap_err().to_string();
+        assert!(
+            e.contains("rec.csv:42:") && e.contains("more than 40 samples"),
+            "{e}"
+        );
+    }
 
     #[test]
     fn profiles_are_trapezoids_and_invert() {

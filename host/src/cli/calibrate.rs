@@ -8,7 +8,7 @@ use crate::circular::plan::{Plan, Purpose};
 use crate::instrument::file::{calibration_toml, read_calibration};
 use crate::instrument::fit::{calibrate, Options};
 use crate::instrument::report::{summary, to_json};
-use crate::instrument::run::calibrate_run;
+use crate::instrument::run::calibrate_run_noted;
 use crate::instrument::samples::read_samples;
 use crate::{Error, Result};
 
@@ -93,7 +93,11 @@ pub fn run(args: &CalibrateArgs) -> Result<()> {
                     plan.purpose.name()
                 )));
             }
-            calibrate_run(&plan, rec, &nominal, &opts)?
+            let (cal, note) = calibrate_run_noted(&plan, rec, &nominal, &opts)?;
+            if let Some(n) = note {
+                super::output::note(&n);
+            }
+            cal
         }
         _ => {
             let samples = read_samples(input)?;

@@ -236,6 +236,25 @@ fn inputs(args: &DiagnoseArgs) -> Vec<(&'static str, &std::path::Path)> {
     .collect()
 }
 
+/// What the record set aside, as `sync.set_aside` of the diagnosis JSON: `glitches` (each
+/// sample's `line`, `t_s` after the record's first sample and `d_mm`; at most
+/// [`MAX_LISTED_GLITCHES`]), `glitch_count` (all of them) and `marked` (samples the recorder
+/// marked as suspect, `# suspect:` lines).
+fn set_aside_json(rec: &Record) -> serde_json::Value {
+    serde_json::json!({
+        "glitch_count": rec.glitches.len(),
+        "glitches": rec.glitches.iter().take(MAX_LISTED_GLITCHES).map(|g| serde_json::json!({
+            "line": g.line,
+            "t_s": g.t_s,
+            "d_mm": g.d_mm,
+        })).collect::<Vec<_>>(),
+        "marked": rec.marked,
+    })
+}
+
+/// Most glitches listed one by one in the diagnosis JSON.
+const MAX_LISTED_GLITCHES: usize = 1000;
+
 /// Run `jdbb diagnose`.
 pub fn run(args: &DiagnoseArgs) -> Result<()> {
     if let Some(dir) = &args.report {
@@ -259,7 +278,8 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             let rec = Record::read(record)?;
             check_plan_id(&rec, &plan, plan_file)?;
             let done = diagnose_record(&plan, &rec, pitch, &Options::default())?;
-            synced = Some((plan_file, plan, done.sync));
+            let set_aside = (rec.set_aside_note(Some(&done.sync)), set_aside_json(&rec));
+            synced = Some((plan_file, plan, done.sync, set_aside));
             done.diagnosis
         }
         (None, Some(record), Some(nominal), None) => {
@@ -274,9 +294,10 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         }
     };
     let mut json = to_json(&diag);
-    if let Some((file, plan, sync)) = &synced {
+    if let Some((file, plan, sync, (_, set_aside))) = &synced {
         json["plan"] = plan_json(file, plan);
         json["sync"] = sync_json(plan, sync);
+        json["sync"]["set_aside"] = set_aside.clone();
     }
     let verdict = add_run_facts(&mut json, args, &diag)?;
     if let serde_json::Value::Object(m) = conditions {
@@ -287,8 +308,11 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     if args.json {
         emit(&json_text(&json))?;
     } else {
-        if let Some((_, plan, sync)) = &synced {
+        if let Some((_, plan, sync, (note, _))) = &synced {
             print(&sync_summary(plan, sync))?;
+            if let Some(n) = note {
+                emit(n)?;
+            }
         }
         print(&summary(&diag))?;
         if let Some(v) = &verdict {

@@ -142,6 +142,10 @@ pub fn run(args: &RecordArgs) -> Result<()> {
     ));
     let t0 = Instant::now();
     let mut out = CsvOut::new(file, head.len() as u64);
+    if let Some(p) = &plan {
+        let (lo, hi) = p.mounted_d_range_mm();
+        out.check.set_plan_range(lo, hi);
+    }
     let mut watch = plan.as_ref().map(|p| Watch::new(p, args.stream.no_start));
     let end = record_watched(
         &mut stream,

@@ -24,14 +24,26 @@ pub fn calibrate_run(
     nominal: &Calibration,
     opts: &super::fit::Options,
 ) -> Result<super::fit::Calibrated> {
-    let (samples, _) = run_samples(plan, record, None)?;
-    samples.check_against(nominal)?;
-    let first = super::fit::calibrate(&samples, nominal, opts)?;
-    let (samples, _) = run_samples(plan, record, Some(&first.calibration))?;
-    super::fit::calibrate(&samples, nominal, opts)
+    calibrate_run_noted(plan, record, nominal, opts).map(|(cal, _)| cal)
 }
 
-/// The samples of a machine run `record` of `plan`, and the synchronisation that found them.
+/// [`calibrate_run`], with what the record set aside in words (glitches, samples the recorder
+/// marked: [`Record::set_aside_note`]), if anything.
+pub fn calibrate_run_noted(
+    plan: &Plan,
+    record: &Path,
+    nominal: &Calibration,
+    opts: &super::fit::Options,
+) -> Result<(super::fit::Calibrated, Option<String>)> {
+    let (samples, _, _) = run_samples(plan, record, None)?;
+    samples.check_against(nominal)?;
+    let first = super::fit::calibrate(&samples, nominal, opts)?;
+    let (samples, _, note) = run_samples(plan, record, Some(&first.calibration))?;
+    Ok((super::fit::calibrate(&samples, nominal, opts)?, note))
+}
+
+/// The samples of a machine run `record` of `plan`, the synchronisation that found them, and
+/// what the record set aside ([`Record::set_aside_note`]).
 /// With `recal`, the record's D is first recomputed from the counts with that calibration (a
 /// first fit's): the synchronisation reads D alone, and the nominal instrument's micrometres,
 /// with a set-up offset, bias where it places the data arcs.
@@ -39,13 +51,17 @@ pub fn run_samples(
     plan: &Plan,
     record: &Path,
     recal: Option<&Calibration>,
-) -> Result<(CalSamples, Sync)> {
+) -> Result<(CalSamples, Sync, Option<String>)> {
     let mut rec = Record::read(record)?;
     // The counts (Record keeps only time and D).
     let mut table = Table::open(record)?;
     let cols = table.require(&["t_us", "enc1", "enc2"])?;
     let (mut t_us, mut enc1, mut enc2, mut lines) = (vec![], vec![], vec![], vec![]);
     while let Some(row) = table.next_row()? {
+        // The samples the record set aside as glitches are left out here too.
+        if !rec.holds_line(row.line()) {
+            continue;
+        }
         t_us.push(row.number(&cols[0])?);
         enc1.push(row.integer(&cols[1])?);
         enc2.push(row.integer(&cols[2])?);
@@ -83,5 +99,10 @@ pub fn run_samples(
         p.push(path.p_mm[k]);
         line.push(lines[i]);
     }
-    Ok((CalSamples::from_positions(record, e1, e2, p, line), sync))
+    let note = rec.set_aside_note(Some(&sync));
+    Ok((
+        CalSamples::from_positions(record, e1, e2, p, line),
+        sync,
+        note,
+    ))
 }

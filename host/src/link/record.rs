@@ -72,13 +72,20 @@ pub fn write_csv_lines(out: &mut Vec<u8>, samples: &[SeqSample]) {
 pub struct Suspects {
     /// D is NaN or infinite.
     pub d_not_finite: u64,
-    /// D is not in (0, l1 + l2] of the device's calibration (a ball distance no instrument of
+    /// D is outside the instrument's physical range for the device's calibration: below D at
+    /// the frames' mechanical limit (±75°) or above l1 + l2 (a ball distance no instrument of
     /// these bars can show).
     pub d_impossible: u64,
+    /// D is outside the range the plan's program moves the instrument through (with
+    /// [`PLAN_RANGE_MARGIN_MM`]; `jdbb record --plan` only).
+    pub d_off_plan: u64,
     /// An encoder's count is more than a turn from zero (the frames reach ±86°).
     pub counts_out_of_range: u64,
     /// `t_us` is before the previous sample's.
     pub time_back: u64,
+    /// `t_us` jumps more than [`MAX_TIME_JUMP_US`] ahead of the previous sample's: a corrupted
+    /// time (2⁶⁴ − 1), which would make every later sample seem to go back.
+    pub time_ahead: u64,
     /// `t_us` equals the previous sample's.
     pub time_still: u64,
 }
@@ -88,24 +95,29 @@ impl Suspects {
     pub fn total(&self) -> u64 {
         self.d_not_finite
             + self.d_impossible
+            + self.d_off_plan
             + self.counts_out_of_range
             + self.time_back
+            + self.time_ahead
             + self.time_still
     }
 }
 
 impl std::fmt::Display for Suspects {
-    /// `suspect samples N (D not finite a, D impossible b, counts out of range c, time back d,
-    /// time standing still e), kept as `# suspect` comment lines`.
+    /// `suspect samples N (D not finite a, D impossible b, D off the plan c, counts out of
+    /// range d, time back e, time ahead f, time standing still g), kept as `# suspect` comment
+    /// lines`.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "suspect samples {} (D not finite {}, D impossible {}, counts out of range {}, time back {}, time standing still {}), kept in the file as `{SUSPECT_PREFIX}` comment lines that readers skip",
+            "suspect samples {} (D not finite {}, D impossible {}, D off the plan {}, counts out of range {}, time back {}, time ahead {}, time standing still {}), kept in the file as `{SUSPECT_PREFIX}` comment lines that readers skip",
             self.total(),
             self.d_not_finite,
             self.d_impossible,
+            self.d_off_plan,
             self.counts_out_of_range,
             self.time_back,
+            self.time_ahead,
             self.time_still
         )
     }
@@ -116,24 +128,49 @@ impl std::fmt::Display for Suspects {
 /// and the gap in `seq` shows where it was.
 pub const SUSPECT_PREFIX: &str = "# suspect:";
 
-/// What the recorder checks of each sample before it becomes a data line: D finite and possible
-/// for the device's bars, counts within a turn, time strictly increasing. A sample that fails is
-/// counted ([`Suspects`]) and written as a [`SUSPECT_PREFIX`] comment line, never silently.
+/// What the recorder checks of each sample before it becomes a data line: D finite and inside
+/// the instrument's physical range (and the plan's, with `--plan`), counts within a turn, time
+/// strictly increasing and not ahead of the host's clock. A sample that fails is counted
+/// ([`Suspects`]) and written as a [`SUSPECT_PREFIX`] comment line, never silently; the samples
+/// after it are checked against the last time that held, so one bad time costs one sample.
 #[derive(Debug, Clone)]
 pub struct SampleCheck {
+    d_min_mm: f64,
     d_max_mm: f64,
+    /// The plan's range of D, widened by [`PLAN_RANGE_MARGIN_MM`] (`--plan` only).
+    plan_mm: Option<(f64, f64)>,
     counts_max: i64,
+    /// The last `t_us` that held (not back, still or ahead), whatever that sample's D.
     last_t_us: Option<u64>,
+    /// The time of the last sample, if it was set aside for jumping ahead: a next sample that
+    /// goes on from it shows the jump was real.
+    ahead_t_us: Option<u64>,
     /// The samples set aside so far.
     pub suspects: Suspects,
 }
 
+/// Slack (mm) below the instrument's D at the frames' mechanical limit before a D is called
+/// impossible: the calibration's bar lengths are known to µm, this is far beyond.
+pub const RANGE_SLACK_MM: f64 = 0.1;
+
+/// How far (mm) D may leave the range the plan's program moves the instrument through before a
+/// sample is called off the plan: set-up errors (the table ball's placement) are far smaller.
+pub const PLAN_RANGE_MARGIN_MM: f64 = 1.0;
+
+/// The longest step (µs) of `t_us` from one sample to the next taken as it is: 10 s. A longer
+/// one is a corrupted time unless the next sample goes on from it (samples the device dropped
+/// over a long stall of the link), which then costs that one sample, marked.
+pub const MAX_TIME_JUMP_US: u64 = 10_000_000;
+
 impl Default for SampleCheck {
     fn default() -> Self {
         let mut c = SampleCheck {
+            d_min_mm: 0.0,
             d_max_mm: 0.0,
+            plan_mm: None,
             counts_max: 0,
             last_t_us: None,
+            ahead_t_us: None,
             suspects: Suspects::default(),
         };
         c.set_calibration(&jdbb_core::calib::Calibration::DEFAULT);
@@ -142,22 +179,55 @@ impl Default for SampleCheck {
 }
 
 impl SampleCheck {
-    /// Check against the bars and encoders of `cal` (the device's, once it describes itself).
+    /// Check against the bars and encoders of `cal` (the device's, once it describes itself):
+    /// D from the frames' mechanical limit ([`FRAME_RANGE_RAD`], less [`RANGE_SLACK_MM`]) to
+    /// l1 + l2.
+    ///
+    /// [`FRAME_RANGE_RAD`]: jdbb_core::geometry::FRAME_RANGE_RAD
     pub fn set_calibration(&mut self, cal: &jdbb_core::calib::Calibration) {
+        use jdbb_core::geometry::{distance_from_deflection_mm, FRAME_RANGE_RAD};
         self.d_max_mm = cal.l1_mm + cal.l2_mm;
+        self.d_min_mm = (distance_from_deflection_mm(cal.l1_mm, cal.l2_mm, FRAME_RANGE_RAD)
+            - RANGE_SLACK_MM)
+            .max(0.0);
         self.counts_max = i64::from(cal.enc1.counts_per_rev.max(cal.enc2.counts_per_rev));
+    }
+
+    /// Check D against the range the plan's program moves the instrument through, `lo..hi`
+    /// (mm; [`crate::circular::plan::Plan::mounted_d_range_mm`]: the segments after the stop),
+    /// widened by [`PLAN_RANGE_MARGIN_MM`].
+    pub fn set_plan_range(&mut self, lo: f64, hi: f64) {
+        self.plan_mm = Some((lo - PLAN_RANGE_MARGIN_MM, hi + PLAN_RANGE_MARGIN_MM));
     }
 
     /// Why `s` is suspect, if it is (and count it).
     fn verdict(&mut self, s: &SeqSample) -> Option<&'static str> {
         let x = &s.sample;
-        let last = self.last_t_us.replace(x.t_us);
+        let last = self.last_t_us;
+        let ahead = last.is_some_and(|l| x.t_us > l.saturating_add(MAX_TIME_JUMP_US))
+            && !self
+                .ahead_t_us
+                .is_some_and(|a| x.t_us > a && x.t_us - a <= MAX_TIME_JUMP_US);
+        // The next sample's time is checked against this one's if this one's time holds,
+        // whatever its D: a corrupted time costs one sample, not every one after it.
+        if ahead {
+            self.ahead_t_us = Some(x.t_us);
+        } else if last.is_none_or(|l| x.t_us > l) {
+            self.last_t_us = Some(x.t_us);
+            self.ahead_t_us = None;
+        }
         let why = if !x.d_mm.is_finite() {
             self.suspects.d_not_finite += 1;
             "D is not finite"
-        } else if !(x.d_mm > 0.0 && x.d_mm <= self.d_max_mm) {
+        } else if !(x.d_mm > 0.0 && x.d_mm >= self.d_min_mm && x.d_mm <= self.d_max_mm) {
             self.suspects.d_impossible += 1;
-            "D is outside (0, l1 + l2] of the device's bars"
+            "D is outside the instrument's range (frames' limit to l1 + l2 of the device's bars)"
+        } else if self
+            .plan_mm
+            .is_some_and(|(lo, hi)| x.d_mm < lo || x.d_mm > hi)
+        {
+            self.suspects.d_off_plan += 1;
+            "D is outside the range the plan's program moves the instrument through"
         } else if x.enc1.abs() > self.counts_max || x.enc2.abs() > self.counts_max {
             self.suspects.counts_out_of_range += 1;
             "an encoder count is more than a turn from zero"
@@ -167,6 +237,9 @@ impl SampleCheck {
         } else if last == Some(x.t_us) {
             self.suspects.time_still += 1;
             "t_us stands still"
+        } else if ahead {
+            self.suspects.time_ahead += 1;
+            "t_us jumps ahead by more than 10 s"
         } else {
             return None;
         };
@@ -554,16 +627,26 @@ mod tests {
             s(2, 300, 0, f64::INFINITY),
             s(3, 400, 0, -1.0),
             s(4, 500, 0, 1e6),
-            s(5, 600, 1 << 30, 100.0),
-            s(6, 550, 0, 100.0),
-            s(7, 550, 0, 100.0),
-            s(8, 700, 0, 100.0),
+            // Inside (0, l1 + l2] but beyond the frames' ±75°: no instrument of these bars.
+            s(5, 510, 0, 50.0),
+            s(6, 600, 1 << 30, 100.0),
+            s(7, 90, 0, 100.0),
+            s(8, 600, 0, 100.0),
+            s(9, 700, 0, 90.0),
+            // A corrupted time mid-batch: set aside, and the next samples are data.
+            s(10, u64::MAX, 0, 90.0),
+            s(11, 800, 0, 90.0),
+            s(12, 800 + MAX_TIME_JUMP_US + 1, 0, 90.0),
+            s(13, 900, 0, 90.0),
+            // A real jump (a long stall of the link): the sample after it goes on from it.
+            s(14, 900 + 2 * MAX_TIME_JUMP_US, 0, 90.0),
+            s(15, 1900 + 2 * MAX_TIME_JUMP_US, 0, 90.0),
         ];
         check.lines(&mut lines, &mut good, &samples);
         let text = String::from_utf8(lines).unwrap();
         assert_eq!(
             good.iter().map(|g| g.seq).collect::<Vec<_>>(),
-            [0, 8],
+            [0, 9, 11, 13, 15],
             "{text}"
         );
         let n = check.suspects;
@@ -573,21 +656,37 @@ mod tests {
                 n.d_impossible,
                 n.counts_out_of_range,
                 n.time_back,
-                n.time_still
+                n.time_still,
+                n.time_ahead
             ),
-            (2, 2, 1, 1, 1)
+            (2, 3, 1, 1, 1, 3)
         );
         assert_eq!(
             text.lines()
                 .filter(|l| l.starts_with(SUSPECT_PREFIX))
                 .count(),
-            7
+            11
         );
         assert!(
             text.contains("# suspect: 1,200,0,5,NaN: D is not finite"),
             "{text}"
         );
-        assert!(n.to_string().starts_with("suspect samples 7 "), "{n}");
+        assert!(
+            text.contains("# suspect: 10,18446744073709551615,0,5,90: t_us jumps ahead"),
+            "{text}"
+        );
+        assert!(n.to_string().starts_with("suspect samples 11 "), "{n}");
+        // With a plan: D outside its range (and the margin) is marked too.
+        let mut check = SampleCheck::default();
+        check.set_plan_range(89.0, 91.0);
+        let (mut plan_lines, mut plan_good) = (Vec::new(), Vec::new());
+        check.lines(
+            &mut plan_lines,
+            &mut plan_good,
+            &[s(0, 0, 0, 90.0), s(1, 1000, 0, 85.0), s(2, 2000, 0, 91.9)],
+        );
+        assert_eq!(plan_good.iter().map(|g| g.seq).collect::<Vec<_>>(), [0, 2]);
+        assert_eq!(check.suspects.d_off_plan, 1);
         // The file stays readable by the one CSV reader: the suspects are skipped.
         let csv = format!("{CSV_HEADER}{text}");
         let mut t = crate::table::Table::from_text(Path::new("r.csv"), &csv).unwrap();
@@ -597,7 +696,7 @@ mod tests {
             seqs.push(r.integer(&c[0]).unwrap());
             assert!(r.number(&c[1]).unwrap() > 0.0);
         }
-        assert_eq!(seqs, [0, 8]);
+        assert_eq!(seqs, [0, 9, 11, 13, 15]);
     }
 
     #[test]
@@ -619,7 +718,7 @@ mod tests {
         assert!(e.to_string().contains("cannot create"), "{e}");
     }
 
-    use crate::link::stream::tests::{frame, info, run, Duplex};
+    use crate::link::stream::tests::{batch, frame, info, run, Duplex};
     use jdbb_core::protocol::{Command, DeviceMsg};
     use std::io::Cursor;
 
@@ -714,6 +813,52 @@ mod tests {
         assert_eq!(rows.len(), 80);
         assert_one_run(&rows);
         assert_eq!((st.before_start, st.resets, st.lost), (64, 0, 0));
+    }
+
+    #[test]
+    fn a_corrupted_time_mid_batch_is_marked_and_the_record_reads_back() {
+        // Issue 28 (10): t_us = 2⁶⁴ − 1 on one sample with a valid D, mid-batch.
+        let mut input = frame(&info());
+        input.extend(frame(&batch(0, 0, 16, 0)));
+        let DeviceMsg::Batch(mut b) = batch(16, 0, 16, 16_000) else {
+            unreachable!()
+        };
+        b.samples[5].t_us = u64::MAX;
+        input.extend(frame(&DeviceMsg::Batch(b)));
+        input.extend(frame(&batch(32, 0, 16, 32_000)));
+        let (end, out, _) = record_bytes(input, Cursor::new(Vec::new()));
+        assert!(matches!(end, End::Lost(_)), "{end:?}");
+        assert_eq!(out.check.suspects.time_ahead, 1);
+        assert_eq!(out.check.suspects.total(), 1);
+        assert_eq!(out.lines, 47);
+        let text = String::from_utf8(out.file.get_ref().clone()).unwrap();
+        assert!(
+            text.contains("# suspect: 21,18446744073709551615,"),
+            "{text}"
+        );
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("rec.csv");
+        std::fs::write(&f, format!("{CSV_HEADER}{text}")).unwrap();
+        let rec = crate::circular::sync::Record::read(&f).unwrap();
+        assert_eq!(rec.t_s.len(), 47);
+        assert_eq!(rec.marked, 1);
+    }
+
+    #[test]
+    fn a_corrupted_time_as_a_batchs_last_sample_does_not_end_the_record() {
+        // The stream took the next batch's first time, below 2⁶⁴ − 1, for a restart.
+        let mut input = frame(&info());
+        let DeviceMsg::Batch(mut b) = batch(0, 0, 16, 0) else {
+            unreachable!()
+        };
+        b.samples[15].t_us = u64::MAX;
+        input.extend(frame(&DeviceMsg::Batch(b)));
+        input.extend(frame(&batch(16, 0, 16, 16_000)));
+        let (end, out, st) = record_bytes(input, Cursor::new(Vec::new()));
+        assert!(matches!(end, End::Lost(_)), "{end:?}");
+        assert_eq!(st.resets, 0);
+        assert_eq!(out.lines, 31);
+        assert_eq!(out.check.suspects.time_ahead, 1);
     }
 
     #[test]

@@ -238,6 +238,8 @@ struct Tracker {
     next_seq: Option<u64>,
     /// Time stamp of the last sample received.
     last_t_us: Option<u64>,
+    /// Time stamp of the sample before it.
+    before_last_t_us: Option<u64>,
     /// Dropped counts of the device's earlier sessions, and the latest count of the current one.
     dropped_before: u64,
     dropped_now: u32,
@@ -385,6 +387,7 @@ impl Tracker {
                 self.gate = Gate::Open;
                 self.next_seq = None;
                 self.last_t_us = None;
+                self.before_last_t_us = None;
                 self.last_sample = None;
                 self.restart_expected = false;
                 self.stats.lost += u64::from(b.seq);
@@ -407,8 +410,14 @@ impl Tracker {
             Some(next) => {
                 let forward = b.seq.wrapping_sub(next as u32);
                 let seq_back = forward >= 1 << 31;
+                // Back from the sample before the last too: one corrupted time (2⁶⁴ − 1) as a
+                // batch's last sample is not a restart (the recorder marks it as suspect).
                 let time_back = match (b.samples.first(), self.last_t_us) {
-                    (Some(s), Some(t)) if s.t_us <= t => Some((t, s.t_us)),
+                    (Some(s), Some(t))
+                        if s.t_us <= t && self.before_last_t_us.is_none_or(|p| s.t_us <= p) =>
+                    {
+                        Some((t, s.t_us))
+                    }
                     _ => None,
                 };
                 if seq_back || time_back.is_some() {
@@ -454,6 +463,10 @@ impl Tracker {
                 sample: *s,
             }));
         self.stats.samples += n as u64;
+        self.before_last_t_us = match n {
+            1 => self.last_t_us,
+            _ => Some(b.samples[n - 2].t_us),
+        };
         self.last_t_us = Some(b.samples[n - 1].t_us);
         self.last_sample = self.batch.last().copied();
         on_batch(&self.batch);

@@ -17,7 +17,12 @@ pub fn diagnose_record(plan: &Plan, record: &Path, tolerance_um: Option<f64>) ->
     let done = diagnose_planned_record(plan, &rec, [None; 3], &Options::default())?;
     let diag = done.diagnosis;
     // As `jdbb diagnose` prints them: the two summaries as they are, the verdict as a line.
-    let mut text = format!("{}{}", sync_summary(plan, &done.sync), summary(&diag));
+    let mut text = sync_summary(plan, &done.sync);
+    if let Some(note) = rec.set_aside_note(Some(&done.sync)) {
+        text.push_str(&note);
+        text.push('\n');
+    }
+    text.push_str(&summary(&diag));
     if let Some(tol) = tolerance_um {
         text.push_str(&tolerance_verdict(&diag, tol).1);
         text.push('\n');

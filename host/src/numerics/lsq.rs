@@ -210,6 +210,13 @@ fn accumulate(problem: &dyn Problem, p: &[f64], with_jacobian: bool) -> Result<N
         });
     }
     let g = acc.finish();
+    if g.iter().any(|x| !x.is_finite()) {
+        // A derivative that overflowed (an absurd input far from the model's range): its
+        // normal equations mean nothing, and every column would count as dead.
+        return Err(Error::Numerics(
+            "the model's derivatives are not finite; check the input for absurd values".into(),
+        ));
+    }
     Ok(Normal {
         jtj: g.view((0, 0), (n, n)).into_owned(),
         jtr: g.view((0, n), (n, 1)).column(0).into_owned(),
@@ -321,18 +328,22 @@ fn spectrum(jtj: &DMatrix<f64>, rank_tolerance: f64) -> Spectrum {
         .collect();
     let live: Vec<usize> = (0..n).filter(|&k| !dead[k]).collect();
     let nl = live.len();
-    let a = DMatrix::from_fn(nl, nl, |i, j| {
-        jtj[(live[i], live[j])] / (scale[live[i]] * scale[live[j]])
-    });
-    let eig = SymmetricEigen::new(a);
-    let mut order: Vec<usize> = (0..nl).collect();
-    order.sort_by(|&i, &j| eig.eigenvalues[j].total_cmp(&eig.eigenvalues[i]));
     let mut values = vec![0.0; n];
     let mut vectors = DMatrix::<f64>::zeros(n, n);
-    for (c, &i) in order.iter().enumerate() {
-        values[c] = eig.eigenvalues[i].max(0.0);
-        for (r, &k) in live.iter().enumerate() {
-            vectors[(k, c)] = eig.eigenvectors[(r, i)];
+    // No live column (every parameter dead): nothing to decompose, and nalgebra's eigen
+    // decomposition panics on an empty matrix.
+    if nl > 0 {
+        let a = DMatrix::from_fn(nl, nl, |i, j| {
+            jtj[(live[i], live[j])] / (scale[live[i]] * scale[live[j]])
+        });
+        let eig = SymmetricEigen::new(a);
+        let mut order: Vec<usize> = (0..nl).collect();
+        order.sort_by(|&i, &j| eig.eigenvalues[j].total_cmp(&eig.eigenvalues[i]));
+        for (c, &i) in order.iter().enumerate() {
+            values[c] = eig.eigenvalues[i].max(0.0);
+            for (r, &k) in live.iter().enumerate() {
+                vectors[(k, c)] = eig.eigenvectors[(r, i)];
+            }
         }
     }
     for (c, k) in (0..n).filter(|&k| dead[k]).enumerate() {
@@ -924,5 +935,34 @@ mod tests {
         };
         let fit = least_squares(&SmallLoading, &[0.0; 4], &lax).unwrap();
         assert!(fit.sigma[2].is_some());
+    }
+
+    /// Residuals whose derivatives are all `g` (the same for every parameter).
+    struct Flat(f64);
+    impl Problem for Flat {
+        fn n_params(&self) -> usize {
+            2
+        }
+        fn n_residuals(&self) -> usize {
+            4
+        }
+        fn eval(&self, _p: &[f64], visit: &mut dyn FnMut(usize, f64, &[f64])) {
+            for i in 0..4 {
+                visit(i, 1.0, &[self.0, self.0]);
+            }
+        }
+    }
+
+    #[test]
+    fn no_live_parameter_and_overflowed_derivatives_are_not_a_panic() {
+        // Every column dead: nothing to decompose (nalgebra panics on an empty matrix).
+        let fit = least_squares(&Flat(0.0), &[0.0; 2], &LsqOptions::default()).unwrap();
+        assert_eq!(fit.rank, 0);
+        assert!(fit.sigma.iter().all(Option::is_none));
+        // A derivative that overflowed (an absurd input): an error that says so.
+        let e = least_squares(&Flat(f64::INFINITY), &[0.0; 2], &LsqOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not finite"), "{e}");
     }
 }
