@@ -4,7 +4,7 @@
 use std::fs;
 use std::path::Path;
 mod common;
-use common::{jdbb_in, ok_in, stderr, stdout};
+use common::{jdbb_in, named, ok_in, stderr, stdout};
 
 /// A one-circle plan and a 250 Hz record of it on a machine with 8 µm X backlash and 40 µm/m
 /// XY squareness, in `dir` (`plan/plan.json`, `rec.csv`).
@@ -40,23 +40,6 @@ fn recorded(dir: &Path) {
             "rec.csv",
         ],
     );
-}
-
-/// The machine effects `diagnose --json` names (set-up excluded): (name, value).
-fn named(json: &str) -> Vec<(String, f64)> {
-    let v: serde_json::Value = serde_json::from_str(json).unwrap();
-    v["effects"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|e| e["setup"] == false)
-        .map(|e| {
-            (
-                e["name"].as_str().unwrap().to_string(),
-                e["value"].as_f64().unwrap(),
-            )
-        })
-        .collect()
 }
 
 /// The record's lines: the header part (comments and column names) and the data lines.

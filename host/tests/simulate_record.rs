@@ -4,7 +4,7 @@
 use std::fs;
 use std::path::Path;
 mod common;
-use common::{jdbb_in, ok_in};
+use common::{jdbb_in, named, ok_in};
 
 /// `args` exit 2 with `want` in stderr, no panic; stderr.
 fn refused(dir: &Path, args: &[&str], want: &str) -> String {
@@ -34,23 +34,6 @@ fn plan(dir: &Path) {
             "plan",
         ],
     );
-}
-
-/// The machine effects `diagnose --json` names (set-up excluded): (name, value).
-fn named(json: &str) -> Vec<(String, f64)> {
-    let v: serde_json::Value = serde_json::from_str(json).unwrap();
-    v["effects"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|e| e["setup"] == false)
-        .map(|e| {
-            (
-                e["name"].as_str().unwrap().to_string(),
-                e["value"].as_f64().unwrap(),
-            )
-        })
-        .collect()
 }
 
 const INSTRUMENT: &str = "[instrument]\nsample_rate_hz = 250\nclock_ppm = 60\nstart_delay_s = 4.2\nnoise_um = 0.3\nt0_us = 123456\nseed = 7\n";

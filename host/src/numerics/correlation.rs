@@ -36,7 +36,7 @@ pub fn integrated_time(x: &[f64], max_block: usize) -> f64 {
     }
     let mean = x.iter().sum::<f64>() / n as f64;
     let var = x.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / n as f64;
-    if !(var > 0.0) || !var.is_finite() {
+    if var.is_nan() || var <= 0.0 || !var.is_finite() {
         return 1.0;
     }
     let mut best: f64 = 1.0;

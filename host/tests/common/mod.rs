@@ -46,3 +46,20 @@ pub fn ok_in(dir: &Path, args: &[&str]) -> String {
     assert!(o.status.success(), "jdbb {args:?}: {}", stderr(&o));
     stdout(&o)
 }
+
+/// The machine effects `diagnose --json` names (set-up excluded): (name, value).
+pub fn named(json: &str) -> Vec<(String, f64)> {
+    let v: serde_json::Value = serde_json::from_str(json).unwrap();
+    v["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["setup"] == false)
+        .map(|e| {
+            (
+                e["name"].as_str().unwrap().to_string(),
+                e["value"].as_f64().unwrap(),
+            )
+        })
+        .collect()
+}
