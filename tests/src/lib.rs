@@ -15,6 +15,7 @@ pub mod calibration_data;
 pub mod mechanism;
 pub mod rotary_truth;
 pub mod rrsps_truth;
+pub mod tolerance;
 
 /// Root of the repository.
 pub fn repo_root() -> PathBuf {
@@ -217,4 +218,29 @@ pub fn jdbb_bin() -> PathBuf {
         bin.display()
     );
     bin
+}
+
+// The rule is tested here, not in `tolerance.rs`, which the host's tests include too.
+#[cfg(test)]
+mod tolerance_rule {
+    use crate::tolerance::check_unbiased;
+
+    #[test]
+    fn the_rule_fails_a_bias_with_any_sigma_and_a_vague_value() {
+        // Unbiased within its σ.
+        assert!(check_unbiased("v", 10.2, 0.1, 10.0, 0.0, 0.1).is_ok());
+        // The spike: 9.9 ± 1.99 for 4 (the OR form passed it).
+        assert!(check_unbiased("v", 9.9, 1.99, 4.0, 0.0, 0.5).is_err());
+        // 4 % off with a tiny σ.
+        assert!(check_unbiased("v", 10.4, 0.01, 10.0, 0.0, 0.1).is_err());
+        // 6 % off with σ at the bound: 1 % + 3σ would pass it.
+        assert!(check_unbiased("v", 10.6, 0.9, 10.0, 0.0, 0.1).is_err());
+        // Right, but σ too large to tell.
+        assert!(check_unbiased("v", 10.0, 1.5, 10.0, 0.0, 0.1).is_err());
+        // The floor: 0.08 off a 0.2 truth within an absolute 0.1.
+        assert!(check_unbiased("v", 0.28, 0.01, 0.2, 0.1, 0.1).is_ok());
+        // Sign flipped, and NaN.
+        assert!(check_unbiased("v", -10.0, 0.1, 10.0, 0.0, 0.1).is_err());
+        assert!(check_unbiased("v", f64::NAN, 0.1, 10.0, 0.0, 0.1).is_err());
+    }
 }

@@ -57,16 +57,10 @@ fn run(plan: &Plan, errors: MachineErrors, seed: u64, rate_hz: f64) -> Diagnosis
     diagnose(&path, &d, &Options::default()).unwrap()
 }
 
-/// `got ± sigma` is `truth`: within 5 % and within 1 % + 3σ (a bias with a tiny σ fails), and
-/// σ under half the value.
+/// `got ± sigma` is `truth` by the one rule (`planned::assert_unbiased`: within 5 % and within
+/// 1 % + 3σ, σ under 10 %).
 fn assert_close(what: &str, got: f64, sigma: f64, truth: f64, d: &Diagnosis) {
-    let err = (got - truth).abs();
-    assert!(
-        err <= 0.05 * truth.abs() && err <= 0.01 * truth.abs() + 3.0 * sigma,
-        "{what}: {got} ± {sigma} vs {truth}\n{}",
-        summary(d)
-    );
-    assert!(sigma < 0.5 * got.abs(), "{what}: σ {sigma} of {got}");
+    planned::assert_unbiased(what, got, sigma, truth, 0.0, &summary(d));
 }
 
 /// Exactly `name` was named; returns it.

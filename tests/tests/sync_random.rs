@@ -4,7 +4,8 @@
 //! radii, height and plane (a full circle in xy, a 220° arc in zx or yz) and zero to two hidden
 //! effects drawn from every effect the machine has, and `jdbb diagnose --record --plan`'s
 //! library path ([`diagnose_planned`]) must measure the feed within 3σ of the truth and name
-//! exactly the hidden effects, each within 5 % or 3σ with σ under half the value; a machine
+//! exactly the hidden effects, each by the one tolerance rule (`jdbb_tests::tolerance`: within 5 %
+//! and within 1 % + 3σ, σ under 10 %, a reversal spike's under 25 %); a machine
 //! without effects names nothing.
 //!
 //! The cases come from fixed seeds ([`SEEDS`]): a run is the same every time, and a seed changes
@@ -29,6 +30,7 @@ use jdbb_tests::gmachine::{
     Axis, BacklashEnds, Bow, Cyclic, Dialect, LateralPlay, MachineErrors, Recording, ReversalSpike,
     SimConfig, Simulation, Squareness,
 };
+use jdbb_tests::tolerance::{check_unbiased, SIGMA_FRACTION};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -85,11 +87,22 @@ const FIXED_SEEDS: [u64; 14] = [
 
 /// Seeds of [`explore_seeds`] that fail for reasons outside the timeline (the feed is right
 /// within 3σ in each), kept for the diagnosis's owners; run by [`seeds_known_to_fail`].
-/// - 3074 (yz 220° arc at 288 Hz, lost motion per end of y and a squareness): both named
-///   within 1 %, and beside them a lateral_play_z_y of −0.18 ± 0.04 µm and a drift of
-///   −0.20 ± 0.06 µm/min (0.2 µm on D). The feed is 255 ppm off, within its σ of 241 ppm; that
-///   this mistimes y's take-up windows into those two is a guess, not established. It failed the
-///   same way before the 220° fixes above, and with arc ends on their circle.
+/// - 3074 (yz 220° arc at 288 Hz, lost motion per end of y (5.87 µm at the + end, 11.76 at the
+///   − end) and a squareness of −35.4 µm/m): both named within the rule, and beside them a
+///   lateral_play_z_y of −0.20 ± 0.04 µm and a drift of −0.22 ± 0.06 µm/min (0.2 µm on D): a
+///   false report. Established by rerunning the case with one thing changed (issue 27): the
+///   pair comes with the play per end and this noise draw, not with the squareness (gone
+///   without the play; still there without the squareness); the same noise with a uniform play
+///   of the ends' mean names nothing; so do the record without noise, and at 4× the rate. Over
+///   30 other noise seeds of the same machine the same pair is named twice (−0.18 µm, −0.21
+///   µm/min): about 7 % of draws, against the 0.6 % per run `docs/tests.md` bounds the
+///   selection's false alarms by. Both times the feed was off by more than +150 ppm (+260, +152;
+///   its σ 242), as in 2 of the 4 draws that far off and none of the 26 nearer the truth, and
+///   in this draw the play's ends came out 3–4σ off (+0.10, −0.18 µm). The likely mechanism,
+///   supported by that correlation but not proven (the feed was not held at the truth to
+///   confirm it): a feed error within its σ mistimes the take-up of the larger dead band near
+///   the data arcs' ends, and the fit explains what that leaves by a play of Z across Y (a
+///   ccw/cw difference ∝ |cos θ|, largest at those ends) and a drift. Not fixed.
 const KNOWN_FAILING: [u64; 1] = [3074];
 
 /// Most samples a record of a case holds: the rate drawn is lowered to keep under it.
@@ -582,15 +595,14 @@ fn check(seed: u64) -> Result<(), String> {
             .find(|f| f.effect.name() == x.name)
             .unwrap();
         let s = f.sigma.unwrap_or(f64::INFINITY);
-        let err = (f.value - x.value).abs();
-        if !(err <= 0.05 * x.value.abs() || (err <= 3.0 * s && s < 0.5 * x.value.abs())) {
-            return Err(fail(format!(
-                "{} = {} ± {s} for {}\n{}",
-                x.name,
-                f.value,
-                x.value,
-                summary(d)
-            )));
+        // A spike's σ carries the synchronisation's timing (`sync_hidden`): up to a quarter.
+        let sigma_fraction = if x.name.starts_with("reversal_spike") {
+            0.25
+        } else {
+            SIGMA_FRACTION
+        };
+        if let Err(e) = check_unbiased(&x.name, f.value, s, x.value, 0.0, sigma_fraction) {
+            return Err(fail(format!("{e}\n{}", summary(d))));
         }
     }
     Ok(())

@@ -4,6 +4,11 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
+/// The one tolerance rule for a recovered value: the file of `jdbb_tests::tolerance` (the host's
+/// tests do not depend on the tests' crate), included, not copied.
+#[path = "../../../tests/src/tolerance.rs"]
+pub mod tolerance;
+
 /// The `jdbb` binary of this build, to be given arguments.
 pub fn command() -> Command {
     Command::new(env!("CARGO_BIN_EXE_jdbb"))
