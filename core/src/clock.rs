@@ -61,6 +61,14 @@ pub enum CrystalVerdict {
     Nonsense,
 }
 
+impl CrystalVerdict {
+    /// Whether the crystal drives the clocks after this verdict: all but another supported
+    /// crystal (a nonsense reading is treated like none: the crystal is used as built).
+    pub fn uses_crystal(self) -> bool {
+        !matches!(self, CrystalVerdict::Other(..))
+    }
+}
+
 /// The verdict on a crystal measured at `measured_hz` for a build for `build_hz`: the build's
 /// crystal while the reading is within [`CRYSTAL_TOLERANCE_PERCENT`] of it (it wins a tie with a
 /// neighbour, 24 against 25 MHz); otherwise the nearest other of [`SUPPORTED_CRYSTALS`] within

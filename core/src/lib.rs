@@ -18,6 +18,8 @@
 //! - [`reset`]: why the device last started (reset flags, a recorded panic or fault).
 //! - [`store`]: the calibration kept in NOR flash (a versioned, CRC-checked append log over two
 //!   erase blocks, safe against power loss, wear-aware).
+//! - [`clock`], [`indicator`]: the board's clock start without hardware (the crystal's verdict)
+//!   and the status LED's codes over embedded-hal's `OutputPin` and `DelayNs`.
 //! - [`math`]: the one place that names which floating-point implementation is used.
 //!
 //! `no_std`, no allocation. The `std` feature only adds conveniences for the host.
@@ -27,6 +29,7 @@
 pub mod calib;
 pub mod clock;
 pub mod geometry;
+pub mod indicator;
 pub mod link;
 pub mod machine;
 pub mod math;

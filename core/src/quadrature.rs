@@ -288,6 +288,76 @@ impl IndexRateLimit {
     }
 }
 
+/// The capture hardware of one index line, as the board provides it (on the F411: an encoder
+/// timer's CH3, latching the counter at each edge of the index pin); [`service_index`] drives it.
+pub trait IndexCapture {
+    /// The counter latched at an edge not taken yet, if any (taking it clears the capture flag).
+    fn take(&mut self) -> Option<u32>;
+    /// The counter now.
+    fn counter(&mut self) -> u32;
+    /// Whether another edge was latched since the last [`IndexCapture::take`] (an overcapture is
+    /// cleared).
+    fn again(&mut self) -> bool;
+    /// Switch the line's interrupt off until the next power-up, and mark it switched off for
+    /// `DeviceInfo.index_disabled`.
+    fn disable(&mut self);
+}
+
+/// The next index edge of a line: the counter latched at the edge, the counter now, and which way
+/// the index went (the level of `pin`, the line's `embedded_hal` input, after the edge). An edge
+/// followed by another before its level could be read is skipped (the newer one is returned);
+/// `None` when no edge is pending (or the line keeps changing faster than it can be read).
+pub fn take_index<C: IndexCapture, P: embedded_hal::digital::InputPin>(
+    capture: &mut C,
+    pin: &mut P,
+) -> Option<(u32, u32, IndexEdge)> {
+    for _ in 0..4 {
+        let at = capture.take()?;
+        let high = pin.is_high().unwrap_or(false);
+        let now = capture.counter();
+        if capture.again() {
+            continue; // another edge meanwhile: `high` may be its level
+        }
+        let edge = if high {
+            IndexEdge::Rising
+        } else {
+            IndexEdge::Falling
+        };
+        return Some((at, now, edge));
+    }
+    None
+}
+
+/// What servicing an index line's interrupt ([`service_index`]) did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum IndexService {
+    /// Every pending edge was handed over.
+    Done,
+    /// The line interrupted faster than an index can ([`IndexRateLimit`]): it was switched off
+    /// ([`IndexCapture::disable`]) and its remaining edges dropped; the caller logs it.
+    Disabled,
+}
+
+/// An index line's interrupt: every pending edge ([`take_index`]) to `hand_over`, each counted
+/// by `limit` at `now_ms()`; a line over the limit is switched off instead.
+pub fn service_index<C: IndexCapture, P: embedded_hal::digital::InputPin>(
+    capture: &mut C,
+    pin: &mut P,
+    limit: &mut IndexRateLimit,
+    mut now_ms: impl FnMut() -> u32,
+    mut hand_over: impl FnMut((u32, u32, IndexEdge)),
+) -> IndexService {
+    while let Some(edge) = take_index(capture, pin) {
+        if !limit.on_edge(now_ms()) {
+            capture.disable();
+            return IndexService::Disabled;
+        }
+        hand_over(edge);
+    }
+    IndexService::Done
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -540,5 +610,92 @@ mod tests {
             !l.on_edge(5),
             "still the same 100 ms window across the wrap"
         );
+    }
+
+    /// A fake index line: edges queued as (counter at the edge, level after it), the counter
+    /// advancing by 7 per read, a flag for a disabled line.
+    #[derive(Default)]
+    struct FakeLine {
+        edges: std::collections::VecDeque<(u32, bool)>,
+        level: std::rc::Rc<core::cell::Cell<bool>>,
+        count: u32,
+        disabled: bool,
+    }
+    impl IndexCapture for FakeLine {
+        fn take(&mut self) -> Option<u32> {
+            if self.disabled {
+                return None;
+            }
+            let (at, level) = self.edges.pop_front()?;
+            self.level.set(level);
+            Some(at)
+        }
+        fn counter(&mut self) -> u32 {
+            self.count += 7;
+            self.count
+        }
+        fn again(&mut self) -> bool {
+            false
+        }
+        fn disable(&mut self) {
+            self.disabled = true;
+        }
+    }
+    struct FakePin(std::rc::Rc<core::cell::Cell<bool>>);
+    impl embedded_hal::digital::ErrorType for FakePin {
+        type Error = core::convert::Infallible;
+    }
+    impl embedded_hal::digital::InputPin for FakePin {
+        fn is_high(&mut self) -> Result<bool, Self::Error> {
+            Ok(self.0.get())
+        }
+        fn is_low(&mut self) -> Result<bool, Self::Error> {
+            Ok(!self.0.get())
+        }
+    }
+
+    #[test]
+    fn an_index_line_that_storms_is_disabled_and_reported() {
+        // Issue 34: an index line through the embedded-hal InputPin seam and a fake capture.
+        // A real index (one pulse, both edges, per 100 ms) is handed over, edge and level right.
+        let mut line = FakeLine::default();
+        let mut pin = FakePin(line.level.clone());
+        let mut limit = IndexRateLimit::new();
+        let mut got = std::vec::Vec::new();
+        for rev in 0..50u32 {
+            line.edges.push_back((rev * 1000, true));
+            line.edges.push_back((rev * 1000 + 3, false));
+            let t = 10 + rev * 100;
+            let r = service_index(&mut line, &mut pin, &mut limit, || t, |e| got.push(e));
+            assert_eq!(r, IndexService::Done, "rev {rev}");
+        }
+        assert_eq!(got.len(), 100);
+        assert_eq!(got[0].0, 0);
+        assert_eq!(got[0].2, IndexEdge::Rising);
+        assert_eq!(got[1].0, 3);
+        assert_eq!(got[1].2, IndexEdge::Falling);
+        assert!(got[1].1 > got[0].1, "the counter now, read after the edge");
+        assert!(!line.disabled);
+        // A storm: 1000 edges pending within one millisecond.
+        let mut limit = IndexRateLimit::new();
+        let mut line = FakeLine::default();
+        let mut pin = FakePin(line.level.clone());
+        for k in 0..1000u32 {
+            line.edges.push_back((k, k % 2 == 0));
+        }
+        let mut got = 0u32;
+        let r = service_index(&mut line, &mut pin, &mut limit, || 5, |_| got += 1);
+        assert_eq!(r, IndexService::Disabled, "reported");
+        assert!(line.disabled, "switched off");
+        assert_eq!(
+            got,
+            IndexRateLimit::MAX_EDGES,
+            "the edges before the limit only"
+        );
+        // Switched off, the line hands over nothing more.
+        line.edges.push_back((5000, true));
+        let r = service_index(&mut line, &mut pin, &mut limit, || 10_000, |_| got += 1);
+        assert_eq!(r, IndexService::Done);
+        assert_eq!(got, IndexRateLimit::MAX_EDGES);
     }
 }

@@ -299,6 +299,52 @@ fn parse(buf: &[u8; SLOT]) -> Option<(u32, Calibration)> {
     (rest.is_empty() && cal.validate().is_ok()).then_some((seq, cal))
 }
 
+/// A flash controller whose error flags stay set until cleared, and fail every later operation
+/// while set (the STM32F4's `FLASH_SR`: the HAL fails an operation on any flag, a leftover one
+/// included, and clears none). The ROM bootloader can leave one set before a DFU `:leave` (not a
+/// reset), and a failed operation leaves its own.
+pub trait StickyErrors {
+    /// Clear every error flag (and bring the controller to the state an operation expects).
+    fn clear_errors(&mut self);
+}
+
+/// A [`NorFlash`] whose leftover error flags are cleared before every erase and program
+/// ([`StickyErrors`]): an operation fails only on an error of its own, which it reports (the
+/// flag then stays set until the next operation clears it).
+#[derive(Debug)]
+pub struct ClearedFlags<F>(pub F);
+
+impl<F: NorFlash> embedded_storage::nor_flash::ErrorType for ClearedFlags<F> {
+    type Error = F::Error;
+}
+
+impl<F: NorFlash> embedded_storage::nor_flash::ReadNorFlash for ClearedFlags<F> {
+    const READ_SIZE: usize = F::READ_SIZE;
+
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        self.0.read(offset, bytes)
+    }
+
+    fn capacity(&self) -> usize {
+        self.0.capacity()
+    }
+}
+
+impl<F: NorFlash + StickyErrors> NorFlash for ClearedFlags<F> {
+    const WRITE_SIZE: usize = F::WRITE_SIZE;
+    const ERASE_SIZE: usize = F::ERASE_SIZE;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        self.0.clear_errors();
+        self.0.erase(from, to)
+    }
+
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        self.0.clear_errors();
+        self.0.write(offset, bytes)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -644,5 +690,80 @@ mod tests {
         let mut buf = [0u8; SLOT];
         let n = postcard::to_slice(&c, &mut buf).unwrap().len();
         assert!(HEADER + n + 4 <= SLOT, "{n}");
+    }
+
+    /// The F4's flash controller over [`RamFlash`]: an error flag, set by a failing operation
+    /// (`fail`: the next program fails, as on a protected sector, programming nothing) and
+    /// failing every operation while set, as the HAL checks it.
+    struct FlagFlash {
+        ram: RamFlash,
+        flag: bool,
+        fail: bool,
+    }
+    impl ErrorType for FlagFlash {
+        type Error = FlashError;
+    }
+    impl ReadNorFlash for FlagFlash {
+        const READ_SIZE: usize = 1;
+        fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), FlashError> {
+            self.ram.read(offset, bytes)
+        }
+        fn capacity(&self) -> usize {
+            self.ram.capacity()
+        }
+    }
+    impl NorFlash for FlagFlash {
+        const WRITE_SIZE: usize = WRITE;
+        const ERASE_SIZE: usize = ERASE;
+        fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
+            self.ram.erase(from, to)?;
+            if self.flag {
+                return Err(FlashError::PowerLost);
+            }
+            Ok(())
+        }
+        fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
+            if self.fail {
+                self.flag = true;
+            } else {
+                self.ram.write(offset, bytes)?;
+            }
+            if self.flag {
+                return Err(FlashError::PowerLost);
+            }
+            Ok(())
+        }
+    }
+    impl StickyErrors for FlagFlash {
+        fn clear_errors(&mut self) {
+            self.flag = false;
+        }
+    }
+
+    #[test]
+    fn a_store_that_fails_leaves_its_flag_and_the_reply_says_so() {
+        // Issue 34: the store over the flash seam (NorFlash) with the F4's sticky error flags.
+        // A flag left set before the firmware started (a DFU `:leave`) does not fail a store.
+        let flash = FlagFlash {
+            ram: RamFlash::new(8 * ERASE),
+            flag: true,
+            fail: false,
+        };
+        let mut s = CalStore::open(ClearedFlags(flash), BASE, BLOCK).unwrap();
+        let r = s.store(&cal(1));
+        assert_eq!(kept(&r), CalKept::Stored, "{r:?}");
+        // A program that fails sets its flag, which stays set: the reply says the store failed
+        // (never `Stored`), and the calibration stored before is still the newest.
+        s.flash.0.fail = true;
+        let r = s.store(&cal(2));
+        assert_eq!(r, Err(StoreError::Flash(FlashError::PowerLost)));
+        assert_eq!(kept(&r), CalKept::WriteFailed);
+        assert!(s.flash.0.flag, "the error flag is left set");
+        assert_eq!(s.load(), Some(cal(1)));
+        // The flash working again, the flag the failure left does not fail the next store.
+        s.flash.0.fail = false;
+        assert_eq!(kept(&s.store(&cal(3))), CalKept::Stored);
+        let ram = s.into_inner().0.ram;
+        assert_eq!(reopen(ram).load(), Some(cal(3)));
     }
 }

@@ -391,13 +391,16 @@ mod app {
     #[cfg(feature = "board-f411")]
     #[task(binds = TIM2, priority = 4, local = [index_tx1, limit: jdbb_core::quadrature::IndexRateLimit = jdbb_core::quadrature::IndexRateLimit::new()])]
     fn index1(cx: index1::Context) {
-        while let Some(edge) = board::take_index(0) {
-            if !cx.local.limit.on_edge(now_ms()) {
-                board::disable_index(0);
-                defmt::error!("index of encoder 1 interrupts too fast: switched off");
-                return;
-            }
-            hand_over(cx.local.index_tx1, 0, edge);
+        let tx = cx.local.index_tx1;
+        let r = jdbb_core::quadrature::service_index(
+            &mut board::IndexTimer(0),
+            &mut board::ZPin(0),
+            cx.local.limit,
+            now_ms,
+            |edge| hand_over(tx, 0, edge),
+        );
+        if r == jdbb_core::quadrature::IndexService::Disabled {
+            defmt::error!("index of encoder 1 interrupts too fast: switched off");
         }
     }
 
@@ -405,13 +408,16 @@ mod app {
     #[cfg(feature = "board-f411")]
     #[task(binds = TIM5, priority = 4, local = [index_tx2, limit: jdbb_core::quadrature::IndexRateLimit = jdbb_core::quadrature::IndexRateLimit::new()])]
     fn index2(cx: index2::Context) {
-        while let Some(edge) = board::take_index(1) {
-            if !cx.local.limit.on_edge(now_ms()) {
-                board::disable_index(1);
-                defmt::error!("index of encoder 2 interrupts too fast: switched off");
-                return;
-            }
-            hand_over(cx.local.index_tx2, 1, edge);
+        let tx = cx.local.index_tx2;
+        let r = jdbb_core::quadrature::service_index(
+            &mut board::IndexTimer(1),
+            &mut board::ZPin(1),
+            cx.local.limit,
+            now_ms,
+            |edge| hand_over(tx, 1, edge),
+        );
+        if r == jdbb_core::quadrature::IndexService::Disabled {
+            defmt::error!("index of encoder 2 interrupts too fast: switched off");
         }
     }
 

@@ -43,16 +43,17 @@
 //! firmware that hangs, after 5.6–15.4 s; `DeviceInfo.reset_cause` then says `WATCHDOG`.
 
 use core::mem::MaybeUninit;
-use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use core::sync::atomic::{AtomicBool, Ordering};
 
 use super::Parts;
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 use jdbb_core::clock::{crystal_hz, crystal_verdict, crystal_verdict_too_fast, CrystalVerdict};
+use jdbb_core::indicator::{ClockFault, Indicator, LedCode};
 use jdbb_core::protocol::{Board, CalKept, ClockSource, ResetCause, SampleBatch};
-use jdbb_core::quadrature::IndexEdge;
+use jdbb_core::quadrature::IndexCapture;
 use jdbb_core::reset;
 use jdbb_core::sampler::Sampler;
-use jdbb_core::store::CalStore;
+use jdbb_core::store::{CalStore, ClearedFlags, StickyErrors};
 use jdbb_core::Calibration;
 use stm32f4xx_hal::flash::{FlashExt, LockedFlash};
 use stm32f4xx_hal::otg_fs::{UsbBus, UsbBusType, USB};
@@ -182,12 +183,29 @@ pub fn init_done() {
 fn init_panic_blink() -> ! {
     // SAFETY: RCC's AHB1ENR GPIOC bit; interrupts are off and nothing else runs.
     led_init(unsafe { &*pac::RCC::ptr() });
-    let mut t_ms: u32 = 0;
+    play_forever(LedCode::InitPanic)
+}
+
+/// Play `code` on the LED forever, the watchdog fed every millisecond (no reset loop), timed by
+/// [`SpinDelay`] at the 16 MHz HSI (≥ 1 ms per step).
+fn play_forever(code: LedCode) -> ! {
+    let mut delay = SpinDelay { cpu_hz: HSI_HZ };
+    let (mut led, mut t_ms) = (led(), 0);
     loop {
-        feed_watchdog();
-        led(jdbb_core::clock::panic_blink(t_ms));
-        cortex_m::asm::delay(HSI_HZ / 1000);
-        t_ms = t_ms.wrapping_add(1);
+        t_ms = led.play(&mut delay, code, t_ms, 1000, feed_watchdog);
+    }
+}
+
+/// A delay that spins the CPU (`cortex_m::asm::delay`) for a clock of `cpu_hz`: at least the time
+/// asked for at that clock or a slower one. For the LED loops that run with interrupts off.
+struct SpinDelay {
+    cpu_hz: u32,
+}
+
+impl embedded_hal::delay::DelayNs for SpinDelay {
+    fn delay_ns(&mut self, ns: u32) {
+        let cycles = u64::from(ns) * u64::from(self.cpu_hz) / 1_000_000_000;
+        cortex_m::asm::delay(u32::try_from(cycles).unwrap_or(u32::MAX).max(1));
     }
 }
 
@@ -227,7 +245,7 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
         defmt::error!(
             "clock start failed: HSI or the clock switch did not answer (LED: 4 flashes)"
         );
-        clock_failure(4);
+        clock_failure(ClockFault::HsiNoAnswer);
     }
     // Voltage scale 1 before the PLL starts (RM0383 §5.1.3): the reset value, scale 2, allows
     // HCLK ≤ 84 MHz only. VOS can be written only while the PLL is off and takes effect when it
@@ -268,8 +286,8 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
                 HSE_HZ,
                 how
             );
-            crystal = false;
         }
+        crystal = verdict.uses_crystal();
         if !crystal {
             hse_stop(&dp.RCC);
         }
@@ -277,10 +295,10 @@ pub fn init(dp: pac::Peripherals, rate_hz: u32) -> Parts {
     let pll_src_hz = if crystal { HSE_HZ } else { HSI_HZ };
     if !pll_locks(&dp.RCC, crystal, pll_src_hz) {
         defmt::error!("clock start failed: the PLL did not lock (LED: 3 flashes)");
-        clock_failure(3);
+        clock_failure(ClockFault::PllNoLock);
     }
     if !crystal {
-        LED_FLASHES.store(2, Ordering::Relaxed);
+        ON_HSI.store(true, Ordering::Relaxed);
     }
     // The HAL's own waits for HSERDY and PLLRDY are unbounded; they return at once now: the
     // crystal is running (or not asked for) and the PLL just locked from the same source.
@@ -593,29 +611,27 @@ fn pll_locks(rcc: &pac::RCC, hse: bool, src_hz: u32) -> bool {
     locked && stopped
 }
 
-/// The clocks cannot run USB (the caller logged why): flash the LED `flashes` times every 2 s,
-/// forever (the watchdog fed: no reset loop). Nothing else runs; power-cycle after fixing the
-/// board.
-fn clock_failure(flashes: u32) -> ! {
-    let mut t_ms: u32 = 0;
-    loop {
-        feed_watchdog();
-        led(jdbb_core::clock::blink(flashes, t_ms));
-        // ≥ 1 ms at the 16 MHz HSI (`delay` waits at least that many cycles).
-        cortex_m::asm::delay(HSI_HZ / 1000);
-        t_ms = t_ms.wrapping_add(1);
-    }
+/// The clocks cannot run USB (the caller logged why): the LED shows the fault's code (its flashes
+/// every 2 s), forever (the watchdog fed: no reset loop). Nothing else runs; power-cycle after
+/// fixing the board.
+fn clock_failure(fault: ClockFault) -> ! {
+    play_forever(LedCode::Clock(fault))
 }
 
-/// Flashes of the status LED every 2 s while running: 1 = all well, 2 = the crystal did not
-/// start (running on HSI).
-static LED_FLASHES: AtomicU32 = AtomicU32::new(1);
+/// Whether the clocks run on HSI (no crystal, or not the build's): the LED's code while running
+/// is then [`ClockFault::NoCrystal`] (2 flashes), else [`LedCode::Running`] (1 flash).
+static ON_HSI: AtomicBool = AtomicBool::new(false);
+
+/// The status LED: PC13, lit when low (a zero-sized handle: every copy writes PC13's BSRR).
+const fn led() -> Indicator<Led> {
+    Indicator::new(Led, true)
+}
 
 /// The Black Pill's LED: PC13, lit when low.
 fn led_init(rcc: &pac::rcc::RegisterBlock) {
     rcc.ahb1enr().modify(|_, w| w.gpiocen().set_bit());
     cortex_m::asm::dsb();
-    led(false);
+    led().set(false);
     // SAFETY: PC13 as a push-pull output (MODER13 = 01); PC13 is used for nothing else.
     unsafe {
         let c = &*pac::GPIOC::ptr();
@@ -624,21 +640,38 @@ fn led_init(rcc: &pac::rcc::RegisterBlock) {
     }
 }
 
-fn led(on: bool) {
-    // SAFETY: BSRR sets or resets PC13 only.
-    unsafe {
-        let c = &*pac::GPIOC::ptr();
-        c.bsrr()
-            .write(|w| w.bits(if on { 1 << (13 + 16) } else { 1 << 13 }));
+/// The Black Pill's LED pin, PC13, as an embedded-hal `OutputPin` (high = dark). Written through
+/// BSRR directly rather than the HAL's `PC13<Output>`: the start-up panic's code must drive it
+/// from the panic handler, whatever happened to the HAL's pin before (BSRR writes are atomic, so
+/// the copies cannot disturb each other).
+#[derive(Clone, Copy)]
+pub struct Led;
+
+impl embedded_hal::digital::ErrorType for Led {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_hal::digital::OutputPin for Led {
+    fn set_low(&mut self) -> Result<(), Self::Error> {
+        // SAFETY: BSRR resets PC13 only.
+        unsafe {
+            (*pac::GPIOC::ptr())
+                .bsrr()
+                .write(|w| w.bits(1 << (13 + 16)))
+        };
+        Ok(())
+    }
+
+    fn set_high(&mut self) -> Result<(), Self::Error> {
+        // SAFETY: BSRR sets PC13 only.
+        unsafe { (*pac::GPIOC::ptr()).bsrr().write(|w| w.bits(1 << 13)) };
+        Ok(())
     }
 }
 
-/// The status LED at `t_ms` (called from the idle loop): see [`LED_FLASHES`].
+/// The status LED at `t_ms` (called from the idle loop): see [`ON_HSI`].
 pub fn indicate(t_ms: u32) {
-    led(jdbb_core::clock::blink(
-        LED_FLASHES.load(Ordering::Relaxed),
-        t_ms,
-    ));
+    led().show(LedCode::running(!ON_HSI.load(Ordering::Relaxed)), t_ms);
 }
 
 /// IWDG prescaler /64 (`PR = 4`) and reload 4095: the watchdog resets the chip after
@@ -683,17 +716,19 @@ const FLASH_SR_ERRORS: u32 = (1 << 1) | (1 << 4) | (1 << 5) | (1 << 6) | (1 << 7
 /// `FLASH_CR.LOCK`.
 const FLASH_CR_LOCK: u32 = 1 << 31;
 
-/// The flash, unlocked only for the length of each erase or write.
+/// The flash, unlocked only for the length of each erase or write; the store uses it through
+/// `ClearedFlags`, which clears leftover error flags before each.
 pub struct BoardFlash(LockedFlash);
 
-impl BoardFlash {
-    /// Before every erase or program: the flash as the HAL expects it. The error flags stay set
+impl StickyErrors for BoardFlash {
+    /// Before every erase or program (`jdbb_core::store::ClearedFlags`): the flash as the HAL
+    /// expects it. The error flags stay set
     /// until cleared, and the HAL neither clears them nor tells a leftover flag from a new one:
     /// one left set (by the ROM bootloader before a DFU `:leave`, which is not a reset, or by an
     /// earlier failure) would fail every later store. And the HAL writes the unlock keys without
     /// checking the lock: on a flash left unlocked that is a wrong key sequence (bus error, and
     /// the HAL's assertion panics), so an unlocked flash is locked first.
-    fn prepare() {
+    fn clear_errors(&mut self) {
         // SAFETY: FLASH_CR's LOCK bit and FLASH_SR's write-1-to-clear error flags only; the
         // flash is used by this driver alone, with no operation in progress between calls.
         unsafe {
@@ -727,23 +762,25 @@ impl NorFlash for BoardFlash {
     const ERASE_SIZE: usize = 128 * 1024;
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
-        Self::prepare();
         NorFlash::erase(&mut self.0.unlocked(), from, to)
     }
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
-        Self::prepare();
         NorFlash::write(&mut self.0.unlocked(), offset, bytes)
     }
 }
 
 /// The calibration kept across power cycles, in flash (see the module docs); None where the
 /// flash has no room for the store.
-pub struct CalMemory(Option<CalStore<BoardFlash>>);
+pub struct CalMemory(Option<CalStore<ClearedFlags<BoardFlash>>>);
 
 impl CalMemory {
     fn open(flash: pac::FLASH) -> Self {
-        let store = CalStore::open(BoardFlash(LockedFlash::new(flash)), CAL_BASE, CAL_BLOCK);
+        let store = CalStore::open(
+            ClearedFlags(BoardFlash(LockedFlash::new(flash))),
+            CAL_BASE,
+            CAL_BLOCK,
+        );
         if store.is_err() {
             defmt::warn!(
                 "no room in flash for the calibration: it is not kept across power cycles"
@@ -803,7 +840,7 @@ impl CalMemory {
 /// Encoder timer `ch` (0: TIM2, 1: TIM5).
 fn encoder_timer(ch: usize) -> &'static pac::tim2::RegisterBlock {
     // SAFETY: callers only touch the registers this module configured for them (CNT, CCR3/4,
-    // SR/DIER at init and in `take_index`); TIM5's register block has TIM2's layout.
+    // SR/DIER at init and in `IndexTimer`); TIM5's register block has TIM2's layout.
     unsafe {
         match ch {
             0 => &*pac::TIM2::ptr(),
@@ -874,51 +911,51 @@ impl Latch {
     }
 }
 
-/// The next index edge captured by encoder `ch` (0: TIM2, 1: TIM5), if any: the counter latched
-/// at the edge, the counter now, and which way the index went (the pin's level after the edge).
-/// Called from the timer's interrupt until it returns `None`. An edge followed by another before
-/// its level could be read is skipped (the newer one is returned).
-pub fn take_index(ch: usize) -> Option<(u32, u32, IndexEdge)> {
-    let tim = encoder_timer(ch);
-    for _ in 0..4 {
+/// Encoder `ch`'s index capture (0: TIM2, 1: TIM5; CH3 latches the counter at both edges of the
+/// index pin), for [`jdbb_core::quadrature::service_index`] from the timer's interrupt.
+pub struct IndexTimer(pub usize);
+
+impl IndexCapture for IndexTimer {
+    #[inline]
+    fn take(&mut self) -> Option<u32> {
+        let tim = encoder_timer(self.0);
         if tim.sr().read().bits() & SR_CC3IF == 0 {
             return None;
         }
-        let at = tim.ccr3().read().bits(); // clears CC3IF
-        let high = z_level(ch);
-        let now = tim.cnt().read().bits();
+        Some(tim.ccr3().read().bits()) // clears CC3IF
+    }
+
+    #[inline]
+    fn counter(&mut self) -> u32 {
+        encoder_timer(self.0).cnt().read().bits()
+    }
+
+    #[inline]
+    fn again(&mut self) -> bool {
+        let tim = encoder_timer(self.0);
         // Clear an overcapture (written 0; the other flags are written 1, which leaves them).
         tim.sr().write(|w| unsafe { w.bits(!SR_CC3OF) });
-        if tim.sr().read().bits() & SR_CC3IF != 0 {
-            continue; // another edge meanwhile: `high` may be its level
-        }
-        let edge = if high {
-            IndexEdge::Rising
-        } else {
-            IndexEdge::Falling
-        };
-        return Some((at, now, edge));
+        tim.sr().read().bits() & SR_CC3IF != 0
     }
-    None
+
+    /// Switch the index interrupt off (until the next power-up): its line interrupts faster than
+    /// an index can (`jdbb_core::quadrature::IndexRateLimit`); reported by [`index_disabled`].
+    fn disable(&mut self) {
+        let tim = encoder_timer(self.0);
+        // SAFETY: clears CC3IE only (DIER holds nothing else this firmware sets on these timers),
+        // then the pending flags, from the index task that owns them.
+        tim.dier()
+            .modify(|r, w| unsafe { w.bits(r.bits() & !DIER_CC3IE) });
+        tim.sr()
+            .write(|w| unsafe { w.bits(!(SR_CC3IF | SR_CC3OF)) });
+        INDEX_OFF[self.0].store(true, Ordering::Relaxed);
+    }
 }
 
 /// Index lines switched off for interrupting too fast.
 static INDEX_OFF: [AtomicBool; 2] = [AtomicBool::new(false), AtomicBool::new(false)];
 
-/// Switch encoder `ch`'s index interrupt off (until the next power-up): its line interrupts
-/// faster than an index can (`jdbb_core::quadrature::IndexRateLimit`).
-pub fn disable_index(ch: usize) {
-    let tim = encoder_timer(ch);
-    // SAFETY: clears CC3IE only (DIER holds nothing else this firmware sets on these timers),
-    // then the pending flags, from the index task that owns them.
-    tim.dier()
-        .modify(|r, w| unsafe { w.bits(r.bits() & !DIER_CC3IE) });
-    tim.sr()
-        .write(|w| unsafe { w.bits(!(SR_CC3IF | SR_CC3OF)) });
-    INDEX_OFF[ch].store(true, Ordering::Relaxed);
-}
-
-/// Which index lines were switched off ([`disable_index`]); reported in `DeviceInfo`.
+/// Which index lines were switched off ([`IndexTimer::disable`]); reported in `DeviceInfo`.
 pub fn index_disabled() -> [bool; 2] {
     [
         INDEX_OFF[0].load(Ordering::Relaxed),
@@ -926,14 +963,30 @@ pub fn index_disabled() -> [bool; 2] {
     ]
 }
 
-/// Level of encoder `ch`'s index pin (PB10, PA2).
-fn z_level(ch: usize) -> bool {
-    // SAFETY: read-only access to the input data registers.
-    unsafe {
-        match ch {
-            0 => (*pac::GPIOB::ptr()).idr().read().bits() & (1 << 10) != 0,
-            _ => (*pac::GPIOA::ptr()).idr().read().bits() & (1 << 2) != 0,
-        }
+/// Encoder `ch`'s index pin (PB10, PA2) as an embedded-hal `InputPin`. Read from IDR directly:
+/// the HAL's pin is in alternate-function mode (the timer's CH3), for which it implements no
+/// `InputPin`, and the IDR shows the level in every mode.
+pub struct ZPin(pub usize);
+
+impl embedded_hal::digital::ErrorType for ZPin {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_hal::digital::InputPin for ZPin {
+    #[inline]
+    fn is_high(&mut self) -> Result<bool, Self::Error> {
+        // SAFETY: read-only access to the input data registers.
+        Ok(unsafe {
+            match self.0 {
+                0 => (*pac::GPIOB::ptr()).idr().read().bits() & (1 << 10) != 0,
+                _ => (*pac::GPIOA::ptr()).idr().read().bits() & (1 << 2) != 0,
+            }
+        })
+    }
+
+    #[inline]
+    fn is_low(&mut self) -> Result<bool, Self::Error> {
+        self.is_high().map(|h| !h)
     }
 }
 

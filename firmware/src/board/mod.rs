@@ -11,7 +11,11 @@
 //!   `apply_pending_rate(tick)` from the sample task between the two calls above, `start`/`stop`,
 //!   `clear_update`);
 //! - `feed_watchdog`, `indicate(t_ms)`: the idle loop's duties (the board's watchdog and status
-//!   LED; nothing on QEMU);
+//!   LED; nothing on QEMU); `Led`: the LED as an embedded-hal `OutputPin`, whose codes
+//!   [`jdbb_core::indicator`] plays (QEMU's drives nothing: no GPIO there);
+//! - `IndexTimer(ch)` (a `jdbb_core::quadrature::IndexCapture`) and `ZPin(ch)` (the
+//!   index line as an embedded-hal `InputPin`) for `jdbb_core::quadrature::service_index`, and
+//!   `index_disabled()` (QEMU: no index interrupts, only `index_disabled()`, all false);
 //! - `Link::{poll, take_change, read, write, drained, discard_pending}`: the byte link to the host
 //!   (non-blocking), whether it came up or went down, and its transmit buffer;
 //! - [`LINK_UP_AT_START`]: whether a host may be listening at power-up (UART) or only once the

@@ -38,7 +38,7 @@ use jdbb_core::protocol::{Board, CalKept, ResetCause, SampleBatch};
 use jdbb_core::sampler::Sampler;
 use jdbb_core::scenario::raw_of;
 use jdbb_core::sim::CircularTest;
-use jdbb_core::store::CalStore;
+use jdbb_core::store::{CalStore, ClearedFlags};
 use stm32f4xx_hal::{pac, prelude::*};
 
 use crate::scenario::Scenario;
@@ -404,8 +404,8 @@ impl FlashFault {
 /// NOR flash in RAM for the calibration store, with the NOR rules that matter (erased = 0xFF,
 /// whole-block erases), an erase that stalls the CPU like the board's ([`ERASE_STALL_US`]), and
 /// the board's error flags: an operation fails when any flag is set after it, a leftover one
-/// included, as the HAL checks them; the driver clears them before every operation, as the
-/// board's `BoardFlash` does ([`FlashFault`] injects the failures).
+/// included, as the HAL checks them; `ClearedFlags` clears them before every operation, as on
+/// the board ([`FlashFault`] injects the failures).
 pub struct RamFlash {
     mem: &'static mut [u8; 2 * RAM_FLASH_BLOCK as usize],
     /// The modelled `FLASH_SR`.
@@ -413,12 +413,15 @@ pub struct RamFlash {
     fault: FlashFault,
 }
 
-impl RamFlash {
-    /// Before every erase or program, as on the board: clear the error flags.
-    fn prepare(&mut self) {
+impl jdbb_core::store::StickyErrors for RamFlash {
+    /// Before every erase or program, as on the board (`jdbb_core::store::ClearedFlags`): clear
+    /// the error flags.
+    fn clear_errors(&mut self) {
         self.sr &= !SR_ERRORS;
     }
+}
 
+impl RamFlash {
     /// After an operation, as the HAL: any error flag fails it.
     fn status(&self) -> Result<(), embedded_storage::nor_flash::NorFlashErrorKind> {
         if self.sr & SR_ERRORS != 0 {
@@ -456,7 +459,6 @@ impl embedded_storage::nor_flash::NorFlash for RamFlash {
     const ERASE_SIZE: usize = RAM_FLASH_BLOCK as usize;
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
-        self.prepare();
         let range = self
             .mem
             .get_mut(from as usize..to as usize)
@@ -476,7 +478,6 @@ impl embedded_storage::nor_flash::NorFlash for RamFlash {
     }
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
-        self.prepare();
         let o = offset as usize;
         let dst = self
             .mem
@@ -495,7 +496,7 @@ impl embedded_storage::nor_flash::NorFlash for RamFlash {
 /// The calibration kept across resets: the board's store (`jdbb_core::store`) over a RAM flash
 /// ([`RamFlash`]: QEMU does not emulate flash writes), so it lasts until QEMU is restarted, and
 /// its erases stall the CPU as the board's do.
-pub struct CalMemory(Option<CalStore<RamFlash>>);
+pub struct CalMemory(Option<CalStore<ClearedFlags<RamFlash>>>);
 
 impl CalMemory {
     fn open() -> Self {
@@ -515,7 +516,7 @@ impl CalMemory {
                 },
                 fault,
             };
-            CalStore::open(flash, 0, RAM_FLASH_BLOCK).ok()
+            CalStore::open(ClearedFlags(flash), 0, RAM_FLASH_BLOCK).ok()
         }))
     }
 
@@ -557,6 +558,30 @@ pub fn init_done() {}
 #[inline]
 pub fn feed_watchdog() {}
 
-/// No LED in QEMU's model.
+/// The status LED's pin: QEMU's netduinoplus2 models no GPIO, so driving it does nothing; the
+/// code is still played through [`jdbb_core::indicator`] as on the board.
+#[derive(Clone, Copy)]
+pub struct Led;
+
+impl embedded_hal::digital::ErrorType for Led {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_hal::digital::OutputPin for Led {
+    #[inline]
+    fn set_low(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+
+    #[inline]
+    fn set_high(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+}
+
+/// The status LED at `t_ms`: always running here (QEMU's clocks cannot fail).
 #[inline]
-pub fn indicate(_t_ms: u32) {}
+pub fn indicate(t_ms: u32) {
+    jdbb_core::indicator::Indicator::new(Led, false)
+        .show(jdbb_core::indicator::LedCode::Running, t_ms);
+}
