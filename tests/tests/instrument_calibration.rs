@@ -366,7 +366,7 @@ fn diagnose_in_process(dir: &Path, name: &str, rec: &CircularRecord, d_mm: &[f64
     let path_file = dir.join(format!("{name}_path.csv"));
     std::fs::write(&rec_file, record_csv(&rows)).unwrap();
     std::fs::write(&path_file, path_csv(&rec.path)).unwrap();
-    let (path, d) =
+    let (path, d, _) =
         jdbb::circular::input::read_record_with_path(&rec_file, &path_file, 0.0, [None; 3])
             .unwrap();
     let diag = jdbb::circular::diagnose::diagnose(

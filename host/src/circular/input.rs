@@ -413,13 +413,14 @@ pub fn check_circular(path: &Path) -> std::result::Result<(), String> {
 }
 
 /// A `jdbb record` file (`seq,t_us,enc1,enc2,d_mm`) with its nominal path (`t_s,x_mm,y_mm,z_mm`,
-/// t_s = 0 at `offset_s` after the record's first sample). See the module docs.
+/// t_s = 0 at `offset_s` after the record's first sample). See the module docs. Glitch samples
+/// ([`super::glitch::find`]) are set aside, as `Record::read` does, and returned with their line.
 pub fn read_record_with_path(
     record: &FsPath,
     nominal: &FsPath,
     offset_s: f64,
     pitch_mm: [Option<f64>; 3],
-) -> Result<(Path, Vec<f64>)> {
+) -> Result<(Path, Vec<f64>, Vec<super::glitch::Glitch>)> {
     // The path: t_s strictly increasing.
     let mut nt = Table::open_with(nominal, crate::fsio::Limit::Table)?;
     let ncols = nt.require(&["t_s", "x_mm", "y_mm", "z_mm"])?;
@@ -460,6 +461,7 @@ pub fn read_record_with_path(
     let mut t = vec![];
     let mut p = vec![];
     let mut d = vec![];
+    let mut lines = vec![];
     let mut j = 0;
     let mut t0: Option<f64> = None;
     let mut prev_t_us: Option<f64> = None;
@@ -504,6 +506,29 @@ pub fn read_record_with_path(
         ]);
         t.push(ts);
         d.push(d_mm);
+        lines.push(row.line());
+    }
+    // A glitch (a loose cable, an encoder miscount) is set aside, not fitted.
+    let found = super::glitch::find(&d);
+    let glitches: Vec<super::glitch::Glitch> = found
+        .iter()
+        .map(|&i| super::glitch::Glitch {
+            line: lines[i],
+            t_s: t[i],
+            d_mm: d[i],
+        })
+        .collect();
+    if !found.is_empty() {
+        let mut keep = vec![true; t.len()];
+        for &i in &found {
+            keep[i] = false;
+        }
+        let mut k = keep.iter();
+        t.retain(|_| *k.next().unwrap_or(&true));
+        let mut k = keep.iter();
+        p.retain(|_| *k.next().unwrap_or(&true));
+        let mut k = keep.iter();
+        d.retain(|_| *k.next().unwrap_or(&true));
     }
     if t.len() < MIN_SAMPLES {
         return Err(Error::input(
@@ -529,7 +554,7 @@ pub fn read_record_with_path(
         location: nominal.display().to_string(),
         message: m,
     })?;
-    Ok((path, d))
+    Ok((path, d, glitches))
 }
 
 #[cfg(test)]
@@ -680,6 +705,38 @@ mod tests {
     }
 
     #[test]
+    fn a_glitch_in_a_record_with_a_path_is_set_aside_with_its_line() {
+        // A ccw circle of 50 mm over 10 s, the record at 100 Hz with D 50 mm and one sample at
+        // 30 mm (a loose cable): it is set aside, named by its line, and the rest is kept.
+        let dir = tempfile::tempdir().unwrap();
+        let path_file = dir.path().join("path.csv");
+        let rec_file = dir.path().join("rec.csv");
+        let mut path = String::from("t_s,x_mm,y_mm,z_mm\n");
+        for k in 0..=100 {
+            let a = (k as f64 * 3.6).to_radians();
+            path.push_str(&format!(
+                "{},{},{},0\n",
+                0.1 * k as f64,
+                50.0 * a.cos(),
+                50.0 * a.sin()
+            ));
+        }
+        std::fs::write(&path_file, path).unwrap();
+        let mut rec = String::from("seq,t_us,enc1,enc2,d_mm\n");
+        for i in 0..=1000 {
+            let d = if i == 500 { 30.0 } else { 50.0 };
+            rec.push_str(&format!("{i},{},0,0,{d}\n", i * 10_000));
+        }
+        std::fs::write(&rec_file, rec).unwrap();
+        let (p, d, glitches) =
+            read_record_with_path(&rec_file, &path_file, 0.0, [None; 3]).unwrap();
+        assert_eq!(glitches.len(), 1, "{glitches:?}");
+        assert_eq!((glitches[0].line, glitches[0].d_mm), (502, 30.0));
+        assert_eq!((d.len(), p.len()), (1000, 1000));
+        assert!(d.iter().all(|&v| v == 50.0));
+    }
+
+    #[test]
     fn record_samples_in_a_gap_of_the_path_are_left_out() {
         // Path: a ccw circle 0..10 s, nothing between 10 and 20 s, a cw circle 20..30 s. Record
         // samples every 0.01 s from 0 to 30 s.
@@ -707,7 +764,7 @@ mod tests {
             rec.push_str(&format!("{i},{},0,0,50\n", i * 10_000));
         }
         std::fs::write(&rec_file, rec).unwrap();
-        let (p, d) = read_record_with_path(&rec_file, &path_file, 0.0, [None; 3]).unwrap();
+        let (p, d, _) = read_record_with_path(&rec_file, &path_file, 0.0, [None; 3]).unwrap();
         assert_eq!(d.len(), p.len());
         assert!(
             p.t_s.iter().all(|&t| t <= 10.0 + 1e-6 || t >= 20.0 - 1e-6),

@@ -268,6 +268,8 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     };
     let conditions = conditions(args)?;
     let mut synced = None;
+    // What `--record --path` set aside (glitches), said before the diagnosis.
+    let mut path_note: Option<String> = None;
     let diag = match (&args.samples, &args.record, &args.path, &args.plan) {
         (Some(samples), _, _, _) => {
             let (path, d) = read_samples(samples, pitch)?;
@@ -283,8 +285,11 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             done.diagnosis
         }
         (None, Some(record), Some(nominal), None) => {
-            let (path, d) =
+            let (path, d, glitches) =
                 read_record_with_path(record, nominal, args.path_offset_s.unwrap_or(0.0), pitch)?;
+            if let Some(n) = crate::circular::glitch::describe(&glitches, &|_| None) {
+                path_note = Some(n);
+            }
             diagnose(&path, &d, &Options::default())?
         }
         _ => {
@@ -313,6 +318,9 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             if let Some(n) = note {
                 emit(n)?;
             }
+        }
+        if let Some(n) = &path_note {
+            emit(n)?;
         }
         print(&summary(&diag))?;
         if let Some(v) = &verdict {
