@@ -413,8 +413,9 @@ pub fn check_circular(path: &Path) -> std::result::Result<(), String> {
 }
 
 /// A `jdbb record` file (`seq,t_us,enc1,enc2,d_mm`) with its nominal path (`t_s,x_mm,y_mm,z_mm`,
-/// t_s = 0 at `offset_s` after the record's first sample). See the module docs. Glitch samples
-/// ([`super::glitch::find`]) are set aside, as `Record::read` does, and returned with their line.
+/// t_s = 0 at `offset_s` after the record's first sample). See the module docs. The record is read
+/// by [`Record::read`], which sets glitch samples aside; they are returned with their line (their
+/// `t_s` from the record's first sample).
 pub fn read_record_with_path(
     record: &FsPath,
     nominal: &FsPath,
@@ -456,38 +457,15 @@ pub fn read_record_with_path(
     gaps.sort_by(f64::total_cmp);
     let max_gap_s = 5.0 * gaps[gaps.len() / 2];
 
-    let mut rt = Table::open(record)?;
-    let rcols = rt.require(&["t_us", "d_mm"])?;
+    // The record as every command reads it: time increasing, D positive, glitches set aside.
+    let rec = Record::read(record)?;
     let mut t = vec![];
     let mut p = vec![];
     let mut d = vec![];
-    let mut lines = vec![];
     let mut j = 0;
-    let mut t0: Option<f64> = None;
-    let mut prev_t_us: Option<f64> = None;
-    let mut rec_last = rt.header_line();
     let (first_s, last_s) = (nom[0][0], nom[nom.len() - 1][0]);
-    while let Some(row) = rt.next_row()? {
-        rec_last = row.line();
-        let t_us = row.number(&rcols[0])?;
-        let d_mm = row.number(&rcols[1])?;
-        if prev_t_us.is_some_and(|prev| t_us <= prev) {
-            return Err(row.error(
-                &rcols[0],
-                format!(
-                    "time goes backwards or stands still ({t_us} µs after {} µs); a record holds one run",
-                    prev_t_us.unwrap_or(0.0)
-                ),
-            ));
-        }
-        prev_t_us = Some(t_us);
-        if d_mm <= 0.0 {
-            return Err(row.error(
-                &rcols[1],
-                format!("d_mm is {d_mm}; a ball distance is positive"),
-            ));
-        }
-        let ts = (t_us - *t0.get_or_insert(t_us)) * 1e-6 - offset_s;
+    for (&t_rec, &d_mm) in rec.t_s.iter().zip(&rec.d_mm) {
+        let ts = t_rec - offset_s;
         if ts < first_s || ts > last_s {
             continue;
         }
@@ -506,30 +484,8 @@ pub fn read_record_with_path(
         ]);
         t.push(ts);
         d.push(d_mm);
-        lines.push(row.line());
     }
-    // A glitch (a loose cable, an encoder miscount) is set aside, not fitted.
-    let found = super::glitch::find(&d);
-    let glitches: Vec<super::glitch::Glitch> = found
-        .iter()
-        .map(|&i| super::glitch::Glitch {
-            line: lines[i],
-            t_s: t[i],
-            d_mm: d[i],
-        })
-        .collect();
-    if !found.is_empty() {
-        let mut keep = vec![true; t.len()];
-        for &i in &found {
-            keep[i] = false;
-        }
-        let mut k = keep.iter();
-        t.retain(|_| *k.next().unwrap_or(&true));
-        let mut k = keep.iter();
-        p.retain(|_| *k.next().unwrap_or(&true));
-        let mut k = keep.iter();
-        d.retain(|_| *k.next().unwrap_or(&true));
-    }
+    let rec_last = rec.line_of(rec.t_s.len().saturating_sub(1));
     if t.len() < MIN_SAMPLES {
         return Err(Error::input(
             record,
@@ -554,7 +510,7 @@ pub fn read_record_with_path(
         location: nominal.display().to_string(),
         message: m,
     })?;
-    Ok((path, d, glitches))
+    Ok((path, d, rec.glitches))
 }
 
 #[cfg(test)]
@@ -704,13 +660,8 @@ mod tests {
         assert_eq!(e.exit_code(), 2);
     }
 
-    #[test]
-    fn a_glitch_in_a_record_with_a_path_is_set_aside_with_its_line() {
-        // A ccw circle of 50 mm over 10 s, the record at 100 Hz with D 50 mm and one sample at
-        // 30 mm (a loose cable): it is set aside, named by its line, and the rest is kept.
-        let dir = tempfile::tempdir().unwrap();
-        let path_file = dir.path().join("path.csv");
-        let rec_file = dir.path().join("rec.csv");
+    /// A path file's text: a ccw circle of 50 mm over 0..10 s, 101 points.
+    fn ccw_circle_path() -> String {
         let mut path = String::from("t_s,x_mm,y_mm,z_mm\n");
         for k in 0..=100 {
             let a = (k as f64 * 3.6).to_radians();
@@ -721,7 +672,18 @@ mod tests {
                 50.0 * a.sin()
             ));
         }
-        std::fs::write(&path_file, path).unwrap();
+        path
+    }
+
+    #[test]
+    fn a_glitch_in_a_record_with_a_path_is_set_aside_with_its_line() {
+        // A ccw circle of 50 mm over 10 s, the record at 100 Hz with D 50 mm and one sample at
+        // 30 mm (a loose cable): it is set aside, named by its line, and the rest is kept.
+        let dir = tempfile::tempdir().unwrap();
+        let path_file = dir.path().join("path.csv");
+        let rec_file = dir.path().join("rec.csv");
+        let path = ccw_circle_path();
+        std::fs::write(&path_file, &path).unwrap();
         let mut rec = String::from("seq,t_us,enc1,enc2,d_mm\n");
         for i in 0..=1000 {
             let d = if i == 500 { 30.0 } else { 50.0 };
@@ -743,16 +705,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path_file = dir.path().join("path.csv");
         let rec_file = dir.path().join("rec.csv");
-        let mut path = String::from("t_s,x_mm,y_mm,z_mm\n");
-        for k in 0..=100 {
-            let a = (k as f64 * 3.6).to_radians();
-            path.push_str(&format!(
-                "{},{},{},0\n",
-                0.1 * k as f64,
-                50.0 * a.cos(),
-                50.0 * a.sin()
-            ));
-        }
+        let mut path = ccw_circle_path();
         for k in 0..=100 {
             let a = (-(k as f64) * 3.6).to_radians();
             let t = 20.0 + 0.1 * k as f64;
