@@ -1129,6 +1129,22 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
                 }
             }
         }
+        // Correlated noise: each σ also as the delete-a-block jackknife sees it (a wander of seconds
+        // moves a lateral play or a drift by its whole power, a short-pitch cyclic error hardly),
+        // whichever is larger than √τ_int times the white σ.
+        let factor = if tau_int > 1.0 {
+            robust_factors(
+                path, d_mm, &final_set, &free, &theta, &cov, final_ssr, tau_int,
+            )
+        } else {
+            vec![1.0; theta.len()]
+        };
+        for i in 0..theta.len() {
+            sig[i] = sig[i].map(|s| s * factor[i]);
+            for j in 0..theta.len() {
+                cov[(i, j)] *= factor[i] * factor[j];
+            }
+        }
         // Report.
         let mut found = vec![];
         for (ei, eff) in final_effects.iter().enumerate() {
@@ -1142,12 +1158,6 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
             let (value, mut sigma) = eff.value(&params, &block);
             if psig.iter().all(|s| s.is_none()) {
                 sigma = None;
-            }
-            // The refit's σ is a white-noise σ: correlated samples are worth fewer.
-            let inflate = |s: Option<f64>| s.map(|s| s * tau_int.sqrt());
-            sigma = inflate(sigma);
-            for s in psig.iter_mut() {
-                *s = inflate(*s);
             }
             // A spike's height h·e^(−δt/τ) moves by h·δt/τ when the reversal's time is off by δt.
             // And a dead band on the same axis, taken up over Δθ ≈ √(2b/R) after the reversal,
@@ -1592,6 +1602,45 @@ fn fit_exact(
         }
     }
     Ok((theta, sig, cov, fit.ssr))
+}
+
+/// Per parameter of a refit, what its white-noise σ is multiplied by when the samples are
+/// correlated: √τ_int, or more where the delete-a-block jackknife
+/// ([`correlation::block_jackknife_variance`]) says the parameter's own weights see more of the
+/// noise (1 for parameters held).
+#[allow(clippy::too_many_arguments)]
+fn robust_factors(
+    path: &Path,
+    d_mm: &[f64],
+    set: &EffectSet,
+    free: &[usize],
+    theta: &[f64],
+    cov: &DMatrix<f64>,
+    ssr: f64,
+    tau_int: f64,
+) -> Vec<f64> {
+    let n = theta.len();
+    let mut factor = vec![1.0; n];
+    if !(ssr > 0.0 && ssr.is_finite()) {
+        return factor;
+    }
+    let model = ExactModel { path, d_mm, set };
+    let restricted = Subset {
+        inner: &model,
+        free,
+        base: theta,
+    };
+    let p: Vec<f64> = free.iter().map(|&i| theta[i]).collect();
+    let v = correlation::block_jackknife_variance(&restricted, &p);
+    for (k, &i) in free.iter().enumerate() {
+        let white = cov[(i, i)];
+        factor[i] = if white > 0.0 && v[k].is_finite() {
+            tau_int.sqrt().max((v[k] / white).sqrt())
+        } else {
+            tau_int.sqrt()
+        };
+    }
+    factor
 }
 
 fn rms(v: &[f64]) -> f64 {

@@ -140,6 +140,7 @@ pub mod dynamics;
 pub mod errors;
 pub mod planner;
 pub mod program;
+pub mod realistic;
 pub mod recorder;
 mod words;
 
@@ -155,6 +156,7 @@ pub use program::{
     parse_program, Dialect, FanucInput, Program, ProgramError, ProgramOptions,
     ARC_RADIUS_TOLERANCE_MM,
 };
+pub use realistic::{Realistic, Tuning};
 pub use recorder::{
     write_csv, AzimuthWalk, BlockTiming, InstrumentConfig, Recording, Row, Sample, Samples, Truth,
     TruthSample, CSV_HEADER,
