@@ -191,8 +191,10 @@ impl PgHistory {
         }
         let tables: Vec<String> = tx
             .query(
-                "SELECT table_name::text FROM information_schema.tables
-                 WHERE table_schema = current_schema() ORDER BY table_name",
+                // pg_tables lists every table, also those this role may not read (which
+                // information_schema hides).
+                "SELECT tablename::text FROM pg_catalog.pg_tables
+                 WHERE schemaname = current_schema() ORDER BY tablename",
                 &[],
             )
             .map_err(err)?
