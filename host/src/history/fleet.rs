@@ -165,7 +165,7 @@ pub fn render(rows: &[Row]) -> String {
     };
     let _ = writeln!(
         s,
-        "{machines} machines, {} quantities; drift alarms: {alarms} (CUSUM k = {CUSUM_K} σ, h = {CUSUM_H} σ since the last compensation change)",
+        "machines: {machines}, quantities: {}; drift alarms: {alarms} (CUSUM k = {CUSUM_K} σ, h = {CUSUM_H} σ since the last compensation change)",
         rows.len()
     );
     let _ = writeln!(
