@@ -4,14 +4,14 @@
 //!
 //! # Drift alarm: a CUSUM on the effect's σ, reset at a compensation change
 //! Over the comparable runs since the last compensation change (the runs the slope is fitted
-//! over), the first is the reference x₀; each later run i is scored z_i = (x_i − x₀)/√(σ_i² +
-//! σ₀²), its departure in units of the two runs' σ (G, which has no σ, in units of the runs'
-//! noise, their residual RMS). A two-sided tabular CUSUM accumulates them, S⁺_i = max(0, S⁺_{i−1}
-//! + z_i − k), S⁻_i = max(0, S⁻_{i−1} − z_i − k), with the usual k = ½ (tuned to a shift of one
-//! σ) and h = 5 ([`CUSUM_H`]): an in-control effect raises a false alarm about once in 465
-//! runs, and a shift of one σ is flagged after about 10 runs, of 3 σ after about 2. The alarm
-//! names the runs of the excursion: from the first run after the sum last stood at 0 to the
-//! last run over h.
+//! over), the first is the reference x₀; each later run i is scored
+//! z_i = (x_i − x₀)/√(σ_i² + σ₀²), its departure in units of the two runs' σ (G, which has no
+//! σ, in units of the runs' noise, their residual RMS). A two-sided tabular CUSUM accumulates
+//! them, S⁺_i = max(0, S⁺_{i−1} + z_i − k) and S⁻_i = max(0, S⁻_{i−1} − z_i − k), with the
+//! usual k = ½ (tuned to a shift of one σ) and h = 5 ([`CUSUM_H`]): an in-control effect raises
+//! a false alarm about once in 465 runs, and a shift of one σ is flagged after about 10 runs,
+//! of 3 σ after about 2. The alarm names the runs of the excursion: from the first run after
+//! the sum last stood at 0 to the last run over h.
 //!
 //! Why CUSUM rather than EWMA: a machine's effect drifts by wear, a slow steady change, or steps
 //! by a crash or a repair; CUSUM is the optimal detector of a sustained shift of a given size
@@ -43,12 +43,12 @@ pub fn drift(t: &EffectTrend, marks: &[Mark]) -> Option<Drift> {
     let pts = t.fitted(marks);
     let (first, rest) = pts.split_first()?;
     let scale = |p: &trend::Point| p.sigma.or(p.noise).filter(|s| *s > 0.0);
-    let (x0, s0) = (first.value?, scale(*first)?);
+    let (x0, s0) = (first.value?, scale(first)?);
     let (mut up, mut down) = (0.0f64, 0.0f64);
     let (mut up_from, mut down_from) = (0usize, 0usize);
     let mut alarm: Option<Drift> = None;
     for (k, p) in rest.iter().enumerate() {
-        let (Some(x), Some(s)) = (p.value, scale(*p)) else {
+        let (Some(x), Some(s)) = (p.value, scale(p)) else {
             continue;
         };
         let z = (x - x0) / (s * s + s0 * s0).sqrt();

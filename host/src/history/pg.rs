@@ -311,17 +311,11 @@ impl Store for PgHistory {
         };
         // Filed before (by this station or another): checked first, so that a run filed again
         // takes no number from the sequence.
-        if let Some(r) = filed(&mut tx).map_err(|e| lost(e, false))? {
-            tx.commit().map_err(|e| lost(e, false))?;
-            return Ok(Added {
-                run_id: r.get(0),
-                new: false,
-                date_utc: r.get(1),
-                date_from_file: run.date_from_file,
-            });
-        }
-        let inserted = tx
-            .query_opt(
+        let before = filed(&mut tx).map_err(|e| lost(e, false))?;
+        let inserted = if before.is_some() {
+            None
+        } else {
+            tx.query_opt(
                 "INSERT INTO runs (machine_id, date_utc, added_utc, source, digest, samples, conditions,
                      g_um, h_um, final_rms_um, tolerance_um, pass, diagnosis, jdbb_version, compensation)
                  VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11, $12, $13, $14, $15)
@@ -344,16 +338,21 @@ impl Store for PgHistory {
                     &run.compensation,
                 ],
             )
-            .map_err(|e| lost(e, false))?;
+            .map_err(|e| lost(e, false))?
+        };
         let Some(row) = inserted else {
-            // Filed by another station a moment ago, its transaction committed meanwhile.
-            let r = filed(&mut tx)
-                .map_err(|e| lost(e, false))?
-                .ok_or_else(|| Error::Server {
-                    location: location.clone(),
-                    message: "a run of the same digest was filed and removed at once; add it again"
-                        .into(),
-                })?;
+            // Filed before, or by another station a moment ago (its transaction committed
+            // meanwhile).
+            let again = if before.is_some() {
+                before
+            } else {
+                filed(&mut tx).map_err(|e| lost(e, false))?
+            };
+            let r = again.ok_or_else(|| Error::Server {
+                location: location.clone(),
+                message: "a run of the same digest was filed and removed at once; add it again"
+                    .into(),
+            })?;
             tx.commit().map_err(|e| lost(e, false))?;
             return Ok(Added {
                 run_id: r.get(0),
