@@ -26,4 +26,4 @@ cargo clippy -p jdbb-firmware --release --target thumbv7em-none-eabihf --target-
   --no-default-features --features qemu --bins -- -D warnings
 
 step "tests (core, host, README examples, integration incl. QEMU; about 4 min to build the first time)"
-JDBB_REQUIRE_QEMU=1 JDBB_REQUIRE_CHROMIUM=1 cargo test
+JDBB_REQUIRE_QEMU=1 JDBB_REQUIRE_CHROMIUM=1 JDBB_REQUIRE_POSTGRES=1 cargo test

@@ -118,6 +118,10 @@ pub enum Error {
         #[source]
         source: rusqlite::Error,
     },
+    /// The history server (`--db postgres://…`, named with its password redacted) could not be
+    /// reached, read or written.
+    #[error("history database {location}: {message}")]
+    Server { location: String, message: String },
 }
 
 impl Error {

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use rusqlite::Connection;
 mod common;
-use common::{command, jdbb_in, ok_in, stderr, stdout};
+use common::{command, diagnosis, jdbb_in, ok_in, stderr, stdout};
 
 /// `args` (run in `dir`) exit `code` with `want` in stderr and no panic.
 fn fails_in(dir: &Path, args: &[&str], code: i32, want: &str) -> String {
@@ -21,27 +21,6 @@ fn fails_in(dir: &Path, args: &[&str], code: i32, want: &str) -> String {
     assert!(e.contains(want), "{args:?}: wanted `{want}` in `{e}`");
     assert!(!e.contains("panicked"), "{args:?}: {e}");
     e
-}
-
-/// A diagnosis file `name` in `dir` of a machine with `backlash_um` of play (σ `sigma_um`),
-/// tested on `date`.
-fn diagnosis(dir: &Path, name: &str, backlash_um: f64, sigma_um: f64, date: &str) {
-    let text = serde_json::json!({
-        "format": 2,
-        "samples": 1000,
-        "effects": [
-            {"name": "setup_offset", "value": 1.0, "unit": "um", "sigma": 0.1, "setup": true,
-             "params": {"x_um": 1.0, "y_um": 0.0, "z_um": 0.0}},
-            {"name": "backlash_x", "value": backlash_um, "unit": "um", "sigma": sigma_um,
-             "params": {"b_um": backlash_um}}
-        ],
-        "final": {"rms_um": 0.3},
-        "plane": "xy",
-        "circles": [{"radius_mm": 50.0, "height_mm": 0.0, "feed_mm_min": 1000.0, "samples": 500,
-                     "g_um": 5.0, "h_um": 3.0}],
-        "date_utc": date,
-    });
-    fs::write(dir.join(name), serde_json::to_string_pretty(&text).unwrap()).unwrap();
 }
 
 /// `history --db h.sqlite add` of `file` under machine `machine`, which must succeed.

@@ -1,19 +1,20 @@
-//! `jdbb history add|list|trend`: a machine's diagnoses over time; glue to [`crate::history`].
+//! `jdbb history add|list|trend|comp|remove|edit`: a machine's diagnoses over time, on a file or
+//! a server; glue to [`crate::history`], each command written once on its [`Store`].
 use std::fmt::Write;
 use std::path::PathBuf;
 
 use super::output::print;
 use crate::circular::document::DiagnosisDoc;
-use crate::history::{default_path, printable, trend, History};
+use crate::history::{effect_order, printable, trend};
 use crate::units::{format_to, human};
 use crate::Result;
 
 /// Arguments of `jdbb history`.
 #[derive(Debug, clap::Args)]
 pub struct HistoryArgs {
-    /// The history database (default: history.sqlite in your data directory, e.g.
-    /// ~/.local/share/jdbb/).
-    #[arg(long, global = true, value_name = "PATH")]
+    /// The history database: a file (default: $JDBB_HISTORY_DB, else history.sqlite in your
+    /// data directory, e.g. ~/.local/share/jdbb/) or a server, postgres://USER:PASSWORD@HOST/DB.
+    #[arg(long, global = true, value_name = "PATH|URL")]
     pub db: Option<PathBuf>,
     #[command(subcommand)]
     pub command: HistoryCommand,
@@ -79,14 +80,58 @@ pub enum HistoryCommand {
         #[arg(long, value_name = "FILE")]
         file: Option<PathBuf>,
     },
+    /// Every machine × effect (and G): latest value, slope per 30 days, tolerance, last
+    /// compensation change, and drift alarms (a CUSUM since the last compensation change)
+    /// naming the runs that show them.
+    Fleet {
+        /// Also write the view as CSV to this file.
+        #[arg(long, value_name = "OUT.csv")]
+        csv: Option<PathBuf>,
+        /// Also write the view as an HTML page to this file.
+        #[arg(long, value_name = "OUT.html")]
+        html: Option<PathBuf>,
+        /// Replace --csv or --html if it exists (a regular file only).
+        #[arg(long)]
+        force: bool,
+    },
+    /// Copy a station's history (a SQLite file) to another (a server): every run and
+    /// compensation change, checked by counts and by each run's checksum; safe to run twice.
+    Migrate {
+        /// The history to copy, e.g. a station's history.sqlite.
+        #[arg(long, value_name = "PATH|URL")]
+        from: PathBuf,
+        /// The history to copy to, e.g. postgres://USER:PASSWORD@HOST/DB.
+        #[arg(long, value_name = "URL|PATH")]
+        to: PathBuf,
+    },
+    /// Take a run out of the history (e.g. one filed under the wrong machine); it says what
+    /// it removed, so that it can be added again from its file.
+    Remove {
+        #[arg(long)]
+        machine: String,
+        /// The run's number, as `history list --machine NAME` shows it.
+        #[arg(long)]
+        run: i64,
+    },
+    /// Correct a run: file it under another date (one added with the wrong date).
+    Edit {
+        #[arg(long)]
+        machine: String,
+        /// The run's number, as `history list --machine NAME` shows it.
+        #[arg(long)]
+        run: i64,
+        /// The test's date (YYYY-MM-DD or RFC 3339).
+        #[arg(long, value_parser = crate::dates::parse_date)]
+        date: String,
+    },
 }
 
 /// Run `jdbb history`.
 pub fn run(args: &HistoryArgs) -> Result<()> {
-    let path = match &args.db {
-        Some(p) => p.clone(),
-        None => default_path()?,
-    };
+    let db = crate::history::location(args.db.as_deref().map(|p| p.as_os_str()))?;
+    // A file's path, to keep the outputs off it; none for a server.
+    let path = PathBuf::from(&db);
+    let path = (!db.to_str().is_some_and(crate::history::pg::is_url)).then_some(path);
     match &args.command {
         HistoryCommand::Add {
             machine,
@@ -111,7 +156,7 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
                     diagnosis.display()
                 )));
             }
-            let mut h = History::open(&path)?;
+            let mut h = crate::history::open(&db, false)?;
             let added = h.add(
                 machine,
                 &doc,
@@ -132,12 +177,12 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
                         (true, _, _) => "",
                         (false, _, _) => ", the time of adding: the file has no date",
                     },
-                    path.display()
+                    h.location()
                 )
             } else {
                 format!(
                     "already in {}: run {} of {machine} ({}); nothing added\n",
-                    path.display(),
+                    h.location(),
                     added.run_id,
                     added.date_utc
                 )
@@ -145,11 +190,11 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             print(&text)
         }
         HistoryCommand::List { machine: None } => {
-            let h = History::open_existing(&path)?;
+            let mut h = crate::history::open(&db, true)?;
             let mut s = String::new();
             let machines = h.machines()?;
             if machines.is_empty() {
-                let _ = writeln!(s, "{}: no machines yet", path.display());
+                let _ = writeln!(s, "{}: no machines yet", h.location());
             }
             for (name, n) in machines {
                 let _ = writeln!(s, "{}: {n} runs", printable(&name));
@@ -159,8 +204,11 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
         HistoryCommand::List {
             machine: Some(machine),
         } => {
-            let h = History::open_existing(&path)?;
+            let mut h = crate::history::open(&db, true)?;
             let runs = h.runs(machine)?;
+            // One effect order in every row: the trend's.
+            let order = effect_order(&runs);
+            let rank = |name: &str| order.iter().position(|(n, _)| n == name);
             let mut s = String::new();
             let _ = writeln!(s, "machine {}: {} runs", printable(machine), runs.len());
             let _ = writeln!(
@@ -176,9 +224,10 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
                     (Some(false), Some(t)) => format!("FAIL {t}"),
                     _ => "-".into(),
                 };
-                let effects: Vec<String> = r
-                    .effects
-                    .iter()
+                let mut sorted: Vec<_> = r.effects.iter().collect();
+                sorted.sort_by_key(|e| rank(&e.name));
+                let effects: Vec<String> = sorted
+                    .into_iter()
                     .map(|e| {
                         format!(
                             "{} {} {}",
@@ -226,7 +275,9 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             }
             for file in [plot, csv].into_iter().flatten() {
                 crate::fsio::check_destination(file, *force)?;
-                crate::fsio::check_not_input(file, &[("--db", path.as_path())])?;
+                if let Some(path) = &path {
+                    crate::fsio::check_not_input(file, &[("--db", path.as_path())])?;
+                }
             }
             if let (Some(p), Some(c)) = (plot, csv) {
                 if crate::fsio::same_file(p, c) {
@@ -237,7 +288,7 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
                 }
             }
             let figure = figure.as_deref().map(trend::Figure::parse).transpose()?;
-            let h = History::open_existing(&path)?;
+            let mut h = crate::history::open(&db, true)?;
             let runs = h.runs(machine)?;
             let marks = trend::compensation_marks(&runs, &h.compensations(machine)?);
             let trends = match figure {
@@ -278,13 +329,87 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
                 }
             };
             // An existing history only (a mistyped --db is an error), opened to write.
-            drop(History::open_existing(&path)?);
-            let mut h = History::open(&path)?;
+            drop(crate::history::open(&db, true)?);
+            let mut h = crate::history::open(&db, false)?;
             let id = h.add_compensation(machine, date, &text, source.as_deref())?;
             print(&format!(
                 "filed compensation change {id} of {} on {date} in {}\n",
                 printable(machine),
-                path.display()
+                h.location()
+            ))
+        }
+        HistoryCommand::Fleet { csv, html, force } => {
+            for file in [csv, html].into_iter().flatten() {
+                crate::fsio::check_destination(file, *force)?;
+                if let Some(path) = &path {
+                    crate::fsio::check_not_input(file, &[("--db", path.as_path())])?;
+                }
+            }
+            let mut h = crate::history::open(&db, true)?;
+            let mut rows = vec![];
+            for (machine, _) in h.machines()? {
+                let runs = h.runs(&machine)?;
+                let marks = trend::compensation_marks(&runs, &h.compensations(&machine)?);
+                rows.extend(crate::history::fleet::rows(&machine, &runs, &marks));
+            }
+            let mut s = crate::history::fleet::render(&rows);
+            if let Some(file) = csv {
+                let text = crate::history::fleet::csv(&rows);
+                crate::fsio::write_file(file, text.as_bytes(), *force)?;
+                let _ = writeln!(s, "CSV written to {}", file.display());
+            }
+            if let Some(file) = html {
+                let title = format!("J-DBB fleet: {}", h.location());
+                let text = crate::history::fleet::html(&rows, &title);
+                crate::fsio::write_file(file, text.as_bytes(), *force)?;
+                let _ = writeln!(s, "page written to {}", file.display());
+            }
+            print(&s)
+        }
+        HistoryCommand::Migrate { from, to } => {
+            let mut source = crate::history::open(from.as_os_str(), true)?;
+            let mut target = crate::history::open(to.as_os_str(), false)?;
+            if source.location() == target.location() {
+                return Err(crate::Error::Usage(format!(
+                    "--from and --to are both {}: give the history to copy to",
+                    source.location()
+                )));
+            }
+            let m = crate::history::migrate(source.as_mut(), target.as_mut())?;
+            print(&format!(
+                "migrated {} to {}: {} runs of {} machines ({} new there), {} compensation changes ({} new there); checked: every run there with the same checksum\n",
+                source.location(),
+                target.location(),
+                m.runs,
+                m.machines,
+                m.new_runs,
+                m.compensations,
+                m.new_compensations
+            ))
+        }
+        HistoryCommand::Remove { machine, run } => {
+            drop(crate::history::open(&db, true)?);
+            let mut h = crate::history::open(&db, false)?;
+            let r = h.remove_run(machine, *run)?;
+            print(&format!(
+                "removed run {} of {} ({}, from {}) from {}; `jdbb history add --machine {} --diagnosis {}` (same --db) files it again\n",
+                r.id,
+                printable(machine),
+                r.date_utc,
+                printable(&r.source),
+                h.location(),
+                printable(machine),
+                printable(&r.source)
+            ))
+        }
+        HistoryCommand::Edit { machine, run, date } => {
+            drop(crate::history::open(&db, true)?);
+            let mut h = crate::history::open(&db, false)?;
+            let was = h.set_date(machine, *run, date)?;
+            print(&format!(
+                "run {run} of {} now filed on {date} (was {was}) in {}\n",
+                printable(machine),
+                h.location()
             ))
         }
     }

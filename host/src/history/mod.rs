@@ -36,6 +36,8 @@ use serde::{Deserialize, Serialize};
 use crate::circular::document::{upgraded_text, DiagnosisDoc};
 use crate::{Error, Result};
 
+pub mod fleet;
+pub mod pg;
 pub mod schema;
 pub mod trend;
 
@@ -194,6 +196,272 @@ pub struct Added {
     pub date_from_file: bool,
 }
 
+/// A history back end (a SQLite file, a PostgreSQL server): what each `jdbb history` command
+/// needs, so that each command is written once.
+pub trait Store {
+    /// Where the history is, for messages: a path, or a URL with its password redacted.
+    fn location(&self) -> String;
+    /// File `run` in one transaction; a run already filed (same machine, same digest) is not
+    /// filed again.
+    fn store_run(&mut self, run: &NewRun) -> Result<Added>;
+    /// The machines and their number of runs, by name.
+    fn machines(&mut self) -> Result<Vec<(String, i64)>>;
+    /// The runs of `machine`, oldest first, each run's effects in its diagnosis' order; an
+    /// unknown machine is a usage error naming the known ones.
+    fn runs(&mut self, machine: &str) -> Result<Vec<Run>>;
+    /// The compensation changes filed for `machine`, oldest first.
+    fn compensations(&mut self, machine: &str) -> Result<Vec<CompensationEvent>>;
+    /// File a compensation change of `machine`: from `date_utc` on, `text` (read from
+    /// `source`, if a file) is in force. Returns the event's id.
+    fn add_compensation(
+        &mut self,
+        machine: &str,
+        date_utc: &str,
+        text: &str,
+        source: Option<&str>,
+    ) -> Result<i64>;
+    /// Take run `run_id` of `machine` out of the history; returns it as it was.
+    fn remove_run(&mut self, machine: &str, run_id: i64) -> Result<Run>;
+    /// File run `run_id` of `machine` under `date_utc` instead; returns the date it had.
+    fn set_date(&mut self, machine: &str, run_id: i64, date_utc: &str) -> Result<String>;
+
+    /// Every run as filed (its digest, date and diagnosis as they are) and every compensation
+    /// change with its machine's name: what `history migrate` copies and checks.
+    fn export(&mut self) -> Result<Export>;
+
+    /// File the diagnosis `doc` (whose file text is `text`, read from `source`) under
+    /// `machine`, dated `date_utc` if given, else by the file's date, else now.
+    fn add(
+        &mut self,
+        machine: &str,
+        doc: &DiagnosisDoc,
+        text: &str,
+        source: &str,
+        date_utc: Option<String>,
+    ) -> Result<Added> {
+        self.store_run(&NewRun::of(machine, doc, text, source, date_utc)?)
+    }
+}
+
+/// A whole history as [`Store::export`] gives it.
+#[derive(Debug, Clone, Default)]
+pub struct Export {
+    pub runs: Vec<NewRun>,
+    /// (machine, change), oldest first per machine.
+    pub compensations: Vec<(String, CompensationEvent)>,
+}
+
+/// The checksum of a filed run: a digest of everything the history holds of it (machine,
+/// date, source, file digest, conditions, figures, the diagnosis file, the effects), compared
+/// between two histories by `history migrate`.
+pub fn checksum(run: &NewRun) -> String {
+    digest(format!("{run:?}").as_bytes())
+}
+
+/// What [`migrate`] did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Migrated {
+    pub runs: usize,
+    pub machines: usize,
+    /// Runs the target did not hold before.
+    pub new_runs: usize,
+    pub compensations: usize,
+    pub new_compensations: usize,
+}
+
+/// Copy every run and compensation change of `from` into `to` (runs already there, by machine
+/// and file digest, and changes already there, by machine, date and text, are not copied
+/// again: safe to run twice), then check that `to` holds every run of `from` with the same
+/// checksum ([`checksum`]).
+pub fn migrate(from: &mut dyn Store, to: &mut dyn Store) -> Result<Migrated> {
+    let source = from.export()?;
+    let mut new_runs = 0;
+    for run in &source.runs {
+        new_runs += usize::from(to.store_run(run)?.new);
+    }
+    let mut new_compensations = 0;
+    for (machine, c) in &source.compensations {
+        let there = to.compensations(machine)?;
+        if !there
+            .iter()
+            .any(|t| t.date_utc == c.date_utc && t.text == c.text)
+        {
+            to.add_compensation(machine, &c.date_utc, &c.text, c.source.as_deref())?;
+            new_compensations += 1;
+        }
+    }
+    let target = to.export()?;
+    let mut missing = vec![];
+    for run in &source.runs {
+        let same = target
+            .runs
+            .iter()
+            .find(|t| t.machine == run.machine && t.digest == run.digest);
+        match same {
+            Some(t) if checksum(t) == checksum(run) => {}
+            Some(_) => missing.push(format!(
+                "{} {} ({}): differs",
+                printable(&run.machine),
+                run.date_utc,
+                printable(&run.source)
+            )),
+            None => missing.push(format!(
+                "{} {} ({}): missing",
+                printable(&run.machine),
+                run.date_utc,
+                printable(&run.source)
+            )),
+        }
+    }
+    if !missing.is_empty() {
+        return Err(Error::Usage(format!(
+            "{} holds {} of the {} runs of {} unchanged; not so: {}. A run filed there before with another date or content keeps it: correct it with `history edit` or `history remove` there, then migrate again",
+            to.location(),
+            source.runs.len() - missing.len(),
+            source.runs.len(),
+            from.location(),
+            missing.join("; ")
+        )));
+    }
+    let mut machines: Vec<&str> = source.runs.iter().map(|r| r.machine.as_str()).collect();
+    machines.sort_unstable();
+    machines.dedup();
+    Ok(Migrated {
+        runs: source.runs.len(),
+        machines: machines.len(),
+        new_runs,
+        compensations: source.compensations.len(),
+        new_compensations,
+    })
+}
+
+/// Refuse an empty compensation text.
+fn check_compensation_text(text: &str) -> Result<()> {
+    if text.trim().is_empty() {
+        return Err(Error::Usage(
+            "the compensation is empty: give what was set (--text TEXT or --file FILE)".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// Where the history is: `--db` if given, else `JDBB_HISTORY_DB`, else the default file.
+/// A value starting `postgres://` or `postgresql://` is a server's URL, anything else a file.
+pub fn location(db: Option<&std::ffi::OsStr>) -> Result<std::ffi::OsString> {
+    match db
+        .map(ToOwned::to_owned)
+        .or_else(|| std::env::var_os("JDBB_HISTORY_DB"))
+    {
+        Some(v) if !v.is_empty() => Ok(v),
+        _ => Ok(default_path()?.into_os_string()),
+    }
+}
+
+/// Open the history at `db` ([`location`]): a server's database, or a file. `existing`: for
+/// reading (it must exist, and a file the user may only read is opened read-only).
+pub fn open(db: &std::ffi::OsStr, existing: bool) -> Result<Box<dyn Store>> {
+    if let Some(url) = db.to_str().filter(|s| pg::is_url(s)) {
+        return Ok(Box::new(pg::PgHistory::open(url, existing)?));
+    }
+    let path = Path::new(db);
+    Ok(Box::new(if existing {
+        History::open_existing(path)?
+    } else {
+        History::open(path)?
+    }))
+}
+
+impl Store for History {
+    fn location(&self) -> String {
+        self.path.display().to_string()
+    }
+    fn store_run(&mut self, run: &NewRun) -> Result<Added> {
+        self.file_run(run)
+    }
+    fn machines(&mut self) -> Result<Vec<(String, i64)>> {
+        History::machines(self)
+    }
+    fn runs(&mut self, machine: &str) -> Result<Vec<Run>> {
+        History::runs(self, machine)
+    }
+    fn compensations(&mut self, machine: &str) -> Result<Vec<CompensationEvent>> {
+        History::compensations(self, machine)
+    }
+    fn add_compensation(
+        &mut self,
+        machine: &str,
+        date_utc: &str,
+        text: &str,
+        source: Option<&str>,
+    ) -> Result<i64> {
+        History::add_compensation(self, machine, date_utc, text, source)
+    }
+    fn remove_run(&mut self, machine: &str, run_id: i64) -> Result<Run> {
+        History::remove_run(self, machine, run_id)
+    }
+    fn set_date(&mut self, machine: &str, run_id: i64, date_utc: &str) -> Result<String> {
+        History::set_date(self, machine, run_id, date_utc)
+    }
+    fn export(&mut self) -> Result<Export> {
+        let mut out = Export::default();
+        // Runs in the order they were filed (by id), so that a new history numbers them alike.
+        let mut filed: Vec<(i64, NewRun)> = vec![];
+        for (machine, _) in History::machines(self)? {
+            let id = self.machine_id(&machine)?;
+            let mut st = self
+                .conn
+                .prepare(
+                    "SELECT id, date_utc, source, digest, samples, conditions, g_um, h_um,
+                            final_rms_um, tolerance_um, pass, diagnosis, jdbb_version, compensation
+                     FROM runs WHERE machine_id = ?1 ORDER BY date_utc, id",
+                )
+                .map_err(self.db())?;
+            let rows = st
+                .query_map(params![id], |r| {
+                    Ok((
+                        r.get::<_, i64>(0)?,
+                        NewRun {
+                            machine: machine.clone(),
+                            date_utc: r.get(1)?,
+                            date_from_file: false,
+                            source: r.get(2)?,
+                            digest: r.get(3)?,
+                            samples: r.get(4)?,
+                            conditions: r.get(5)?,
+                            g_um: r.get(6)?,
+                            h_um: r.get(7)?,
+                            final_rms_um: r.get(8)?,
+                            tolerance_um: r.get(9)?,
+                            pass: r.get(10)?,
+                            diagnosis: r.get(11)?,
+                            jdbb_version: r.get(12)?,
+                            compensation: r.get(13)?,
+                            effects: vec![],
+                        },
+                    ))
+                })
+                .map_err(self.db())?
+                .collect::<rusqlite::Result<Vec<_>>>()
+                .map_err(self.db())?;
+            let runs = History::runs(self, &machine)?;
+            for (run_id, mut run) in rows {
+                run.effects = runs
+                    .iter()
+                    .find(|r| r.id == run_id)
+                    .map(|r| r.effects.clone())
+                    .unwrap_or_default();
+                filed.push((run_id, run));
+            }
+            for c in History::compensations(self, &machine)? {
+                out.compensations.push((machine.clone(), c));
+            }
+        }
+        filed.sort_by_key(|(id, _)| *id);
+        out.runs = filed.into_iter().map(|(_, r)| r).collect();
+        Ok(out)
+    }
+}
+
 /// An open history file.
 pub struct History {
     conn: Connection,
@@ -282,6 +550,139 @@ pub fn digest(bytes: &[u8]) -> String {
         h = h.wrapping_mul(0x0000_0100_0000_01b3);
     }
     format!("{h:016x}")
+}
+
+/// A diagnosis checked and made ready to file: what every back end stores for one run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NewRun {
+    pub machine: String,
+    pub date_utc: String,
+    /// Whether `date_utc` came from the file (false: the time of adding, or `--date`).
+    pub date_from_file: bool,
+    pub source: String,
+    /// [`digest`] of the file's text as it was added: the run's identity per machine.
+    pub digest: String,
+    pub samples: i64,
+    /// [`Conditions`] as JSON.
+    pub conditions: String,
+    pub g_um: Option<f64>,
+    pub h_um: Option<f64>,
+    pub final_rms_um: Option<f64>,
+    pub tolerance_um: Option<f64>,
+    pub pass: Option<bool>,
+    /// The diagnosis file's text, upgraded to the current format.
+    pub diagnosis: String,
+    /// The jdbb that filed it (none: a run of the first history files).
+    pub jdbb_version: Option<String>,
+    pub compensation: Option<String>,
+    pub effects: Vec<EffectRow>,
+}
+
+impl NewRun {
+    /// The run of the diagnosis `doc` (whose file text is `text`, read from `source`) under
+    /// `machine`, dated `date_utc` if given, else by the file's date, else now; a machine name
+    /// that is empty or has control characters, and a value no machine has, are refused.
+    pub fn of(
+        machine: &str,
+        doc: &DiagnosisDoc,
+        text: &str,
+        source: &str,
+        date_utc: Option<String>,
+    ) -> Result<NewRun> {
+        let machine = machine.trim();
+        if machine.is_empty() {
+            return Err(Error::Usage("--machine: give the machine a name".into()));
+        }
+        if machine.chars().any(char::is_control) {
+            return Err(Error::Usage(format!(
+                "--machine `{}`: a machine name is one line of text, without control characters (line breaks, tabs, escapes)",
+                printable(machine)
+            )));
+        }
+        check_values(doc, source)?;
+        let (date, from_file) = match (date_utc, &doc.date_utc) {
+            (Some(d), _) => (d, false),
+            (None, Some(d)) => (
+                crate::dates::parse_date(d).map_err(|e| Error::Input {
+                    location: source.to_string(),
+                    message: format!("date_utc: {e}"),
+                })?,
+                true,
+            ),
+            (None, None) => (crate::dates::now_utc(), false),
+        };
+        Ok(NewRun {
+            machine: machine.to_string(),
+            date_utc: date,
+            date_from_file: from_file,
+            source: source.to_string(),
+            digest: digest(text.as_bytes()),
+            samples: doc.samples as i64,
+            conditions: serde_json::to_string(&Conditions::of(doc))
+                .expect("conditions are plain data"),
+            g_um: doc.g_um(),
+            h_um: doc.h_um(),
+            final_rms_um: doc.final_fit.rms_um,
+            tolerance_um: doc.tolerance.as_ref().map(|t| t.g_um),
+            pass: doc.tolerance.as_ref().map(|t| t.pass),
+            diagnosis: upgraded_text(text).unwrap_or_else(|| text.to_string()),
+            jdbb_version: Some(env!("CARGO_PKG_VERSION").to_string()),
+            compensation: doc.compensation.as_ref().map(|c| c.text.clone()),
+            effects: doc
+                .machine_effects()
+                .map(|(e, _)| EffectRow {
+                    name: e.name.clone(),
+                    value: e.value,
+                    sigma: e.sigma,
+                    unit: e.unit.clone(),
+                })
+                .collect(),
+        })
+    }
+}
+
+/// The error for a machine the history at `location` does not hold, naming the `known` ones.
+pub fn unknown_machine(machine: &str, location: &str, known: &[(String, i64)]) -> Error {
+    let known: Vec<String> = known
+        .iter()
+        .map(|(n, _)| printable(n).into_owned())
+        .collect();
+    Error::Usage(format!(
+        "no machine `{}` in the history {location}; {}",
+        printable(machine),
+        if known.is_empty() {
+            "it is empty: add a diagnosis with `jdbb history add --machine NAME --diagnosis DIAG.json`".to_string()
+        } else {
+            format!("known: {}", known.join(", "))
+        }
+    ))
+}
+
+/// Run `run_id` among `runs` (those of `machine` in the history at `location`); another id is
+/// a usage error naming the machine's runs.
+pub fn find_run(runs: Vec<Run>, machine: &str, run_id: i64, location: &str) -> Result<Run> {
+    let ids: Vec<String> = runs.iter().map(|r| r.id.to_string()).collect();
+    runs.into_iter().find(|r| r.id == run_id).ok_or_else(|| {
+        Error::Usage(format!(
+            "no run {run_id} of machine `{}` in the history {location}; its runs: {} (see `jdbb history list --machine NAME`)",
+            printable(machine),
+            if ids.is_empty() { "none".to_string() } else { ids.join(", ") }
+        ))
+    })
+}
+
+/// Every machine effect of `runs` (name, unit) in the one order the list, the trend and the
+/// fleet use: by first appearance, oldest run first, each run in its diagnosis' order.
+pub fn effect_order(runs: &[Run]) -> Vec<(String, String)> {
+    let mut names: Vec<(String, String)> = vec![];
+    for r in runs {
+        for e in &r.effects {
+            if !names.iter().any(|(n, _)| *n == e.name) {
+                names.push((e.name.clone(), e.unit.clone()));
+            }
+        }
+    }
+    names
 }
 
 impl History {
@@ -425,48 +826,14 @@ impl History {
             .map_err(self.db())
     }
 
-    /// File the diagnosis `doc` (whose file text is `text`, read from `source`) under `machine`,
-    /// dated `date_utc` if given, else by the file's date, else now.
-    pub fn add(
-        &mut self,
-        machine: &str,
-        doc: &DiagnosisDoc,
-        text: &str,
-        source: &str,
-        date_utc: Option<String>,
-    ) -> Result<Added> {
-        let machine = machine.trim();
-        if machine.is_empty() {
-            return Err(Error::Usage("--machine: give the machine a name".into()));
-        }
-        if machine.chars().any(char::is_control) {
-            return Err(Error::Usage(format!(
-                "--machine `{}`: a machine name is one line of text, without control characters (line breaks, tabs, escapes)",
-                printable(machine)
-            )));
-        }
-        check_values(doc, source)?;
+    /// File `run` (checked by [`NewRun::of`]) in one transaction; a run already filed (same
+    /// machine, same digest) is not filed again.
+    fn file_run(&mut self, run: &NewRun) -> Result<Added> {
         let path = self.path.clone();
         let db = move |source| Error::Database {
             path: path.clone(),
             source,
         };
-        let (date, from_file) = match (date_utc, &doc.date_utc) {
-            (Some(d), _) => (d, false),
-            (None, Some(d)) => (
-                crate::dates::parse_date(d).map_err(|e| Error::Input {
-                    location: source.to_string(),
-                    message: format!("date_utc: {e}"),
-                })?,
-                true,
-            ),
-            (None, None) => (crate::dates::now_utc(), false),
-        };
-        let dig = digest(text.as_bytes());
-        let stored = upgraded_text(text);
-        let text = stored.as_deref().unwrap_or(text);
-        let conditions =
-            serde_json::to_string(&Conditions::of(doc)).expect("conditions are plain data");
         let now = crate::dates::now_utc();
         let tx = self
             .conn
@@ -474,20 +841,20 @@ impl History {
             .map_err(&db)?;
         tx.execute(
             "INSERT OR IGNORE INTO machines (name, created_utc) VALUES (?1, ?2)",
-            params![machine, now],
+            params![run.machine, now],
         )
         .map_err(&db)?;
         let machine_id: i64 = tx
             .query_row(
                 "SELECT id FROM machines WHERE name = ?1",
-                params![machine],
+                params![run.machine],
                 |r| r.get(0),
             )
             .map_err(&db)?;
         if let Some((id, d)) = tx
             .query_row(
                 "SELECT id, date_utc FROM runs WHERE machine_id = ?1 AND digest = ?2",
-                params![machine_id, dig],
+                params![machine_id, run.digest],
                 |r| Ok((r.get::<_, i64>(0)?, r.get::<_, String>(1)?)),
             )
             .optional()
@@ -497,7 +864,7 @@ impl History {
                 run_id: id,
                 new: false,
                 date_utc: d,
-                date_from_file: from_file,
+                date_from_file: run.date_from_file,
             });
         }
         tx.execute(
@@ -506,25 +873,25 @@ impl History {
              VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)",
             params![
                 machine_id,
-                date,
+                run.date_utc,
                 now,
-                source,
-                dig,
-                doc.samples as i64,
-                conditions,
-                doc.g_um(),
-                doc.h_um(),
-                doc.final_fit.rms_um,
-                doc.tolerance.as_ref().map(|t| t.g_um),
-                doc.tolerance.as_ref().map(|t| t.pass),
-                text,
-                env!("CARGO_PKG_VERSION"),
-                doc.compensation.as_ref().map(|c| c.text.as_str()),
+                run.source,
+                run.digest,
+                run.samples,
+                run.conditions,
+                run.g_um,
+                run.h_um,
+                run.final_rms_um,
+                run.tolerance_um,
+                run.pass,
+                run.diagnosis,
+                run.jdbb_version,
+                run.compensation,
             ],
         )
         .map_err(&db)?;
         let run_id = tx.last_insert_rowid();
-        for (e, _) in doc.machine_effects() {
+        for e in &run.effects {
             tx.execute(
                 "INSERT INTO effects (run_id, name, value, sigma, unit) VALUES (?1, ?2, ?3, ?4, ?5)",
                 params![run_id, e.name, e.value, e.sigma, e.unit],
@@ -535,9 +902,49 @@ impl History {
         Ok(Added {
             run_id,
             new: true,
-            date_utc: date,
-            date_from_file: from_file,
+            date_utc: run.date_utc.clone(),
+            date_from_file: run.date_from_file,
         })
+    }
+
+    /// Take run `run_id` of `machine` out of the history (with its effects); returns it as it
+    /// was, so that what was removed can be said (and added again from its source file).
+    pub fn remove_run(&mut self, machine: &str, run_id: i64) -> Result<Run> {
+        let run = self.run_of(machine, run_id)?;
+        let path = self.path.clone();
+        let db = move |source| Error::Database {
+            path: path.clone(),
+            source,
+        };
+        let tx = self
+            .conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .map_err(&db)?;
+        tx.execute("DELETE FROM effects WHERE run_id = ?1", params![run_id])
+            .map_err(&db)?;
+        tx.execute("DELETE FROM runs WHERE id = ?1", params![run_id])
+            .map_err(&db)?;
+        tx.commit().map_err(&db)?;
+        Ok(run)
+    }
+
+    /// File run `run_id` of `machine` under `date_utc` instead (a run added with the wrong
+    /// date); returns the date it had.
+    pub fn set_date(&mut self, machine: &str, run_id: i64, date_utc: &str) -> Result<String> {
+        let run = self.run_of(machine, run_id)?;
+        self.conn
+            .execute(
+                "UPDATE runs SET date_utc = ?1 WHERE id = ?2",
+                params![date_utc, run_id],
+            )
+            .map_err(self.db())?;
+        Ok(run.date_utc)
+    }
+
+    /// Run `run_id` of `machine`; a run of another machine or none is a usage error.
+    fn run_of(&self, machine: &str, run_id: i64) -> Result<Run> {
+        let runs = self.runs(machine)?;
+        find_run(runs, machine, run_id, &self.path.display().to_string())
     }
 
     /// The machines and their number of runs, by name.
@@ -575,21 +982,11 @@ impl History {
             .optional()
             .map_err(self.db())?;
         let Some(machine_id) = id else {
-            let known: Vec<String> = self
-                .machines()?
-                .into_iter()
-                .map(|(n, _)| printable(&n).into_owned())
-                .collect();
-            return Err(Error::Usage(format!(
-                "no machine `{}` in the history {}; {}",
-                printable(machine),
-                self.path.display(),
-                if known.is_empty() {
-                    "it is empty: add a diagnosis with `jdbb history add --machine NAME --diagnosis DIAG.json`".to_string()
-                } else {
-                    format!("known: {}", known.join(", "))
-                }
-            )));
+            return Err(unknown_machine(
+                machine,
+                &self.path.display().to_string(),
+                &self.machines()?,
+            ));
         };
         Ok(machine_id)
     }
@@ -603,11 +1000,7 @@ impl History {
         text: &str,
         source: Option<&str>,
     ) -> Result<i64> {
-        if text.trim().is_empty() {
-            return Err(Error::Usage(
-                "the compensation is empty: give what was set (--text TEXT or --file FILE)".into(),
-            ));
-        }
+        check_compensation_text(text)?;
         let machine_id = self.machine_id(machine)?;
         self.conn
             .execute(

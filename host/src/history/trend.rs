@@ -81,7 +81,7 @@ pub struct Change {
 impl EffectTrend {
     /// The runs a change and a slope are taken over: comparable with the latest, found, and
     /// not before the last of `marks` (module docs).
-    fn fitted(&self, marks: &[Mark]) -> Vec<&Point> {
+    pub fn fitted(&self, marks: &[Mark]) -> Vec<&Point> {
         let since = marks.last().map(|m| m.date_utc.as_str());
         self.points
             .iter()
@@ -350,14 +350,7 @@ pub fn trend(runs: &[Run], effect: Option<&str>) -> Result<Vec<EffectTrend>> {
     let Some(latest) = runs.last() else {
         return Ok(vec![]);
     };
-    let mut names: Vec<(String, String)> = vec![];
-    for r in runs {
-        for e in &r.effects {
-            if !names.iter().any(|(n, _)| *n == e.name) {
-                names.push((e.name.clone(), e.unit.clone()));
-            }
-        }
-    }
+    let mut names = super::effect_order(runs);
     if let Some(want) = effect {
         if !names.iter().any(|(n, _)| n == want) {
             return Err(Error::Usage(format!(
@@ -541,7 +534,7 @@ pub fn render(
 
 /// `text` as one CSV field: quoted (with `""` for a quote) where it holds a comma, a quote or a
 /// line break.
-fn csv_field(text: &str) -> String {
+pub fn csv_field(text: &str) -> String {
     if text.contains([',', '"', '\n', '\r']) {
         format!("\"{}\"", text.replace('"', "\"\""))
     } else {
@@ -592,16 +585,15 @@ pub fn csv(machine: &str, runs: &[Run], trends: &[EffectTrend], marks: &[Mark]) 
 }
 
 /// The value axis of a panel whose data (with σ and tolerance lines) span `lo..hi` (infinite:
-/// no data), with room for the legend (`legend`, the fraction of the plot it takes) on top.
-/// The axis' ticks are counted from its range: a range that is finite, and wide against its
-/// values (a thousandth of their size at least), keeps that count small and finite.
-fn axis_range(lo: f64, hi: f64, legend: f64) -> (f64, f64) {
+/// no data), padded a little. The axis' ticks are counted from its range: a range that is
+/// finite, and wide against its values (a thousandth of their size at least), keeps that count
+/// small and finite.
+fn axis_range(lo: f64, hi: f64) -> (f64, f64) {
     let (lo, hi) = if lo.is_finite() && hi.is_finite() && lo <= hi {
         let pad = ((hi - lo) * 0.08)
             .max(1e-3 * hi.abs().max(lo.abs()))
             .max(1e-6);
-        let (lo, hi) = (lo - pad, hi + pad);
-        (lo, hi + (hi - lo) * legend / (1.0 - legend))
+        (lo - pad, hi + pad)
     } else {
         (-1.0, 1.0)
     };
@@ -612,10 +604,69 @@ fn axis_range(lo: f64, hi: f64, legend: f64) -> (f64, f64) {
     }
 }
 
+/// How a run stands in a trend's plot: comparable and in the slope, comparable but before the
+/// last compensation change (left out, as the text leaves it out), or not comparable.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Standing {
+    Fitted,
+    BeforeMark,
+    NotComparable,
+}
+
+/// What a legend line shows beside its text.
+#[derive(Clone, Copy)]
+enum Symbol {
+    Line(RGBColor),
+    Dashed(RGBColor),
+    Dot(RGBColor),
+    Ring(RGBColor),
+}
+
+/// Height of one legend line under a panel, in pixels.
+const LEGEND_LINE_PX: u32 = 16;
+
+/// Draw `entries` (symbol, text) one per line in `area`, the legend under a panel's plot.
+fn draw_legend<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    entries: &[(Symbol, String)],
+) -> std::result::Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let style = ("sans-serif", 12).into_font().color(&BLACK);
+    for (k, (symbol, text)) in entries.iter().enumerate() {
+        let y = 8 + k as i32 * LEGEND_LINE_PX as i32;
+        let (x0, x1) = (80, 100);
+        match *symbol {
+            Symbol::Line(c) => {
+                area.draw(&PathElement::new(vec![(x0, y), (x1, y)], c.stroke_width(2)))?
+            }
+            Symbol::Dashed(c) => {
+                for x in [x0, x0 + 8, x0 + 16] {
+                    area.draw(&PathElement::new(
+                        vec![(x, y), (x + 4, y)],
+                        c.stroke_width(2),
+                    ))?;
+                }
+            }
+            Symbol::Dot(c) => area.draw(&Circle::new((x0 + 10, y), 5, c.filled()))?,
+            Symbol::Ring(c) => area.draw(&Circle::new((x0 + 10, y), 5, c.stroke_width(2)))?,
+        }
+        area.draw(&Text::new(text.clone(), (x1 + 8, y - 7), style.clone()))?;
+    }
+    Ok(())
+}
+
+/// The date (YYYY-MM-DD, UTC) `day` days after the day `d0` (days since 1970).
+fn date_of_day(d0: f64, day: f64) -> String {
+    OffsetDateTime::from_unix_timestamp(((d0 + day) * 86_400.0).round() as i64)
+        .map(|t| t.date().to_string())
+        .unwrap_or_default()
+}
+
 /// Plot the trends into an SVG file: one panel per effect, value (± σ where it has one) against
-/// the date; comparable runs filled, others hollow and grey; the fitted slope as a line over the
-/// runs it was fitted on; compensation marks as dashed vertical lines, the tolerance (on values
-/// in µm) as red lines at ± it (+ only for G and H); each named in the panel's legend.
+/// the date; runs in the slope filled, those before the last compensation change hollow blue and
+/// those not comparable hollow grey (both left out of the slope, as the text leaves them out);
+/// the fitted slope as a line over the runs it was fitted on; compensation marks as dashed
+/// vertical lines, the tolerance (on values in µm) as red lines at ± it (+ only for G and H);
+/// each named in the legend under the panel's plot, outside the data.
 pub fn plot_svg(
     file: &Path,
     machine: &str,
@@ -625,7 +676,10 @@ pub fn plot_svg(
 ) -> Result<()> {
     crate::circular::plot::register_font();
     let err = |e: &dyn std::fmt::Display| Error::Numerics(format!("plotting failed: {e}"));
-    let panel_h = 340u32;
+    // The plot, and under it room for the most legend lines a panel can have: the tolerance,
+    // the marks, the slope and three kinds of run.
+    let plot_h = 300u32;
+    let panel_h = plot_h + LEGEND_LINE_PX * (marks.len() as u32 + 5) + 10;
     let n = trends.len().max(1) as u32;
     let root = SVGBackend::new(file, (900, 40 + n * panel_h)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(&e))?;
@@ -648,18 +702,15 @@ pub fn plot_svg(
     } else {
         (-1.0, 1.0)
     };
-    let first_date = trends
-        .iter()
-        .flat_map(|t| t.points.iter())
-        .find(|p| days(&p.date_utc) == Some(d0))
-        .map(|p| p.date_utc[..10.min(p.date_utc.len())].to_string())
-        .unwrap_or_default();
-    for (t, area) in trends.iter().zip(body.split_evenly((n as usize, 1))) {
+    for (t, panel) in trends.iter().zip(body.split_evenly((n as usize, 1))) {
+        let (area, legend_area) = panel.split_vertically(plot_h);
+        let mut legend: Vec<(Symbol, String)> = vec![];
         // Only values a history can hold (a run filed before `history add` bounded them may
         // hold ±1e308, which would leave the axis no finite range): the others are not drawn,
         // and said so in the panel's caption.
         let plottable = |x: f64| x.is_finite() && x.abs() <= super::MAX_VALUE;
-        let pts: Vec<(f64, f64, f64, bool)> = t
+        let before = t.before_last_mark(marks);
+        let pts: Vec<(f64, f64, f64, Standing)> = t
             .points
             .iter()
             .filter_map(|p| {
@@ -667,7 +718,13 @@ pub fn plot_svg(
                     days(&p.date_utc)? - d0,
                     p.value.filter(|v| plottable(*v))?,
                     p.sigma.filter(|s| plottable(*s)).unwrap_or(0.0).abs(),
-                    p.differences.is_empty(),
+                    if !p.differences.is_empty() {
+                        Standing::NotComparable
+                    } else if before.contains(&p.run_id) {
+                        Standing::BeforeMark
+                    } else {
+                        Standing::Fitted
+                    },
                 ))
             })
             .collect();
@@ -693,14 +750,7 @@ pub fn plot_svg(
             .map(|p| p.1 + p.2)
             .chain(tol_lines.iter().copied())
             .fold(f64::NEG_INFINITY, f64::max);
-        // Room above the data for the legend (its lines of about 15 px in a plot area of about
-        // panel_h − 100 px), so that it covers no run.
-        let legend_lines = usize::from(!tol_lines.is_empty())
-            + marks.len()
-            + 2
-            + usize::from(pts.iter().any(|p| !p.3));
-        let legend = ((15 * legend_lines + 20) as f64 / (panel_h - 100) as f64).min(0.6);
-        let (lo, hi) = axis_range(lo, hi, legend);
+        let (lo, hi) = axis_range(lo, hi);
         // Axis labels to the digits of the panel's smallest σ, or of its tick spacing where that
         // is coarser (about a tenth of the range).
         let smallest_sigma = pts
@@ -748,11 +798,13 @@ pub fn plot_svg(
             .y_label_area_size(70)
             .build_cartesian_2d(x0..x1, lo..hi)
             .map_err(|e| err(&e))?;
+        let date_label = |x: &f64| date_of_day(d0, *x);
         chart
             .configure_mesh()
             .light_line_style(WHITE.mix(0.0))
-            .x_desc(format!("days since {first_date}"))
-            .x_label_formatter(&|x| format!("{x:.0}"))
+            .x_desc("date (UTC)")
+            .x_labels(6)
+            .x_label_formatter(&date_label)
             .y_label_formatter(&|y| format_to(*y, label_sigma))
             .label_style(("sans-serif", 12))
             .draw()
@@ -763,21 +815,20 @@ pub fn plot_svg(
                 .map_err(|e| err(&e))?;
         }
         let red = RGBColor(200, 30, 30);
-        for (k, v) in tol_lines.iter().enumerate() {
-            let series = chart
+        for v in &tol_lines {
+            chart
                 .draw_series(LineSeries::new([(x0, *v), (x1, *v)], red.stroke_width(2)))
                 .map_err(|e| err(&e))?;
-            if k == 0 {
-                series
-                    .label(format!(
-                        "tolerance {}{} µm",
-                        if tol_lines.len() > 1 { "±" } else { "" },
-                        v.abs()
-                    ))
-                    .legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 20, y)], red.stroke_width(2))
-                    });
-            }
+        }
+        if let Some(v) = tol_lines.first() {
+            legend.push((
+                Symbol::Line(red),
+                format!(
+                    "tolerance {}{} µm",
+                    if tol_lines.len() > 1 { "±" } else { "" },
+                    v.abs()
+                ),
+            ));
         }
         let orange = RGBColor(230, 120, 0);
         for m in marks {
@@ -791,15 +842,15 @@ pub fn plot_svg(
                     let y = |k: usize| lo + (hi - lo) * k as f64 / n as f64;
                     PathElement::new(vec![(x, y(k)), (x, y(k + 1))], orange.stroke_width(2))
                 }))
-                .map_err(|e| err(&e))?
-                .label(format!(
+                .map_err(|e| err(&e))?;
+            legend.push((
+                Symbol::Dashed(orange),
+                format!(
                     "compensation changed {}: {}",
                     day(&m.date_utc),
                     printable(&m.text)
-                ))
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 8, y)], orange.stroke_width(2))
-                });
+                ),
+            ));
         }
         let green = RGBColor(20, 140, 60);
         if let (Some(sl), false) = (&slope, fitted_line.is_empty()) {
@@ -810,56 +861,69 @@ pub fn plot_svg(
             };
             chart
                 .draw_series(LineSeries::new(fitted_line, green.stroke_width(2)))
-                .map_err(|e| err(&e))?
-                .label(format!(
+                .map_err(|e| err(&e))?;
+            legend.push((
+                Symbol::Line(green),
+                format!(
                     "fitted slope {value} {unit} per {SLOPE_DAYS} days (runs {}, {} to {})",
                     id_list(&sl.run_ids),
                     day(&sl.from_date),
                     day(&sl.to_date)
-                ))
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], green.stroke_width(2))
-                });
+                ),
+            ));
         }
         let blue = RGBColor(31, 119, 180);
         let grey = RGBColor(150, 150, 150);
+        let colour = |s: Standing| {
+            if s == Standing::NotComparable {
+                grey
+            } else {
+                blue
+            }
+        };
         chart
-            .draw_series(pts.iter().map(|&(x, v, s, ok)| {
+            .draw_series(pts.iter().map(|&(x, v, s, standing)| {
                 PathElement::new(
                     vec![(x, v - s), (x, v + s)],
-                    if ok { blue } else { grey }.stroke_width(2),
+                    colour(standing).stroke_width(2),
                 )
             }))
             .map_err(|e| err(&e))?;
         let what = if has_sigma { "run, value ± σ" } else { "run" };
-        chart
-            .draw_series(
-                pts.iter()
-                    .filter(|p| p.3)
-                    .map(|&(x, v, _, _)| Circle::new((x, v), 5, blue.filled())),
-            )
-            .map_err(|e| err(&e))?
-            .label(format!("{what}, comparable with the latest"))
-            .legend(move |(x, y)| Circle::new((x + 10, y), 5, blue.filled()));
-        if pts.iter().any(|p| !p.3) {
+        for (standing, symbol, words) in [
+            (
+                Standing::Fitted,
+                Symbol::Dot(blue),
+                "comparable with the latest",
+            ),
+            (
+                Standing::BeforeMark,
+                Symbol::Ring(blue),
+                "before the last compensation change (left out of the slope)",
+            ),
+            (
+                Standing::NotComparable,
+                Symbol::Ring(grey),
+                "not comparable (left out of the slope)",
+            ),
+        ] {
+            let these: Vec<(f64, f64)> = pts
+                .iter()
+                .filter(|p| p.3 == standing)
+                .map(|p| (p.0, p.1))
+                .collect();
+            if these.is_empty() && standing != Standing::Fitted {
+                continue;
+            }
             chart
-                .draw_series(
-                    pts.iter()
-                        .filter(|p| !p.3)
-                        .map(|&(x, v, _, _)| Circle::new((x, v), 5, grey.stroke_width(2))),
-                )
-                .map_err(|e| err(&e))?
-                .label(format!("{what}, not comparable (left out of the slope)"))
-                .legend(move |(x, y)| Circle::new((x + 10, y), 5, grey.stroke_width(2)));
+                .draw_series(these.iter().map(|&(x, v)| match symbol {
+                    Symbol::Dot(c) => Circle::new((x, v), 5, c.filled()),
+                    _ => Circle::new((x, v), 5, colour(standing).stroke_width(2)),
+                }))
+                .map_err(|e| err(&e))?;
+            legend.push((symbol, format!("{what}, {words}")));
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK.mix(0.4))
-            .label_font(("sans-serif", 12))
-            .draw()
-            .map_err(|e| err(&e))?;
+        draw_legend(&legend_area, &legend).map_err(|e| err(&e))?;
     }
     root.present().map_err(|e| err(&e))?;
     Ok(())
@@ -886,6 +950,80 @@ mod tests {
                 })
                 .collect(),
         }
+    }
+
+    /// The numbers of attribute `name` of every `<tag` element in `svg`.
+    fn attr(svg: &str, tag: &str, name: &str) -> Vec<(f64, String)> {
+        svg.split(&format!("<{tag} "))
+            .skip(1)
+            .filter_map(|el| {
+                let v = el.split(&format!("{name}=\"")).nth(1)?.split('"').next()?;
+                Some((v.parse().ok()?, el.to_string()))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_plot_dates_its_axis_keeps_its_legend_off_the_data_and_draws_runs_left_out_hollow() {
+        // Four runs, the compensation changed between the second and the third: the first two
+        // are left out of the slope (as the text leaves them out) and drawn so.
+        let t = trend(&[
+            ("2026-09-01", 9.0, Some(0.1)),
+            ("2026-10-01", 10.0, Some(0.1)),
+            ("2026-11-01", 2.0, Some(0.1)),
+            ("2026-12-01", 2.5, Some(0.1)),
+        ]);
+        let mark = Mark {
+            date_utc: "2026-10-15T00:00:00Z".into(),
+            text: "BACKLASH 0.01".into(),
+            why: "test".into(),
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("t.svg");
+        plot_svg(&file, "mill", &[t], std::slice::from_ref(&mark), Some(4.0)).unwrap();
+        let svg = std::fs::read_to_string(&file).unwrap();
+        assert!(!svg.contains("days since"), "dates, not days since");
+        assert!(svg.contains("\n2026-10-"), "ticks as dates: {svg}");
+        assert!(svg.contains("date (UTC)"));
+        // The legend is drawn after the data, its first line the tolerance: every run's marker
+        // lies above every legend line, so the legend covers no data.
+        let (data, legend) = svg.split_at(svg.find("\ntolerance 4 µm").unwrap());
+        let runs = attr(data, "circle", "cy");
+        assert_eq!(runs.len(), 4, "{svg}");
+        let lowest_run = runs.iter().map(|c| c.0).fold(f64::MIN, f64::max);
+        let first_legend_line = attr(&svg, "text", "y")
+            .into_iter()
+            .filter(|(_, el)| el.contains("\ntolerance 4 µm") || el.contains("\nfitted slope"))
+            .map(|(y, _)| y)
+            .fold(f64::MAX, f64::min);
+        assert!(
+            first_legend_line > lowest_run + 5.0,
+            "legend from {first_legend_line}, runs down to {lowest_run}"
+        );
+        assert!(legend.contains("\nfitted slope"));
+        // Filled: the two runs of the slope; hollow: the two before the change.
+        let hollow = runs
+            .iter()
+            .filter(|c| c.1.contains("fill=\"none\""))
+            .count();
+        assert_eq!(hollow, 2, "{svg}");
+        let hollow_dates: Vec<f64> = runs
+            .iter()
+            .filter(|c| c.1.contains("fill=\"none\""))
+            .filter_map(|c| c.1.split("cx=\"").nth(1)?.split('"').next()?.parse().ok())
+            .collect();
+        let filled_dates: Vec<f64> = runs
+            .iter()
+            .filter(|c| !c.1.contains("fill=\"none\""))
+            .filter_map(|c| c.1.split("cx=\"").nth(1)?.split('"').next()?.parse().ok())
+            .collect();
+        assert!(
+            hollow_dates
+                .iter()
+                .all(|h| filled_dates.iter().all(|f| h < f)),
+            "the hollow runs are the earlier ones: {svg}"
+        );
+        assert!(svg.contains("before the last compensation change (left out of the slope)"));
     }
 
     #[test]

@@ -9,6 +9,29 @@ use std::process::{Command, Output};
 #[path = "../../../tests/src/tolerance.rs"]
 pub mod tolerance;
 
+pub mod pg;
+
+/// A diagnosis file `name` in `dir` of a machine with `backlash_um` of play (σ `sigma_um`),
+/// tested on `date`: what the history tests file.
+pub fn diagnosis(dir: &Path, name: &str, backlash_um: f64, sigma_um: f64, date: &str) {
+    let text = serde_json::json!({
+        "format": 2,
+        "samples": 1000,
+        "effects": [
+            {"name": "setup_offset", "value": 1.0, "unit": "um", "sigma": 0.1, "setup": true,
+             "params": {"x_um": 1.0, "y_um": 0.0, "z_um": 0.0}},
+            {"name": "backlash_x", "value": backlash_um, "unit": "um", "sigma": sigma_um,
+             "params": {"b_um": backlash_um}}
+        ],
+        "final": {"rms_um": 0.3},
+        "plane": "xy",
+        "circles": [{"radius_mm": 50.0, "height_mm": 0.0, "feed_mm_min": 1000.0, "samples": 500,
+                     "g_um": 5.0, "h_um": 3.0}],
+        "date_utc": date,
+    });
+    std::fs::write(dir.join(name), serde_json::to_string_pretty(&text).unwrap()).unwrap();
+}
+
 /// The `jdbb` binary of this build, to be given arguments.
 pub fn command() -> Command {
     Command::new(env!("CARGO_BIN_EXE_jdbb"))
