@@ -14,16 +14,18 @@ use crate::circular::plan::{
 };
 use crate::circular::sync::MIN_CRUISE_FRACTION;
 use crate::fsio::FileSet;
+use crate::volumetric::plan as volumetric;
 use crate::{Error, Result};
 
 /// Arguments of `jdbb plan`.
 #[derive(Debug, clap::Args)]
 pub struct PlanArgs {
     /// Circle radius in mm (repeat for several radii: the instrument stays mounted between them).
-    #[arg(long = "radius", value_name = "MM", value_parser = super::args::positive, required_unless_present = "calibration_test")]
+    #[arg(long = "radius", value_name = "MM", value_parser = super::args::positive, required_unless_present_any = ["calibration_test", "volumetric"])]
     pub radii_mm: Vec<f64>,
-    /// Height of a circle's plane above the table ball along the plane's normal, mm (repeat).
-    #[arg(long = "height", value_name = "MM", default_value = "0", allow_negative_numbers = true, value_parser = super::args::finite)]
+    /// Height of a circle's plane above the table ball along the plane's normal, mm (repeat;
+    /// default 0; with --volumetric the xy cones' heights, default 0, D/3 and 2D/3).
+    #[arg(long = "height", value_name = "MM", allow_negative_numbers = true, value_parser = super::args::finite)]
     pub heights_mm: Vec<f64>,
     /// Plane of the circles: xy, yz or zx.
     #[arg(long, default_value = "xy", value_parser = parse_plane)]
@@ -44,9 +46,19 @@ pub struct PlanArgs {
     /// Plan the calibration test instead: spheres at several ball distances (see --distance).
     #[arg(long, conflicts_with_all = ["radii_mm", "heights_mm"])]
     pub calibration_test: bool,
-    /// Ball distance of a sphere of the calibration test, mm (repeat; default: 4 over the range).
-    #[arg(long = "distance", value_name = "MM", requires = "calibration_test", value_parser = super::args::positive)]
+    /// Ball distance of a sphere of the calibration test, mm (repeat; default: 4 over the range);
+    /// with --volumetric of the cones and arcs (default: the middle of the range).
+    #[arg(long = "distance", value_name = "MM", value_parser = super::args::positive)]
     pub distances_mm: Vec<f64>,
+    /// Plan the volumetric test instead: all three axes from one mount, xy circles at each
+    /// --height (cones about the table ball) and zx and yz 220° arcs through it, on each
+    /// --distance; prints what the test determines.
+    #[arg(long, conflicts_with_all = ["calibration_test", "radii_mm", "plane", "start_deg", "arc_deg", "lead_in_deg", "overshoot_deg"])]
+    pub volumetric: bool,
+    /// The machine's travel in the program's coordinates, e.g. `x=0:500,y=0:400,z=-400:0` (mm):
+    /// a plan that leaves it is refused, naming the element and by how much.
+    #[arg(long, value_name = "x=MIN:MAX,..")]
+    pub travel: Option<String>,
     /// Angle where each circle starts and ends, degrees from the plane's first axis towards its
     /// second (xy: from x, yz: from y, zx: from z).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = super::args::finite)]
@@ -120,6 +132,16 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         None => Calibration::DEFAULT,
     };
     let inst = instrument(&cal)?;
+    if !args.distances_mm.is_empty() && !args.calibration_test && !args.volumetric {
+        return Err(Error::Usage(
+            "--distance is the ball distance of --calibration-test or --volumetric; a machine test takes --radius and --height".into(),
+        ));
+    }
+    let heights_mm = if args.heights_mm.is_empty() && !args.volumetric {
+        vec![0.0]
+    } else {
+        args.heights_mm.clone()
+    };
     let (purpose, circles) = if args.calibration_test {
         let d = if args.distances_mm.is_empty() {
             default_calibration_distances(&inst, args.feed_in_mm)
@@ -130,7 +152,7 @@ pub fn run(args: &PlanArgs) -> Result<()> {
     } else {
         (
             Purpose::MachineTest,
-            machine_test_circles(&args.radii_mm, &args.heights_mm),
+            machine_test_circles(&args.radii_mm, &heights_mm),
         )
     };
     let (lead_in_deg, overshoot_deg) = default_lead_in_overshoot(args.arc_deg);
@@ -150,7 +172,26 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         reversal_dwell_s: args.reversal_dwell_s.unwrap_or(args.dwell_s),
         corner_dwell_s: args.corner_dwell_s,
     };
-    let plan = plan(&spec, &cal)?;
+    let plan = if args.volumetric {
+        let distances_mm = if args.distances_mm.is_empty() {
+            vec![volumetric::default_distance_mm(&inst)]
+        } else {
+            args.distances_mm.clone()
+        };
+        volumetric::plan(
+            &volumetric::VolumetricSpec {
+                distances_mm,
+                heights_mm,
+                base: spec,
+            },
+            &cal,
+        )?
+    } else {
+        plan(&spec, &cal)?
+    };
+    if let Some(t) = &args.travel {
+        volumetric::check_travel(&plan, &super::args::travel_mm("--travel", t)?)?;
+    }
     let program = write_program(&plan, args.dialect);
     let json_path = args.out.join("plan.json");
     let program_path = args.out.join(&plan.program);
@@ -177,12 +218,12 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         set.remove(old);
     }
     set.commit()?;
-    emit(&setup_text(
-        &plan,
-        &json_path,
-        &program_path,
-        program.lines().count(),
-    ))
+    let blocks = program.lines().count();
+    emit(&if args.volumetric {
+        super::volumetric::setup_text(&plan, &json_path, &program_path, blocks)
+    } else {
+        setup_text(&plan, &json_path, &program_path, blocks)
+    })
 }
 
 /// The program named by the plan at `json` (a plan.json jdbb wrote), if it is one of jdbb's
@@ -200,11 +241,11 @@ fn old_program(json: &Path) -> Option<&'static str> {
         .find(|p| *p == name)
 }
 
-fn point(p: &[f64; 3]) -> String {
+pub(super) fn point(p: &[f64; 3]) -> String {
     format!("X {:.3}  Y {:.3}  Z {:.3} mm", p[0], p[1], p[2])
 }
 
-fn duration(s: f64) -> String {
+pub(super) fn duration(s: f64) -> String {
     let s = s.round() as u64;
     if s >= 60 {
         format!("{} min {} s", s / 60, s % 60)
@@ -224,6 +265,7 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
         match plan.purpose {
             Purpose::MachineTest => "machine test",
             Purpose::CalibrationTest => "calibration test (spheres at several ball distances)",
+            Purpose::VolumetricTest => "volumetric test",
         },
         plan.plane.name(),
         plan.circles.len(),

@@ -108,7 +108,9 @@ pub fn write_program(plan: &Plan, dialect: Dialect) -> String {
         o.line(&format!("O{FANUC_PROGRAM_NUMBER} (JDBB BALLBAR)"));
     }
     let c = &plan.centre_mm;
-    let arc = if plan.arc.is_partial() {
+    let arc = if plan.purpose == super::Purpose::VolumetricTest {
+        "then zx and yz arcs, each ccw then cw".to_string()
+    } else if plan.arc.is_partial() {
         format!(
             "each a {}-degree arc from {} degrees, ccw then back cw",
             number(plan.arc.sweep_deg),
