@@ -85,18 +85,40 @@ fn the_plan_stays_in_range_above_the_table_and_off_the_ball() {
             );
             assert!(p[2] >= floor_z, "segment {k}: Z {} below {floor_z}", p[2]);
         }
-        // A move between elements runs along the shell: never lower than where it starts or
-        // ends, never nearer the ball than the instrument allows (checked above).
-        if let Segment::Line {
-            role: LineRole::Move,
-            from_mm,
-            to_mm,
-            ..
-        } = s
-        {
-            let low = from_mm[2].min(to_mm[2]);
-            for p in &pts {
-                assert!(p[2] >= low - 1e-3, "segment {k} dips to Z {}", p[2]);
+    }
+    // A move between two elements (consecutive `move` lines after the first circle) runs along
+    // the shell: never lower than where it starts or where it ends.
+    let mut k = 0;
+    while k < plan.segments.len() {
+        let is_move = |s: &Segment| {
+            matches!(
+                s,
+                Segment::Line {
+                    role: LineRole::Move,
+                    ..
+                }
+            )
+        };
+        if !is_move(&plan.segments[k]) {
+            k += 1;
+            continue;
+        }
+        let first = k;
+        while k < plan.segments.len() && is_move(&plan.segments[k]) {
+            k += 1;
+        }
+        let (a, b) = (
+            plan.segments[first].from_mm().unwrap(),
+            plan.segments[k - 1].to_mm().unwrap(),
+        );
+        let low = a[2].min(b[2]);
+        for m in first..k {
+            for p in samples(&plan, m) {
+                assert!(
+                    p[2] >= low - 1e-3,
+                    "the move of segments {first}..{k} dips to Z {} below its ends' {low}",
+                    p[2]
+                );
             }
         }
     }

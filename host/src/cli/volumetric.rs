@@ -47,7 +47,7 @@ pub fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> St
             "full circle".to_string()
         };
         t += &format!(
-            "  {:>2}  {:<9} R {:>8.3} mm  H {:>8.3} mm  D {:>8.3} mm  {run}\n",
+            "  {:>2}  {:<10}R {:>8.3} mm  H {:>8.3} mm  D {:>8.3} mm  {run}\n",
             k + 1,
             element_kind(plan, k),
             c.radius_mm,
@@ -126,7 +126,7 @@ fn identifiability_text(plan: &Plan) -> String {
     );
     for v in &id.confounded {
         t += &format!(
-            "  confounded:        {} (µm/m, µm): separated by {}\n",
+            "  confounded:        {}: separated by {}\n",
             combination_text(v),
             separation_text(v)
         );

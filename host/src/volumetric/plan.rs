@@ -213,13 +213,22 @@ fn shell_move(
     let top = el0.max(el1);
     let turn =
         (az1 - az0 + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
-    // The three legs as (elevation, azimuth) at their ends, and their lengths on the unit sphere.
+    // The three legs as (elevation, azimuth, D) at their ends and their lengths on the unit
+    // sphere. D changes on the latitude only: up and down the meridians at a constant D, z
+    // changes one way, so no point is lower than both ends.
     let legs = [
-        ((el0, az0), (top, az0), (top - el0).abs()),
-        ((top, az0), (top, az0 + turn), turn.abs() * top.cos()),
-        ((top, az0 + turn), (el1, az0 + turn), (top - el1).abs()),
+        ((el0, az0, d0), (top, az0, d0), (top - el0).abs()),
+        (
+            (top, az0, d0),
+            (top, az0 + turn, d1),
+            turn.abs() * top.cos(),
+        ),
+        (
+            (top, az0 + turn, d1),
+            (el1, az0 + turn, d1),
+            (top - el1).abs(),
+        ),
     ];
-    let total: f64 = legs.iter().map(|l| l.2).sum();
     let in_range = |a: &[f64; 3], b: &[f64; 3]| {
         let (lo, hi) = line_d_range(c, a, b);
         inst.contains(lo) && inst.contains(hi)
@@ -227,25 +236,18 @@ fn shell_move(
     let mut step = SHELL_STEP_DEG.to_radians();
     for _ in 0..5 {
         let mut pts = vec![];
-        let mut done = 0.0;
-        for &((e0, a0), (e1, a1), len) in &legs {
-            let n = (len / step).ceil() as usize;
+        for (k, &((e0, a0, r0), (e1, a1, r1), len)) in legs.iter().enumerate() {
+            // The latitude has at least one piece: a radial line where D changes alone.
+            let n = ((len / step).ceil() as usize).max(usize::from(k == 1));
             for s in 1..=n {
                 let t = s as f64 / n as f64;
-                let (e, a) = (e0 + t * (e1 - e0), a0 + t * (a1 - a0));
-                let along = if total > 0.0 {
-                    (done + t * len) / total
-                } else {
-                    1.0
-                };
-                let d = d0 + along * (d1 - d0);
+                let (e, a, d) = (e0 + t * (e1 - e0), a0 + t * (a1 - a0), r0 + t * (r1 - r0));
                 pts.push([
                     q(c[0] + d * e.cos() * a.cos()),
                     q(c[1] + d * e.cos() * a.sin()),
                     q(c[2] + d * e.sin()),
                 ]);
             }
-            done += len;
         }
         match pts.last_mut() {
             Some(last) => *last = to,

@@ -108,9 +108,7 @@ pub fn write_program(plan: &Plan, dialect: Dialect) -> String {
         o.line(&format!("O{FANUC_PROGRAM_NUMBER} (JDBB BALLBAR)"));
     }
     let c = &plan.centre_mm;
-    let arc = if plan.purpose == super::Purpose::VolumetricTest {
-        "then zx and yz arcs, each ccw then cw".to_string()
-    } else if plan.arc.is_partial() {
+    let arc = if plan.arc.is_partial() {
         format!(
             "each a {}-degree arc from {} degrees, ccw then back cw",
             number(plan.arc.sweep_deg),
@@ -119,11 +117,21 @@ pub fn write_program(plan: &Plan, dialect: Dialect) -> String {
     } else {
         "each ccw then cw".to_string()
     };
+    let what = if plan.purpose == super::Purpose::VolumetricTest {
+        format!(
+            "{} circles and arcs: xy circles at several heights, then zx and yz arcs, each ccw then cw",
+            plan.circles.len()
+        )
+    } else {
+        format!(
+            "{} circles in plane {}, {arc}",
+            plan.circles.len(),
+            plan.plane.name()
+        )
+    };
     o.comment(&format!(
-        "jdbb plan, {}: {} circles in plane {}, {arc}, feed {} mm/min",
+        "jdbb plan, {}: {what}, feed {} mm/min",
         plan.purpose.name(),
-        plan.circles.len(),
-        plan.plane.name(),
         number(plan.feed_mm_min)
     ));
     o.comment(&format!(
