@@ -19,7 +19,7 @@
 //! | [`error`] | the error type and its exit codes |
 //! | [`fsio`] | the one writer (no link, no device, whole files, sets, `--force`) and input limits |
 //!
-//! Dependencies point one way: `cli` → `compensate`, `history`, `live_web` → `circular`, `rotary`, `rrsps`,
+//! Dependencies point one way: `cli` → `compensate`, `history`, `live_web`, `volumetric` → `circular`, `rotary`, `rrsps`,
 //! `instrument`, `link` → `numerics`,
 //! `table` → `jdbb_core` (the instrument model, wire protocol and machine error models shared
 //! with the firmware). No module below `cli` prints or reads the command line.
