@@ -9,22 +9,20 @@ use jdbb::circular::plan::{LineRole, Plan, Plane, Purpose, Segment, Sense, VOLUM
 mod common;
 use common::{jdbb, stderr, stdout};
 
-/// `jdbb plan --volumetric … --out DIR` with the README's numbers and `extra` options.
+/// `jdbb plan ARGS --feed 1000 --centre 100,50,-20 --out DIR` (the README's numbers).
+fn plan_in(dir: &Path, args: &[&str]) -> std::process::Output {
+    let mut all = vec!["plan"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--feed", "1000", "--centre", "100,50,-20"]);
+    all.extend_from_slice(&["--out", dir.to_str().unwrap()]);
+    jdbb(&all)
+}
+
+/// `jdbb plan --volumetric --distance 90 … --out DIR` with `extra` options.
 fn plan_volumetric(dir: &Path, extra: &[&str]) -> std::process::Output {
-    let mut args = vec![
-        "plan",
-        "--volumetric",
-        "--distance",
-        "90",
-        "--feed",
-        "1000",
-        "--centre",
-        "100,50,-20",
-        "--out",
-        dir.to_str().unwrap(),
-    ];
+    let mut args = vec!["--volumetric", "--distance", "90"];
     args.extend_from_slice(extra);
-    jdbb(&args)
+    plan_in(dir, &args)
 }
 
 /// Points along segment `k`, every 0.1 mm (and both ends).
@@ -253,17 +251,7 @@ fn plan_json_round_trips_and_a_plane_plan_is_unchanged() {
     assert!(e.contains("does not go with version 3"), "{e}");
     // A plane test is still version 2, its circles without `arc`.
     let plane = dir.path().join("plane");
-    let o = jdbb(&[
-        "plan",
-        "--radius",
-        "90",
-        "--feed",
-        "1000",
-        "--centre",
-        "100,50,-20",
-        "--out",
-        plane.to_str().unwrap(),
-    ]);
+    let o = plan_in(&plane, &["--radius", "90"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let text = std::fs::read_to_string(plane.join("plan.json")).unwrap();
     assert!(text.contains("\"version\": 2,"), "{text}");

@@ -254,6 +254,20 @@ pub(super) fn duration(s: f64) -> String {
     }
 }
 
+/// The ball distances a plan uses (on its `elements`, feed-ins and moves) and the box the
+/// spindle ball travels in: two lines of the printout.
+pub(super) fn reach_text(plan: &Plan, elements: &str) -> String {
+    let (lo, hi) = plan.mounted_d_range_mm();
+    let mut t =
+        format!("ball distances used: {lo:.3}..{hi:.3} mm ({elements}, feed-ins and moves)\n");
+    let (lo, hi) = plan.travel_mm();
+    t += &format!(
+        "spindle ball travel: X {:.3}..{:.3}  Y {:.3}..{:.3}  Z {:.3}..{:.3} mm\n",
+        lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
+    );
+    t
+}
+
 /// A slow machine's acceleration (mm/s²), for the feed-in a partial arc needs.
 const SLOW_ACCEL_MM_S2: f64 = 300.0;
 
@@ -314,13 +328,8 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
             c.d_mm
         );
     }
-    let (lo, hi) = plan.mounted_d_range_mm();
-    t += &format!("ball distances used: {lo:.3}..{hi:.3} mm (circles, feed-ins and moves)\n");
-    let (lo, hi) = plan.travel_mm();
-    t += &format!(
-        "spindle ball travel: X {:.3}..{:.3}  Y {:.3}..{:.3}  Z {:.3}..{:.3} mm\n",
-        lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
-    );
+    t += &reach_text(plan, "circles");
+    let (lo, _) = plan.travel_mm();
     let below_mm = plan.centre_mm[2] - lo[2];
     if plan.plane != Plane::Xy && !arc.is_partial() {
         t += &format!(

@@ -3,7 +3,7 @@
 //! the test determines of the machine's linear errors.
 use std::path::Path;
 
-use super::plan::{duration, point};
+use super::plan::{duration, point, reach_text};
 use crate::circular::plan::{gcode, Dialect, Plan};
 use crate::volumetric::ident::{combination_text, identifiability, separation_text, Term};
 use crate::volumetric::plan::{data_points_mm, element_kind};
@@ -55,13 +55,8 @@ pub fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> St
             c.d_mm
         );
     }
-    let (lo, hi) = plan.mounted_d_range_mm();
-    t += &format!("ball distances used: {lo:.3}..{hi:.3} mm (elements, feed-ins and moves)\n");
-    let (lo, hi) = plan.travel_mm();
-    t += &format!(
-        "spindle ball travel: X {:.3}..{:.3}  Y {:.3}..{:.3}  Z {:.3}..{:.3} mm\n",
-        lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
-    );
+    t += &reach_text(plan, "elements");
+    let (lo, _) = plan.travel_mm();
     let below_mm = plan.centre_mm[2] - lo[2];
     if below_mm > 1e-3 {
         t += &format!(

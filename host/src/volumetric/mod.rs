@@ -6,17 +6,21 @@
 //! - [`ident`]: what such a test can identify of a linear error field — the design matrix of the
 //!   three scales, three squarenesses, the set-up offset and the instrument's scale, its rank,
 //!   condition number and confounded combinations;
+//! - [`fit`]: the linear model's nine terms fitted to changes of D at known positions, with σ
+//!   and the undetermined groups (the core of the joint diagnosis);
 //! - [`plan`]: the plan of a volumetric test (`jdbb plan --volumetric`), one plan.json
 //!   (version [`crate::circular::plan::VOLUMETRIC_VERSION`]) and one program for every dialect,
 //!   and the check of a machine's travel.
 //!
-//! Built: the identifiability and the plan. Not yet: the joint diagnosis of a volumetric record
-//! (`jdbb diagnose --record --plan` refuses a volumetric plan), its synchronisation, the QEMU
-//! scenario, the compensation of three squarenesses at once, and the report.
+//! Built: the identifiability, the plan, and the linear fit at the plan's positions. Not yet: the
+//! synchronisation of a volumetric record and its joint diagnosis with backlash, servo and
+//! cyclic terms (`jdbb diagnose --record --plan` refuses a volumetric plan), the QEMU scenario,
+//! the compensation of three squarenesses at once, and the report.
 //!
 //! May use: [`crate::numerics`] and nalgebra, the instrument model (`jdbb_core`), and
 //! [`crate::circular`]'s plan and path types by import only (the plane test's plan builder makes
 //! each element). Nothing in `circular` uses this module.
+pub mod fit;
 pub mod ident;
 pub mod plan;
 

@@ -402,6 +402,11 @@ mod tests {
 
     /// The identifiability of a plane plan's circles (xy, about the ball at D 90 mm).
     fn cones(heights: &[f64]) -> super::super::ident::Identifiability {
+        super::super::ident::identifiability(&cone_points(heights))
+    }
+
+    /// The data arcs' points of a plane plan's circles (xy, about the ball at D 90 mm).
+    fn cone_points(heights: &[f64]) -> Vec<[f64; 3]> {
         let mut s = PlanSpec::machine_test(
             &[1.0],
             &[0.0],
@@ -418,7 +423,86 @@ mod tests {
             })
             .collect();
         let p = build::plan(&s, &Calibration::DEFAULT).unwrap();
-        super::super::ident::identifiability(&data_points_mm(&p))
+        data_points_mm(&p)
+    }
+
+    /// ΔD (µm) at `points` (mm) of a machine whose axes move by δx = s_x·x + q_xy·y,
+    /// δy = s_y·y + q_yz·z, δz = s_z·z + q_zx·x (µm/m) with the table ball `c_um` off its place:
+    /// the exact distance, not the model's partials.
+    fn exact_dd_um(points: &[[f64; 3]], s: [f64; 3], q: [f64; 3], c_um: [f64; 3]) -> Vec<f64> {
+        points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let e = 1e-6;
+                let moved = [
+                    p[0] + e * (s[0] * p[0] + q[0] * p[1]) - 1e-3 * c_um[0],
+                    p[1] + e * (s[1] * p[1] + q[1] * p[2]) - 1e-3 * c_um[1],
+                    p[2] + e * (s[2] * p[2] + q[2] * p[0]) - 1e-3 * c_um[2],
+                ];
+                let norm = |v: &[f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                // ±0.2 µm of noise, a fixed pattern (no generator shared with the fit).
+                let noise = 0.2 * ((i as f64 * 0.618_034).fract() * 2.0 - 1.0);
+                (norm(&moved) - norm(p)) * 1e3 + noise
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_fit_recovers_three_squarenesses_and_two_scale_differences() {
+        let p = plan(&spec(Dialect::Linuxcnc), &Calibration::DEFAULT).unwrap();
+        let points = data_points_mm(&p);
+        // Scales 40 and −25 µm/m of X and Y against Z (the calibration the length reference),
+        // squarenesses 30, −20, 15 µm/m, the ball 5, −3, 8 µm off.
+        let (s, q, c) = ([40.0, -25.0, 0.0], [30.0, -20.0, 15.0], [5.0, -3.0, 8.0]);
+        let fit = super::super::fit::fit_linear(&points, &exact_dd_um(&points, s, q, c)).unwrap();
+        assert_eq!(fit.rank, 9);
+        assert!(fit.undetermined.is_empty());
+        let truth = [s[0], s[1], s[2], q[0], q[1], q[2], c[0], c[1], c[2]];
+        for (e, want) in fit.estimates.iter().zip(truth) {
+            let sigma = e.sigma.expect("every term determined");
+            let err = (e.value - want).abs();
+            assert!(
+                err <= 0.05 * want.abs().max(1.0) && err <= 4.0 * sigma + 0.05,
+                "{}: {} ± {sigma} for {want}",
+                e.term.name(),
+                e.value
+            );
+        }
+        assert!(fit.rms_um < 0.2, "{}", fit.rms_um);
+    }
+
+    #[test]
+    fn the_identifiability_table_is_the_fits_own_rank() {
+        // Two SVDs of two codes: `ident` (nalgebra's SVD of the scaled design) and the fit's
+        // engine (eigen-decomposition of its normal equations), on each plan family.
+        let full = data_points_mm(&plan(&spec(Dialect::Linuxcnc), &Calibration::DEFAULT).unwrap());
+        for points in [
+            cone_points(&[0.0]),
+            cone_points(&[30.0, 60.0]),
+            cone_points(&[0.0, 30.0, 60.0]),
+            full,
+        ] {
+            let id = super::super::ident::identifiability(&points);
+            let dd = exact_dd_um(&points, [10.0, 0.0, 0.0], [5.0, 0.0, 0.0], [0.0; 3]);
+            let fit = super::super::fit::fit_linear(&points, &dd).unwrap();
+            assert_eq!(fit.rank, id.rank_with_reference);
+            let mut unseen: Vec<String> = fit
+                .undetermined
+                .iter()
+                .flatten()
+                .map(|t| t.name())
+                .collect();
+            unseen.sort();
+            let mut not: Vec<String> = id
+                .determined
+                .iter()
+                .filter(|(_, d)| !d)
+                .map(|(t, _)| t.name())
+                .collect();
+            not.sort();
+            assert_eq!(unseen, not);
+        }
     }
 
     #[test]
