@@ -241,11 +241,11 @@ fn old_program(json: &Path) -> Option<&'static str> {
         .find(|p| *p == name)
 }
 
-pub(super) fn point(p: &[f64; 3]) -> String {
+fn point(p: &[f64; 3]) -> String {
     format!("X {:.3}  Y {:.3}  Z {:.3} mm", p[0], p[1], p[2])
 }
 
-pub(super) fn duration(s: f64) -> String {
+fn duration(s: f64) -> String {
     let s = s.round() as u64;
     if s >= 60 {
         format!("{} min {} s", s / 60, s % 60)
@@ -266,6 +266,27 @@ pub(super) fn reach_text(plan: &Plan, elements: &str) -> String {
         lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
     );
     t
+}
+
+/// Where the table ball goes, where the program stops for the operator to mount the instrument
+/// (`mounted`: what to add about it) and the instrument's range: three lines of the printout.
+pub(super) fn place_text(plan: &Plan, mounted: &str) -> String {
+    format!(
+        "table ball centre:   {}\nstart point:         {}  (the program stops here: mount the instrument, then cycle start{mounted})\ninstrument range:    D {}\n",
+        point(&plan.centre_mm),
+        point(&plan.start_mm),
+        plan.instrument.describe()
+    )
+}
+
+/// The files written and the estimated run time: the printout's last two lines.
+pub(super) fn written_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String {
+    format!(
+        "wrote {} and {} ({blocks} lines)\nestimated run time:  {} at the programmed feed (without the rapid, the stop and acceleration)",
+        json.display(),
+        program.display(),
+        duration(plan.nominal_duration_s())
+    )
 }
 
 /// A slow machine's acceleration (mm/s²), for the feed-in a partial arc needs.
@@ -309,12 +330,7 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
             deg(arc.overshoot_deg),
         );
     }
-    t += &format!("table ball centre:   {}\n", point(&plan.centre_mm));
-    t += &format!(
-        "start point:         {}  (the program stops here: mount the instrument, then cycle start)\n",
-        point(&plan.start_mm)
-    );
-    t += &format!("instrument range:    D {}\n", inst.describe());
+    t += &place_text(plan, "");
     t += "circles:\n";
     for c in &plan.circles {
         let phi = inst
@@ -375,14 +391,5 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
     if plan.dialect == Dialect::Marlin && plan.plane != Plane::Xy {
         t += "note: Marlin selects G18/G19 only with CNC_WORKSPACE_PLANES; without it these arcs run in XY\n";
     }
-    t += &format!(
-        "wrote {} and {} ({blocks} lines)\n",
-        json.display(),
-        program.display()
-    );
-    t += &format!(
-        "estimated run time:  {} at the programmed feed (without the rapid, the stop and acceleration)",
-        duration(plan.nominal_duration_s())
-    );
-    t
+    t + &written_text(plan, json, program, blocks)
 }

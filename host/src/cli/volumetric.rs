@@ -3,7 +3,7 @@
 //! the test determines of the machine's linear errors.
 use std::path::Path;
 
-use super::plan::{duration, point, reach_text};
+use super::plan::{place_text, reach_text, written_text};
 use crate::circular::plan::{gcode, Dialect, Plan};
 use crate::volumetric::ident::{combination_text, identifiability, separation_text, Term};
 use crate::volumetric::plan::{data_points_mm, element_kind};
@@ -18,19 +18,13 @@ fn deg(x: f64) -> String {
 
 /// What the operator needs for a volumetric plan, and what it determines.
 pub fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String {
-    let inst = &plan.instrument;
     let mut t = format!(
         "volumetric test from one table ball: {} element(s), each ccw then cw at {} mm/min ({})\n",
         plan.circles.len(),
         gcode::number(plan.feed_mm_min),
         plan.dialect.name()
     );
-    t += &format!("table ball centre:   {}\n", point(&plan.centre_mm));
-    t += &format!(
-        "start point:         {}  (the program stops here: mount the instrument, then cycle start; it stays mounted to the end)\n",
-        point(&plan.start_mm)
-    );
-    t += &format!("instrument range:    D {}\n", inst.describe());
+    t += &place_text(plan, "; it stays mounted to the end");
     t += "elements, in program order (moves between them run along the shell, over the ball):\n";
     for (k, c) in plan.circles.iter().enumerate() {
         let arc = c.arc.unwrap_or(plan.arc);
@@ -68,16 +62,7 @@ pub fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> St
         t += "note: Marlin selects G18/G19 only with CNC_WORKSPACE_PLANES; without it the zx and yz arcs run in XY\n";
     }
     t += &identifiability_text(plan);
-    t += &format!(
-        "wrote {} and {} ({blocks} lines)\n",
-        json.display(),
-        program.display()
-    );
-    t += &format!(
-        "estimated run time:  {} at the programmed feed (without the rapid, the stop and acceleration)",
-        duration(plan.nominal_duration_s())
-    );
-    t
+    t + &written_text(plan, json, program, blocks)
 }
 
 /// The identifiability table of a plan's data arcs ([`crate::volumetric::ident`]).
