@@ -9,6 +9,7 @@
 //! | [`history`] | a machine's diagnoses over time in one SQLite file; trends |
 //! | [`rotary`] | rotary axes (seed 002): six geometric errors; angle-indexed run diagnosis |
 //! | [`rrsps`] | the A/C table as an RRSPS linkage (seed 004): design, synthesis, identification |
+//! | [`volumetric`] | the volumetric test from one table ball: identifiability, the plan of cones and arcs |
 //! | [`instrument`] | the instrument's own calibration from a calibrator's samples; records recomputed |
 //! | [`numerics`] | least squares, minimax, forward selection: used by all of the above |
 //! | [`table`] | the one reader of CSV tables (named columns, `file:line:col` errors) |
@@ -18,7 +19,7 @@
 //! | [`error`] | the error type and its exit codes |
 //! | [`fsio`] | the one writer (no link, no device, whole files, sets, `--force`) and input limits |
 //!
-//! Dependencies point one way: `cli` → `compensate`, `history`, `live_web` → `circular`, `rotary`, `rrsps`,
+//! Dependencies point one way: `cli` → `compensate`, `history`, `live_web`, `volumetric` → `circular`, `rotary`, `rrsps`,
 //! `instrument`, `link` → `numerics`,
 //! `table` → `jdbb_core` (the instrument model, wire protocol and machine error models shared
 //! with the firmware). No module below `cli` prints or reads the command line.
@@ -37,5 +38,6 @@ pub mod rotary;
 pub mod rrsps;
 pub mod table;
 pub mod units;
+pub mod volumetric;
 
 pub use error::{Error, Result};

@@ -1311,3 +1311,25 @@ fn command_plans_the_vertical_plane_test() {
         "{stdout}"
     );
 }
+
+#[test]
+fn every_dialect_parses_a_volumetric_plan_back() {
+    // Cones at three heights on two distances, and the zx and yz 220° arcs: planes change
+    // within the program (G17, G18, G19), and each block still equals its segment.
+    use jdbb::volumetric::plan::{plan as volumetric, VolumetricSpec};
+    for dialect in Dialect::ALL {
+        let spec = VolumetricSpec {
+            distances_mm: vec![90.0, 85.0],
+            heights_mm: vec![],
+            base: spec(&[90.0], &[0.0], Plane::Xy, dialect),
+        };
+        let p = volumetric(&spec, &Calibration::DEFAULT).unwrap();
+        let back = Plan::from_json(Path::new("plan.json"), &p.to_json()).unwrap();
+        assert_eq!(back, p);
+        let src = write_program(&back, dialect);
+        for g in ["G18", "G19"] {
+            assert!(src.lines().any(|l| l == g), "{dialect:?}: no {g} line");
+        }
+        check_program(&back, &src, dialect);
+    }
+}

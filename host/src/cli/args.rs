@@ -112,6 +112,21 @@ pub fn per_axis<T>(
     Ok(out)
 }
 
+/// A machine's travel per axis, `x=0:500,y=0:400` (mm), for `option`: each axis given
+/// (MIN, MAX) with MIN < MAX, the others `None`.
+pub fn travel_mm(option: &str, s: &str) -> crate::Result<[Option<(f64, f64)>; 3]> {
+    per_axis(
+        option,
+        s,
+        |v| {
+            let (a, b) = v.split_once(':')?;
+            let (a, b) = (finite_value(a.trim())?, finite_value(b.trim())?);
+            (a < b).then_some((a, b))
+        },
+        "x=MIN:MAX with MIN < MAX (mm)",
+    )
+}
+
 /// `s` as a finite number, if it is one.
 pub fn finite_value(s: &str) -> Option<f64> {
     s.parse::<f64>().ok().filter(|x| x.is_finite())

@@ -56,16 +56,7 @@ pub fn run(args: &CompensateArgs) -> Result<()> {
         placement.table_ball_mm = per_axis("--table-ball", s, finite, "x=250 (mm)")?;
     }
     if let Some(s) = &args.travel {
-        placement.travel_mm = per_axis(
-            "--travel",
-            s,
-            |v| {
-                let (a, b) = v.split_once(':')?;
-                let (a, b) = (finite(a.trim())?, finite(b.trim())?);
-                (a < b).then_some((a, b))
-            },
-            "x=MIN:MAX with MIN < MAX (mm)",
-        )?;
+        placement.travel_mm = super::args::travel_mm("--travel", s)?;
     }
     let opts = Options {
         controller,

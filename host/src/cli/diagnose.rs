@@ -277,6 +277,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         }
         (None, Some(record), None, Some(plan_file)) => {
             let plan = Plan::read(plan_file)?;
+            crate::volumetric::refuse_diagnosis(&plan, plan_file)?;
             let rec = Record::read(record)?;
             check_plan_id(&rec, &plan, plan_file)?;
             let done = diagnose_record(&plan, &rec, pitch, &Options::default())?;

@@ -9,6 +9,7 @@
 //! - [`rrsps`]: the A/C table as an RRSPS linkage ([`crate::rrsps`]);
 //! - [`calibrate`], [`recompute`]: the instrument's own calibration ([`crate::instrument`]);
 //!   [`calibration`]: the calibration on the device ([`crate::link::calibration`]);
+//! - [`volumetric`]: the printout of `jdbb plan --volumetric` ([`crate::volumetric`]);
 //! - [`args`], [`output`], [`stream_args`]: what the subcommands share.
 use clap::{Parser, Subcommand};
 
@@ -31,6 +32,7 @@ pub mod rotary;
 pub mod rrsps;
 pub mod simulate;
 pub mod stream_args;
+pub mod volumetric;
 
 /// J-DBB double ball bar: live readout, recording, simulation and diagnosis of machine-tool errors.
 #[derive(Debug, Parser)]

@@ -14,16 +14,18 @@ use crate::circular::plan::{
 };
 use crate::circular::sync::MIN_CRUISE_FRACTION;
 use crate::fsio::FileSet;
+use crate::volumetric::plan as volumetric;
 use crate::{Error, Result};
 
 /// Arguments of `jdbb plan`.
 #[derive(Debug, clap::Args)]
 pub struct PlanArgs {
     /// Circle radius in mm (repeat for several radii: the instrument stays mounted between them).
-    #[arg(long = "radius", value_name = "MM", value_parser = super::args::positive, required_unless_present = "calibration_test")]
+    #[arg(long = "radius", value_name = "MM", value_parser = super::args::positive, required_unless_present_any = ["calibration_test", "volumetric"])]
     pub radii_mm: Vec<f64>,
-    /// Height of a circle's plane above the table ball along the plane's normal, mm (repeat).
-    #[arg(long = "height", value_name = "MM", default_value = "0", allow_negative_numbers = true, value_parser = super::args::finite)]
+    /// Height of a circle's plane above the table ball along the plane's normal, mm (repeat;
+    /// default 0; with --volumetric the xy cones' heights, default 0, D/3 and 2D/3).
+    #[arg(long = "height", value_name = "MM", allow_negative_numbers = true, value_parser = super::args::finite)]
     pub heights_mm: Vec<f64>,
     /// Plane of the circles: xy, yz or zx.
     #[arg(long, default_value = "xy", value_parser = parse_plane)]
@@ -44,9 +46,19 @@ pub struct PlanArgs {
     /// Plan the calibration test instead: spheres at several ball distances (see --distance).
     #[arg(long, conflicts_with_all = ["radii_mm", "heights_mm"])]
     pub calibration_test: bool,
-    /// Ball distance of a sphere of the calibration test, mm (repeat; default: 4 over the range).
-    #[arg(long = "distance", value_name = "MM", requires = "calibration_test", value_parser = super::args::positive)]
+    /// Ball distance of a sphere of the calibration test, mm (repeat; default: 4 over the range);
+    /// with --volumetric of the cones and arcs (default: the middle of the range).
+    #[arg(long = "distance", value_name = "MM", value_parser = super::args::positive)]
     pub distances_mm: Vec<f64>,
+    /// Plan the volumetric test instead: all three axes from one mount, xy circles at each
+    /// --height (cones about the table ball) and zx and yz 220° arcs through it, on each
+    /// --distance; prints what the test determines.
+    #[arg(long, conflicts_with_all = ["calibration_test", "radii_mm", "plane", "start_deg", "arc_deg", "lead_in_deg", "overshoot_deg"])]
+    pub volumetric: bool,
+    /// The machine's travel in the program's coordinates, e.g. `x=0:500,y=0:400,z=-400:0` (mm):
+    /// a plan that leaves it is refused, naming the element and by how much.
+    #[arg(long, value_name = "x=MIN:MAX,..")]
+    pub travel: Option<String>,
     /// Angle where each circle starts and ends, degrees from the plane's first axis towards its
     /// second (xy: from x, yz: from y, zx: from z).
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true, value_parser = super::args::finite)]
@@ -120,6 +132,16 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         None => Calibration::DEFAULT,
     };
     let inst = instrument(&cal)?;
+    if !args.distances_mm.is_empty() && !args.calibration_test && !args.volumetric {
+        return Err(Error::Usage(
+            "--distance is the ball distance of --calibration-test or --volumetric; a machine test takes --radius and --height".into(),
+        ));
+    }
+    let heights_mm = if args.heights_mm.is_empty() && !args.volumetric {
+        vec![0.0]
+    } else {
+        args.heights_mm.clone()
+    };
     let (purpose, circles) = if args.calibration_test {
         let d = if args.distances_mm.is_empty() {
             default_calibration_distances(&inst, args.feed_in_mm)
@@ -130,7 +152,7 @@ pub fn run(args: &PlanArgs) -> Result<()> {
     } else {
         (
             Purpose::MachineTest,
-            machine_test_circles(&args.radii_mm, &args.heights_mm),
+            machine_test_circles(&args.radii_mm, &heights_mm),
         )
     };
     let (lead_in_deg, overshoot_deg) = default_lead_in_overshoot(args.arc_deg);
@@ -150,7 +172,26 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         reversal_dwell_s: args.reversal_dwell_s.unwrap_or(args.dwell_s),
         corner_dwell_s: args.corner_dwell_s,
     };
-    let plan = plan(&spec, &cal)?;
+    let plan = if args.volumetric {
+        let distances_mm = if args.distances_mm.is_empty() {
+            vec![volumetric::default_distance_mm(&inst)]
+        } else {
+            args.distances_mm.clone()
+        };
+        volumetric::plan(
+            &volumetric::VolumetricSpec {
+                distances_mm,
+                heights_mm,
+                base: spec,
+            },
+            &cal,
+        )?
+    } else {
+        plan(&spec, &cal)?
+    };
+    if let Some(t) = &args.travel {
+        volumetric::check_travel(&plan, &super::args::travel_mm("--travel", t)?)?;
+    }
     let program = write_program(&plan, args.dialect);
     let json_path = args.out.join("plan.json");
     let program_path = args.out.join(&plan.program);
@@ -177,12 +218,12 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         set.remove(old);
     }
     set.commit()?;
-    emit(&setup_text(
-        &plan,
-        &json_path,
-        &program_path,
-        program.lines().count(),
-    ))
+    let blocks = program.lines().count();
+    emit(&if args.volumetric {
+        super::volumetric::setup_text(&plan, &json_path, &program_path, blocks)
+    } else {
+        setup_text(&plan, &json_path, &program_path, blocks)
+    })
 }
 
 /// The program named by the plan at `json` (a plan.json jdbb wrote), if it is one of jdbb's
@@ -213,6 +254,41 @@ fn duration(s: f64) -> String {
     }
 }
 
+/// The ball distances a plan uses (on its `elements`, feed-ins and moves) and the box the
+/// spindle ball travels in: two lines of the printout.
+pub(super) fn reach_text(plan: &Plan, elements: &str) -> String {
+    let (lo, hi) = plan.mounted_d_range_mm();
+    let mut t =
+        format!("ball distances used: {lo:.3}..{hi:.3} mm ({elements}, feed-ins and moves)\n");
+    let (lo, hi) = plan.travel_mm();
+    t += &format!(
+        "spindle ball travel: X {:.3}..{:.3}  Y {:.3}..{:.3}  Z {:.3}..{:.3} mm\n",
+        lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
+    );
+    t
+}
+
+/// Where the table ball goes, where the program stops for the operator to mount the instrument
+/// (`mounted`: what to add about it) and the instrument's range: three lines of the printout.
+pub(super) fn place_text(plan: &Plan, mounted: &str) -> String {
+    format!(
+        "table ball centre:   {}\nstart point:         {}  (the program stops here: mount the instrument, then cycle start{mounted})\ninstrument range:    D {}\n",
+        point(&plan.centre_mm),
+        point(&plan.start_mm),
+        plan.instrument.describe()
+    )
+}
+
+/// The files written and the estimated run time: the printout's last two lines.
+pub(super) fn written_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String {
+    format!(
+        "wrote {} and {} ({blocks} lines)\nestimated run time:  {} at the programmed feed (without the rapid, the stop and acceleration)",
+        json.display(),
+        program.display(),
+        duration(plan.nominal_duration_s())
+    )
+}
+
 /// A slow machine's acceleration (mm/s²), for the feed-in a partial arc needs.
 const SLOW_ACCEL_MM_S2: f64 = 300.0;
 
@@ -224,6 +300,7 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
         match plan.purpose {
             Purpose::MachineTest => "machine test",
             Purpose::CalibrationTest => "calibration test (spheres at several ball distances)",
+            Purpose::VolumetricTest => "volumetric test",
         },
         plan.plane.name(),
         plan.circles.len(),
@@ -253,12 +330,7 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
             deg(arc.overshoot_deg),
         );
     }
-    t += &format!("table ball centre:   {}\n", point(&plan.centre_mm));
-    t += &format!(
-        "start point:         {}  (the program stops here: mount the instrument, then cycle start)\n",
-        point(&plan.start_mm)
-    );
-    t += &format!("instrument range:    D {}\n", inst.describe());
+    t += &place_text(plan, "");
     t += "circles:\n";
     for c in &plan.circles {
         let phi = inst
@@ -272,13 +344,8 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
             c.d_mm
         );
     }
-    let (lo, hi) = plan.mounted_d_range_mm();
-    t += &format!("ball distances used: {lo:.3}..{hi:.3} mm (circles, feed-ins and moves)\n");
-    let (lo, hi) = plan.travel_mm();
-    t += &format!(
-        "spindle ball travel: X {:.3}..{:.3}  Y {:.3}..{:.3}  Z {:.3}..{:.3} mm\n",
-        lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
-    );
+    t += &reach_text(plan, "circles");
+    let (lo, _) = plan.travel_mm();
     let below_mm = plan.centre_mm[2] - lo[2];
     if plan.plane != Plane::Xy && !arc.is_partial() {
         t += &format!(
@@ -324,14 +391,5 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
     if plan.dialect == Dialect::Marlin && plan.plane != Plane::Xy {
         t += "note: Marlin selects G18/G19 only with CNC_WORKSPACE_PLANES; without it these arcs run in XY\n";
     }
-    t += &format!(
-        "wrote {} and {} ({blocks} lines)\n",
-        json.display(),
-        program.display()
-    );
-    t += &format!(
-        "estimated run time:  {} at the programmed feed (without the rapid, the stop and acceleration)",
-        duration(plan.nominal_duration_s())
-    );
-    t
+    t + &written_text(plan, json, program, blocks)
 }

@@ -323,6 +323,7 @@ pub fn plan(spec: &PlanSpec, cal: &Calibration) -> Result<Plan> {
             d_mm: (r * r + h * h).sqrt(),
             plane: spec.plane,
             feed_mm_min: feed,
+            arc: None,
         });
         match previous_in {
             None => {
@@ -692,7 +693,7 @@ pub(crate) fn on_circle(
 
 /// Every mounted segment (all after the stop) keeps D in range. A guard on the construction
 /// above.
-fn check_range(plan: &Plan) -> Result<()> {
+pub(crate) fn check_range(plan: &Plan) -> Result<()> {
     let inst = &plan.instrument;
     for k in 2..plan.segments.len() {
         if let Some((lo, hi)) = plan.d_range_mm(k) {

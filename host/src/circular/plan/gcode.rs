@@ -117,11 +117,21 @@ pub fn write_program(plan: &Plan, dialect: Dialect) -> String {
     } else {
         "each ccw then cw".to_string()
     };
+    let what = if plan.purpose == super::Purpose::VolumetricTest {
+        format!(
+            "{} circles and arcs: xy circles at several heights, then zx and yz arcs, each ccw then cw",
+            plan.circles.len()
+        )
+    } else {
+        format!(
+            "{} circles in plane {}, {arc}",
+            plan.circles.len(),
+            plan.plane.name()
+        )
+    };
     o.comment(&format!(
-        "jdbb plan, {}: {} circles in plane {}, {arc}, feed {} mm/min",
+        "jdbb plan, {}: {what}, feed {} mm/min",
         plan.purpose.name(),
-        plan.circles.len(),
-        plan.plane.name(),
         number(plan.feed_mm_min)
     ));
     o.comment(&format!(

@@ -130,6 +130,9 @@
 //!   goes to), `arc` (G2/G3 of at most 180°: `centre_mm`, `radius_mm`, `plane`, `sense` `ccw`/`cw`,
 //!   `start_deg` in [0, 360) from +i towards +j, `sweep_deg` signed (+ ccw, − cw), `role`
 //!   `lead_in`, `data` or `overshoot`).
+//! - Version 3 (purpose `volumetric-test`, [`crate::volumetric`]): the same fields; its circles
+//!   are of several planes (`plane` per circle; the plan's `plane` and `arc` are its first
+//!   circle's) and each carries its own `arc` (the fields of the plan's `arc`).
 //! - Times are not in plan.json: the machine decides them. [`Plan::nominal_duration_s`] is the
 //!   feed-rate estimate.
 //!
@@ -158,6 +161,10 @@ pub const FORMAT: &str = "jdbb-plan";
 /// The plan.json version this code writes (it reads this one and version 1, which had no `arc`:
 /// every circle full).
 pub const VERSION: u32 = 2;
+/// The plan.json version of a volumetric test (purpose `volumetric-test`): version 2 with
+/// circles of several planes, each with its own `arc` ([`Circle::arc`]). Plane tests are still
+/// written as version 2, so their files and ids are unchanged.
+pub const VOLUMETRIC_VERSION: u32 = 3;
 /// Grid of every position in a plan and its program (mm): 1 µm.
 pub const GRID_MM: f64 = 0.001;
 /// How far inside the instrument's mechanical range every D of a plan stays (mm), for set-up
@@ -267,6 +274,9 @@ pub enum Purpose {
     MachineTest,
     /// Spheres at several ball distances: the instrument's calibration.
     CalibrationTest,
+    /// Cones and arcs of several planes about one table ball: all three axes from one mount
+    /// ([`crate::volumetric`]; plan.json version [`VOLUMETRIC_VERSION`]).
+    VolumetricTest,
 }
 
 impl Purpose {
@@ -275,6 +285,7 @@ impl Purpose {
         match self {
             Purpose::MachineTest => "machine-test",
             Purpose::CalibrationTest => "calibration-test",
+            Purpose::VolumetricTest => "volumetric-test",
         }
     }
 }
@@ -462,6 +473,10 @@ pub struct Circle {
     pub d_mm: f64,
     pub plane: Plane,
     pub feed_mm_min: f64,
+    /// The arc this circle runs, in a volumetric plan (version 3), whose circles run different
+    /// arcs in different planes; absent in a plane test, whose circles all run the plan's `arc`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub arc: Option<CircleArc>,
 }
 
 /// One block of the program (see the module docs for the fields).
@@ -621,13 +636,16 @@ impl Plan {
             ));
         }
         let version = head.get("version").and_then(|v| v.as_u64());
-        if version != Some(VERSION as u64) && version != Some(1) {
+        if version != Some(VERSION as u64)
+            && version != Some(1)
+            && version != Some(VOLUMETRIC_VERSION as u64)
+        {
             return Err(Error::input(
                 path,
                 1,
                 0,
                 format!(
-                    "plan version {} is not 1 or {VERSION}, the versions this jdbb reads; make the plan again with this jdbb",
+                    "plan version {} is not 1, {VERSION} or {VOLUMETRIC_VERSION}, the versions this jdbb reads; make the plan again with this jdbb",
                     head.get("version").map_or("missing".into(), |v| v.to_string())
                 ),
             ));
@@ -684,15 +702,25 @@ impl Plan {
                 self.units
             ));
         }
+        // A volumetric plan (and only it) has circles of several planes, each with its arc.
+        let volumetric = self.purpose == Purpose::VolumetricTest;
+        if volumetric != (self.version == VOLUMETRIC_VERSION) {
+            return Err(format!(
+                "purpose {} does not go with version {}: a volumetric test is version {VOLUMETRIC_VERSION}, other tests 1 or {VERSION}",
+                self.purpose.name(),
+                self.version
+            ));
+        }
         for (k, c) in self.circles.iter().enumerate() {
             let d = c.radius_mm.hypot(c.height_mm);
             if c.index != k
                 || !(c.radius_mm > 0.0 && c.radius_mm.is_finite())
                 || (c.d_mm - d).abs().partial_cmp(&TOL_MM) != Some(std::cmp::Ordering::Less)
-                || c.plane != self.plane
+                || (!volumetric && c.plane != self.plane)
+                || volumetric != c.arc.is_some()
             {
                 return Err(format!(
-                    "circle {k} does not agree with itself (index, radius, D = √(R² + H²), plane)"
+                    "circle {k} does not agree with itself (index, radius, D = √(R² + H²), plane, arc)"
                 ));
             }
         }
@@ -864,30 +892,47 @@ impl Plan {
     }
 
     /// The box the spindle ball's centre travels in (program coordinates, mm): smallest and
-    /// largest x, y, z over every segment, arcs sampled every 0.1 mm (within 0.1 µm of their
-    /// extremes at radii above 10 mm). For checking the machine's travel and clearances.
+    /// largest x, y, z over every segment ([`Plan::segment_travel_mm`]). For checking the
+    /// machine's travel and clearances.
     pub fn travel_mm(&self) -> ([f64; 3], [f64; 3]) {
+        (0..self.segments.len())
+            .filter_map(|k| self.segment_travel_mm(k))
+            .fold(
+                ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+                |(lo, hi), (a, b)| {
+                    (
+                        std::array::from_fn(|i| lo[i].min(a[i])),
+                        std::array::from_fn(|i| hi[i].max(b[i])),
+                    )
+                },
+            )
+    }
+
+    /// The box segment `seg` moves the spindle ball's centre through (program coordinates, mm):
+    /// smallest and largest x, y, z, arcs sampled every 0.1 mm (within 0.1 µm of their extremes
+    /// at radii above 10 mm); `None` for a stop or a dwell.
+    ///
+    /// # Panics
+    /// If `seg` is not an index of `segments`.
+    pub fn segment_travel_mm(&self, seg: usize) -> Option<([f64; 3], [f64; 3])> {
+        let s = &self.segments[seg];
+        s.to_mm()?;
         let mut lo = [f64::INFINITY; 3];
         let mut hi = [f64::NEG_INFINITY; 3];
-        for (k, s) in self.segments.iter().enumerate() {
-            if s.to_mm().is_none() {
-                continue;
-            }
-            let len = s.length_mm();
-            let n = if matches!(s, Segment::Arc { .. }) {
-                (len / 0.1).ceil().max(1.0) as usize
-            } else {
-                1
-            };
-            for m in 0..=n {
-                let p = self.position_at(k, len * m as f64 / n as f64);
-                for a in 0..3 {
-                    lo[a] = lo[a].min(p[a]);
-                    hi[a] = hi[a].max(p[a]);
-                }
+        let len = s.length_mm();
+        let n = if matches!(s, Segment::Arc { .. }) {
+            (len / 0.1).ceil().max(1.0) as usize
+        } else {
+            1
+        };
+        for m in 0..=n {
+            let p = self.position_at(seg, len * m as f64 / n as f64);
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
             }
         }
-        (lo, hi)
+        Some((lo, hi))
     }
 
     /// The plan's id: 16 hex digits of a hash (FNV-1a, 64 bit) of its content, so that a record
