@@ -171,11 +171,9 @@ fn the_text_the_plot_and_the_json_use_one_centre_said_as_the_move_that_centres_t
         dir.path(),
         "c.csv",
         "0.2",
-        &[
-            "setup_offset=10,-4,0",
-            "backlash_x=6",
-            "servo_mismatch_xy=0.4",
-        ],
+        // A bowed X axis (straightness_x_y) has a first harmonic in Y: the least-squares
+        // centre of the trace is 3.75 µm off in Y, the fitted set-up is not.
+        &["setup_offset=10,-4,0", "straightness_x_y=5"],
     );
     let report = dir.path().join("rep");
     let text = diagnose(&file, &["--report", report.to_str().unwrap()]);
@@ -216,16 +214,6 @@ fn the_text_the_plot_and_the_json_use_one_centre_said_as_the_move_that_centres_t
             "{caption}"
         );
     }
-    // The zone centres are table-ball positions from that centre: near the true (10, −4).
-    let centre = &v["circles"][0]["ccw"]["centre"];
-    assert!(
-        (centre["x_um"].as_f64().unwrap() - 10.0).abs() < 1.0,
-        "{centre}"
-    );
-    assert!(
-        (centre["y_um"].as_f64().unwrap() + 4.0).abs() < 1.0,
-        "{centre}"
-    );
 }
 
 #[test]
