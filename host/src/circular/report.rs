@@ -611,7 +611,7 @@ pub fn rank_order(shares: &[Option<(f64, f64)>]) -> Vec<usize> {
 /// it) / G, at least 0; NaN for the set-up or where G is 0.
 pub fn g_share(d: &Diagnosis, f: &super::diagnose::Found) -> f64 {
     let g = d.circular_deviation_g_um;
-    if f.effect.is_setup() || !(g > 0.0) {
+    if f.effect.is_setup() || g.is_nan() || g <= 0.0 {
         return f64::NAN;
     }
     ((g - f.g_without_um) / g).max(0.0)
