@@ -203,12 +203,8 @@ fn the_text_the_plot_and_the_json_use_one_centre_said_as_the_move_that_centres_t
         let got: f64 = caption
             .split(key)
             .nth(1)
-            .unwrap()
-            .split(' ')
-            .next()
-            .unwrap()
-            .parse()
-            .unwrap();
+            .and_then(|rest| rest.split_whitespace().next()?.parse().ok())
+            .unwrap_or_else(|| panic!("no {key}number in {caption}"));
         assert!(
             (got - fitted[k].as_f64().unwrap()).abs() < 0.01,
             "{caption}"
