@@ -495,26 +495,30 @@ fn params_text(f: &super::diagnose::Found) -> String {
         .join(", ")
 }
 
-/// A group the test cannot tell apart, in plain words with what separates them.
+/// A group the test cannot tell apart, in plain words with what separates them: a second radius
+/// for the scales and the bar's length, and for a bow and a second-order scale (x² = R² − y² on
+/// one circle; the constant R² differs per circle, docs/mechanisms.md).
 fn confounded_text(group: &[String]) -> String {
-    let (last, first) = group.split_last().expect("a confounded group has a name");
-    let names = if first.is_empty() {
-        format!("{last} (the path does not excite it)")
-    } else {
-        format!("{} from {last}", first.join(", "))
+    let radius = |n: &String| {
+        ["scale", "length_offset", "straightness"]
+            .iter()
+            .any(|p| n.starts_with(p))
     };
-    let scale = |n: &String| n.starts_with("scale_") || n == "length_offset";
-    let remedy = if group.iter().any(scale) {
-        "run a second radius to separate them"
-    } else if group
-        .iter()
-        .any(|n| n.starts_with("straightness") || n.starts_with("scale2"))
-    {
-        "run circles at two heights or in another plane to separate them"
+    let remedy = if group.iter().any(radius) {
+        "run a second radius about the same table ball"
     } else {
-        "run another radius or plane to separate them"
+        "run another radius or plane"
     };
-    format!("this test cannot tell {names}: {remedy}")
+    match group.split_last() {
+        Some((last, first)) if !first.is_empty() => format!(
+            "this test cannot tell {} from {last}: {remedy} to separate them",
+            first.join(", ")
+        ),
+        _ => format!(
+            "this test does not measure {}: the path does not move it; {remedy} to measure it",
+            group.join(", ")
+        ),
+    }
 }
 
 /// A candidate a partial arc barely tells from others, as the text says it.
