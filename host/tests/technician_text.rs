@@ -177,7 +177,10 @@ fn the_text_the_plot_and_the_json_use_one_centre_said_as_the_move_that_centres_t
     );
     let report = dir.path().join("rep");
     let text = diagnose(&file, &["--report", report.to_str().unwrap()]);
-    let centring: Vec<&str> = text.lines().filter(|l| l.contains("table ball")).collect();
+    let centring: Vec<&str> = text
+        .lines()
+        .filter(|l| l.contains("table ball sits") || l.contains("move the table ball"))
+        .collect();
     assert_eq!(centring.len(), 1, "{text}");
     assert!(
         centring[0].contains("move the table ball -10.0 µm in X, +4.0 µm in Y"),
