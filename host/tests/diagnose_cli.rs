@@ -99,7 +99,7 @@ fn simulate_then_diagnose_json_names_the_hidden_effects() {
 fn human_summary_names_cause_and_confounding() {
     let dir = tempfile::tempdir().unwrap();
     let file = simulate(dir.path(), "s.csv", &["--effect", "scale_x=30"]);
-    let o = jdbb(&["diagnose", "--samples", &file]);
+    let o = jdbb(&["diagnose", "--samples", &file, "--verbose"]);
     assert!(o.status.success());
     let s = String::from_utf8_lossy(&o.stdout);
     assert!(s.contains("scale_mismatch_xy = "), "{s}");
@@ -379,7 +379,7 @@ fn polar_plot_has_no_chord_and_states_the_removed_setup() {
     // D = |p + (20, −10) µm| puts the table ball at (−20, 10) µm; noise-free data support many
     // digits (the residual RMS is a fraction of a nanometre).
     let caption = svg
-        .split("Set-up removed (least-squares, all samples): table ball at ")
+        .split("Set-up removed (fitted): table ball at ")
         .nth(1)
         .expect("caption must give the removed set-up");
     let number = |key: &str| -> f64 {
@@ -419,6 +419,25 @@ fn polar_plot_has_no_chord_and_states_the_removed_setup() {
     }
     // Measured and model, ccw and cw.
     assert!(traces >= 4, "{traces} traces");
+}
+
+/// The whole number right before each occurrence of `marker` in `text`.
+fn percents_before(text: &str, marker: &str) -> Vec<u32> {
+    let pieces: Vec<&str> = text.split(marker).collect();
+    pieces[..pieces.len() - 1]
+        .iter()
+        .filter_map(|piece| {
+            let digits: String = piece
+                .chars()
+                .rev()
+                .take_while(|c| c.is_ascii_digit())
+                .collect::<Vec<_>>()
+                .into_iter()
+                .rev()
+                .collect();
+            digits.parse().ok()
+        })
+        .collect()
 }
 
 /// The whole numbers before " %" in `text` after each occurrence of `marker`.
@@ -520,10 +539,7 @@ fn every_output_shows_one_g_per_circle_and_direction_shares_of_100_and_plain_wor
         .sum::<f64>()
         + v["residual_share"].as_f64().unwrap();
     assert!((json_sum - 1.0).abs() < 1e-9, "{json_sum}");
-    let mut in_text = percents_after(&text, "µm (");
-    in_text.extend(percents_after(&text, "µm/m ("));
-    in_text.extend(percents_after(&text, "ms ("));
-    in_text.extend(percents_after(&text, "the residual is"));
+    let in_text = percents_before(&text, " % of the mean square");
     assert_eq!(in_text.len(), effects.len() - 2 + 1, "{text}");
     assert_eq!(in_text.iter().sum::<u32>(), 100, "{text}");
     let mut in_html = percents_after(&html, "</span> ");

@@ -108,7 +108,7 @@ fn diagnose_record(plan: &Plan, rec: &Recording, pitch: [Option<f64>; 3]) -> Dia
 /// resembles, and its one-circle twin, the second-order scale of j, as confounded with it; no
 /// harmonics; the note in the summary, the JSON and report.html.
 fn assert_partial_arc_reported(d: &Diagnosis, plane: Plane) {
-    let text = summary(d);
+    let text = format!("{}{}", summary(d), jdbb::circular::report::details(d));
     assert_eq!(d.arcs.len(), 1, "{text}");
     let a = d.arcs[0];
     assert!(a.is_partial(), "{a:?}");

@@ -50,7 +50,7 @@ use super::runs::{
     angles, arc_cover, harmonics, main_plane, split_runs_at, ArcCover, Circle, Run,
     MAX_RUN_STEP_RAD,
 };
-use super::zone::{circle_zones, CircleZone};
+use super::zone::{circle_zones, filtered_g_um, CircleZone, FILTER_UPR};
 use crate::numerics::correlation;
 use crate::numerics::lsq::{least_squares, GramAccumulator, LsqOptions, Subset};
 use crate::numerics::select::{
@@ -110,6 +110,10 @@ pub struct Found {
     /// effect's contribution_rms_um² and the residual's mean square (final_rms_um²), so the
     /// shares and [`Diagnosis::residual_share`] add up to 1; NaN for the set-up.
     pub share: f64,
+    /// The test's G (µm) with the radial deviation this effect alone makes taken out of the
+    /// measured traces: what G would be without it, which its share of G is read from
+    /// ([`super::report`], *Shares*); NaN for the set-up.
+    pub g_without_um: f64,
 }
 
 /// An effect the selection chose but whose value its σ does not tell from zero.
@@ -183,14 +187,15 @@ pub struct Diagnosis {
     /// uncertainty of the timing (a reversal spike's height against the synchronisation's
     /// timing σ); not named, and the rest refitted without them.
     pub not_significant: Vec<NotSignificant>,
-    /// Per sample: angle (rad) in the main plane; measured deviation with the least-squares
-    /// set-up removed, D − (|p − t| + e) with t, e from [`Diagnosis::lsq_setup_um`] (µm); and the
-    /// extended model's deviation after the same removal, i.e. its machine effects (µm).
+    /// Per sample: angle (rad) in the main plane; measured deviation with the fitted set-up
+    /// removed, D − (|p − t| + e) with t, e the fitted `setup_offset` and `length_offset` (µm:
+    /// the one centre every output uses); and the extended model's deviation after the same
+    /// removal, i.e. its machine effects (µm).
     pub angle_rad: Vec<f64>,
     pub measured_dev_um: Vec<f64>,
     pub model_dev_um: Vec<f64>,
-    /// The set-up removed from the plotted deviations: the least-squares centre and length of all
-    /// samples, D ≈ |p − t| + e, as [t_x, t_y, t_z, e] in µm, t being where the table ball is
+    /// The least-squares centre and length of all samples (a detail: the centre ISO 230-4's F is
+    /// taken about), D ≈ |p − t| + e, as [t_x, t_y, t_z, e] in µm, t being where the table ball is
     /// relative to where it was assumed (the one sign of a set-up offset in every command) and
     /// e the bar's length offset (a component the path cannot determine is held at 0).
     pub lsq_setup_um: [f64; 4],
@@ -209,6 +214,12 @@ pub struct Diagnosis {
     /// Per circle: conditions (radius, height, feed) and ISO 230-4 G and H with the
     /// minimum-zone centre ([`super::zone`]).
     pub circle_zones: Vec<CircleZone>,
+    /// Per circle, [ccw, cw]: G (µm, minimum zone) of the traces low-passed at
+    /// [`Diagnosis::filter_upr`] undulations per revolution ([`super::zone::filtered_g_um`]);
+    /// None where the circle was not run that way.
+    pub filtered_g_um: Vec<[Option<f64>; 2]>,
+    /// The cut-off of that low-pass, undulations per revolution.
+    pub filter_upr: f64,
     /// The pitch per axis the diagnosis was given (mm), which the periodic effects refer to.
     pub pitch_mm: [Option<f64>; 3],
     /// The arc each circle's samples cover (in `circles`' order): 360° on a full circle. On a
@@ -1204,6 +1215,7 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
                 delta_bic,
                 contribution_rms_um: f64::NAN,
                 share: f64::NAN,
+                g_without_um: f64::NAN,
             });
         }
         // What the data cannot carry is not named: first an effect whose parameters the data do
@@ -1274,21 +1286,12 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
         names
     };
 
-    // Residual structure, G and H. The plotted deviations have the least-squares set-up of step 3
-    // removed (the ballbar convention: centring and bar length are set-up, not machine); the
-    // model's prediction gets the same treatment, so both curves show the same quantity.
+    // Residual structure, G and H. The plotted deviations have the fitted set-up removed (the
+    // one centre of every output, issue 31: centring and bar length are set-up, not machine);
+    // the model's prediction gets the same treatment, so both curves show the same quantity:
+    // the model's curve is its machine effects alone.
     let full_mm = final_set.distances_mm(path, &theta);
-    let model_setup = fit_setup(
-        path,
-        &full_mm,
-        &setup_free,
-        &[
-            setup_theta[0],
-            setup_theta[1],
-            setup_theta[2],
-            setup_theta[3],
-        ],
-    )?;
+    let fitted_setup_um = fitted_setup_um(&found);
     // fit_setup's t is where the table ball is: D = |p − t| + e.
     let lsq_setup_um = [
         setup_theta[0],
@@ -1301,8 +1304,8 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
     let mut resid = Vec::with_capacity(m);
     for i in 0..m {
         let p = path.p_mm[i];
-        meas.push(1e3 * (d_mm[i] - setup_distance_mm(p, &lsq_setup_um)));
-        model.push(1e3 * (full_mm[i] - setup_distance_mm(p, &model_setup)));
+        meas.push(1e3 * (d_mm[i] - setup_distance_mm(p, &fitted_setup_um)));
+        model.push(1e3 * (full_mm[i] - setup_distance_mm(p, &fitted_setup_um)));
         resid.push(1e3 * (d_mm[i] - full_mm[i]));
     }
     // Harmonics against the angle need the whole circle: on part of one they are not
@@ -1313,6 +1316,7 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
         harmonics(&angle, &resid, opts.harmonics)
     };
     let zones = circle_zones(path, &angle, &meas, &circles, &runs)?;
+    let filtered_g_um = filtered_g_um(&angle, &meas, &runs, circles.len(), FILTER_UPR)?;
     // Blocks up to the longest the estimate allows: the effects live at the circle's low
     // harmonics and a drift over the whole test, where a slow wander competes with them.
     let noise_tau_int = correlation::integrated_time(&resid, m);
@@ -1357,6 +1361,19 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
     // A speed-dependent cyclic term that is the cyclic error read where a lagging axis is: kept
     // in the model (D holds it), named as part of the cyclic error, not as an effect of its own.
     let explained = lag_explained(&found, path);
+    // What G would be without each machine effect (with the interference named as part of it).
+    let traces = Traces {
+        path,
+        angle: &angle,
+        meas: &meas,
+        circles: &circles,
+        runs: &runs,
+    };
+    for k in (2..found.len()).filter(|k| !explained.iter().any(|e| e.0 == *k)) {
+        let mut group = vec![k];
+        group.extend(explained.iter().filter(|e| e.1 == k).map(|e| e.0));
+        found[k].g_without_um = traces.g_without_um(&found, &group)?;
+    }
     for &(ii, ci, _) in &explained {
         let (rms, sh) = (found[ii].contribution_rms_um, found[ii].share);
         found[ci].contribution_rms_um = found[ci].contribution_rms_um.hypot(rms);
@@ -1390,6 +1407,8 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
         circular_deviation_g_um: g,
         hysteresis_h_um: h,
         circle_zones: zones,
+        filtered_g_um,
+        filter_upr: FILTER_UPR,
         pitch_mm: path.pitch_mm,
         arcs,
         weak_on_arc: weak,
@@ -1491,6 +1510,55 @@ fn weak_on_arc(
         }
     }
     out
+}
+
+/// The fitted set-up [t_x, t_y, t_z, e] (µm) of `found`: its `setup_offset` (where the table
+/// ball is relative to where it was assumed) and `length_offset`; 0 for one not there.
+fn fitted_setup_um(found: &[Found]) -> [f64; 4] {
+    let mut s = [0.0; 4];
+    for f in found {
+        match f.effect {
+            Effect::SetupOffset => s[..3].copy_from_slice(&f.params[..3]),
+            Effect::LengthOffset => s[3] = f.params[0],
+            _ => {}
+        }
+    }
+    s
+}
+
+impl Diagnosis {
+    /// The fitted set-up [t_x, t_y, t_z, e] (µm): where the table ball is relative to where it
+    /// was assumed, and the bar's length offset. The one centre of every output: removed from
+    /// the plotted deviations, said in the text as the move that centres the ball.
+    pub fn fitted_setup_um(&self) -> [f64; 4] {
+        fitted_setup_um(&self.effects)
+    }
+}
+
+/// The measured traces of a diagnosis, to take an effect out of.
+struct Traces<'a> {
+    path: &'a Path,
+    angle: &'a [f64],
+    meas: &'a [f64],
+    circles: &'a [Circle],
+    runs: &'a [Run],
+}
+
+impl Traces<'_> {
+    /// The test's G (µm: the largest minimum-zone G over circles and directions) of the measured
+    /// traces with the radial deviation the effects `group` of `found` make alone taken out:
+    /// what G would be without them.
+    fn g_without_um(&self, found: &[Found], group: &[usize]) -> Result<f64> {
+        let mut dev = self.meas.to_vec();
+        for f in group.iter().map(|&k| &found[k]) {
+            let d = EffectSet::new(vec![f.effect]).distances_mm(self.path, &f.params);
+            for ((v, p), d) in dev.iter_mut().zip(&self.path.p_mm).zip(&d) {
+                *v -= 1e3 * (d - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt());
+            }
+        }
+        let zones = circle_zones(self.path, self.angle, &dev, self.circles, self.runs)?;
+        Ok(zones.iter().map(CircleZone::g_um).fold(0.0, f64::max))
+    }
 }
 
 /// The set-up's distance |p − c| + e (mm) for `setup_um` = [c_x, c_y, c_z, e] in µm (c: where
@@ -1670,6 +1738,7 @@ mod tests {
             delta_bic: -50.0,
             contribution_rms_um: 0.3,
             share: 0.1,
+            g_without_um: 1.0,
         }
     }
 

@@ -45,6 +45,12 @@ pub struct EffectDoc {
     pub contribution_rms_um: Option<f64>,
     #[serde(default)]
     pub share: Option<f64>,
+    /// The effect's share of G (absent in files written before it; see the report's docs).
+    #[serde(default)]
+    pub g_share: Option<f64>,
+    /// The test's G without this effect, µm.
+    #[serde(default)]
+    pub g_without_um: Option<f64>,
 }
 
 impl EffectDoc {
@@ -104,6 +110,16 @@ pub struct CircleDoc {
     /// ISO 230-4 radial deviation F per direction (absent in files written before it).
     #[serde(default)]
     pub radial_deviation_f: Option<RadialDeviationDoc>,
+    /// G per direction of the trace low-passed at `filter_upr` (absent in files before it).
+    #[serde(default)]
+    pub g_filtered_um: Option<DirectionsDoc>,
+}
+
+/// A figure of one circle per direction, µm (null: not run that way).
+#[derive(Debug, Clone, Copy, Default, Deserialize)]
+pub struct DirectionsDoc {
+    pub ccw: Option<f64>,
+    pub cw: Option<f64>,
 }
 
 /// F of one circle per direction (`circles[].radial_deviation_f`).
@@ -221,6 +237,12 @@ pub struct DiagnosisDoc {
     pub gain: Option<f64>,
     pub circular_deviation_g_um: Option<f64>,
     pub hysteresis_h_um: Option<f64>,
+    /// The test's G of the traces low-passed at `filter_upr` (absent in files before it), µm.
+    #[serde(default)]
+    pub circular_deviation_g_filtered_um: Option<f64>,
+    /// The low-pass cut-off of the filtered G, undulations per revolution.
+    #[serde(default)]
+    pub filter_upr: Option<f64>,
     #[serde(default)]
     pub plane: Option<String>,
     #[serde(default)]
@@ -347,6 +369,29 @@ impl DiagnosisDoc {
         Ok(doc)
     }
 
+    /// The one centre of the diagnosis: where the fitted set-up puts the table ball relative to
+    /// where it was assumed, {x, y, z} µm (`setup_offset`'s parameters; None if the file has
+    /// none). What the text says to move, what the plot removes.
+    pub fn setup_um(&self) -> Option<[Option<f64>; 3]> {
+        let e = self.effects.iter().find(|e| e.name == "setup_offset")?;
+        let p = |k: &str| e.params.get(k).copied().flatten();
+        Some([p("x_um"), p("y_um"), p("z_um")])
+    }
+
+    /// The machine effects in the order every output lists them: by share of G, then by
+    /// mean-square share ([`super::report::rank_order`]).
+    pub fn ranked_machine_effects(&self) -> Vec<(&EffectDoc, Effect)> {
+        let all: Vec<(&EffectDoc, Effect)> = self.machine_effects().collect();
+        let keys: Vec<Option<(f64, f64)>> = all
+            .iter()
+            .map(|(e, _)| Some((e.g_share.unwrap_or(f64::NAN), e.share.unwrap_or(f64::NAN))))
+            .collect();
+        super::report::rank_order(&keys)
+            .into_iter()
+            .map(|i| all[i])
+            .collect()
+    }
+
     /// The machine effects (not the set-up), in the file's order.
     pub fn machine_effects(&self) -> impl Iterator<Item = (&EffectDoc, Effect)> {
         self.effects
@@ -427,6 +472,8 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
         "plan",
         "sync",
         "lsq_circular_deviation_g_um",
+        "circular_deviation_g_filtered_um",
+        "filter_upr",
         // The test's conditions (ISO 230-4) from `jdbb diagnose`'s options.
         "operator",
         "temperature_c",
@@ -448,6 +495,8 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
         "delta_bic",
         "contribution_rms_um",
         "share",
+        "g_share",
+        "g_without_um",
     ];
     const NOT_SIGNIFICANT: &[&str] = &["name", "value", "sigma", "unit", "params", "reason"];
     const FIGURES: &[&str] = &["rms_um", "pv_um", "g_um", "h_um"];
@@ -463,6 +512,7 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
         "cw",
         "bidirectional",
         "radial_deviation_f",
+        "g_filtered_um",
     ];
     const ZONE: &[&str] = &["g_um", "centre", "radius_offset_um"];
     const ARC: &[&str] = &["start_deg", "sweep_deg", "partial"];
@@ -519,6 +569,9 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
                 if let Some(z) = c.get(sense) {
                     keys(z, ZONE, &format!("circles[{k}].{sense}"))?;
                 }
+            }
+            if let Some(g) = c.get("g_filtered_um") {
+                keys(g, DIRECTIONS, &format!("circles[{k}].g_filtered_um"))?;
             }
             if let Some(f) = c.get("radial_deviation_f") {
                 let place = format!("circles[{k}].radial_deviation_f");

@@ -551,16 +551,15 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
             .collect::<Vec<_>>(),
         doc.residual_share.unwrap_or(f64::NAN),
     );
-    let mut effects: Vec<_> = machine
-        .into_iter()
-        .zip(pct.effects.iter().copied())
+    // Ranked as the text ranks them: by share of G, then by mean-square share.
+    let keys: Vec<_> = machine
+        .iter()
+        .map(|(e, _)| Some((e.g_share.unwrap_or(f64::NAN), e.share.unwrap_or(f64::NAN))))
         .collect();
-    effects.sort_by(|a, b| {
-        b.0 .0
-            .share
-            .unwrap_or(0.0)
-            .total_cmp(&a.0 .0.share.unwrap_or(0.0))
-    });
+    let effects: Vec<_> = super::report::rank_order(&keys)
+        .into_iter()
+        .map(|i| (machine[i], pct.effects[i]))
+        .collect();
     if effects.is_empty() {
         let _ = writeln!(
             h,
@@ -569,7 +568,7 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
     } else {
         let _ = writeln!(
             h,
-            "<table>\n<tr><th>#</th><th>effect</th><th>value ± σ</th><th>share of the error</th><th>RMS alone</th><th>cause</th></tr>"
+            "<table>\n<tr><th>#</th><th>effect</th><th>value ± σ</th><th>share of G</th><th>share of the mean square</th><th>RMS alone</th><th>cause</th></tr>"
         );
         for (k, ((e, effect), pct)) in effects.iter().enumerate() {
             let bar = match pct {
@@ -581,11 +580,14 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
             };
             let _ = writeln!(
                 h,
-                "<tr><td class=\"num\">{}</td><td>{}</td><td class=\"num\">{} {}</td><td class=\"share\">{bar}{}</td><td class=\"num\">{} µm</td><td>{}</td></tr>",
+                "<tr><td class=\"num\">{}</td><td>{}</td><td class=\"num\">{} {}</td><td class=\"num\">{}</td><td class=\"share\">{bar}{}</td><td class=\"num\">{} µm</td><td>{}</td></tr>",
                 k + 1,
                 escape(&e.name),
                 escape(&format_estimate(e.value.unwrap_or(f64::NAN), e.sigma)),
                 escape(&human(&e.unit)),
+                e.g_share
+                    .filter(|g| g.is_finite())
+                    .map_or("–".to_string(), |g| format!("{:.0} %", 100.0 * g)),
                 match pct {
                     Some(p) => format!("{p} %"),
                     None => "–".into(),
@@ -596,7 +598,7 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         }
         let _ = writeln!(
             h,
-            "<tr><td></td><td>residual</td><td class=\"num\">RMS {} µm</td><td class=\"share\">{}</td><td class=\"num\">{} µm</td><td>noise and what no effect explains</td></tr>\n</table>",
+            "<tr><td></td><td>residual</td><td class=\"num\">RMS {} µm</td><td></td><td class=\"share\">{}</td><td class=\"num\">{} µm</td><td>noise and what no effect explains</td></tr>\n</table>",
             um(doc.final_fit.rms_um, noise),
             pct.residual.map_or("–".to_string(), |p| format!("{p} %")),
             um(doc.final_fit.rms_um, noise),
@@ -631,7 +633,7 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         .collect();
     let _ = writeln!(
         h,
-        "<p class=\"note\">Share of the error: the mean square of the radial deviation an effect alone makes (set-up removed), over the sum of that of every effect and the residual's mean square; the shares add up to 100 % (whole percentages, rounded by largest remainder). ± is one standard error; every figure is shown to the digits its σ supports (G, H and RMS: the test's noise, the residual RMS). Set-up, removed before everything here (the table ball relative to where it was assumed): {}.</p>",
+        "<p class=\"note\">Share of G: how much of the test's G the effect makes, (G − G without it) / G. Share of the mean square: the mean square of the radial deviation an effect alone makes (set-up removed), over the sum of that of every effect and the residual's mean square; the shares add up to 100 % (whole percentages, rounded by largest remainder). ± is one standard error; every figure is shown to the digits its σ supports (G, H and RMS: the test's noise, the residual RMS). Set-up, removed before everything here (the table ball relative to where it was assumed): {}.</p>",
         escape(&setup.join("; "))
     );
     for g in &doc.confounded {
@@ -738,7 +740,7 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
     }
     let _ = writeln!(
         h,
-        "</div>\n<p class=\"note\">Measured deviation with the least-squares set-up removed (ccw blue, cw orange), the ideal machine (green, zero deviation) and the model's machine effects (black).</p>\n<p class=\"note\">jdbb {}</p>\n</body>\n</html>",
+        "</div>\n<p class=\"note\">Measured deviation with the fitted set-up removed (ccw blue, cw orange), the ideal machine (green, zero deviation) and the model's machine effects (black).</p>\n<p class=\"note\">jdbb {}</p>\n</body>\n</html>",
         env!("CARGO_PKG_VERSION")
     );
     Ok(h)

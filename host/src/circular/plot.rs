@@ -1,6 +1,7 @@
 //! `--report DIR`: a ballbar-style polar plot (SVG and PNG) with the set-up removed, as ballbar
-//! software does: the measured deviation D − (|p − t| + e) with the least-squares table-ball
-//! offset t and length offset e of all samples, the ideal machine (the zero-deviation circle) and
+//! software does: the measured deviation D − (|p − t| + e) with the fitted table-ball offset t
+//! and length offset e (the one centre of every output: `setup_offset`, `length_offset`), the
+//! ideal machine (the zero-deviation circle) and
 //! the extended model's prediction after the same removal (its machine effects), with the one
 //! circular deviation G per circle and direction (ISO 230-4, minimum-zone centre, as the text and
 //! the JSON) and hysteresis H; plus the JSON of the diagnosis. Figures are shown to the digits
@@ -138,11 +139,11 @@ fn legend(d: &Diagnosis, view: &View) -> Vec<(Vec<RGBColor>, String)> {
 
 /// Caption lines under the legend: the set-up removed, what G and H are, the overlay.
 fn caption(d: &Diagnosis, view: &View) -> Vec<String> {
-    let s = d.lsq_setup_um;
+    let s = d.fitted_setup_um();
     let um = |x: f64| format_to(x, d.final_rms_um);
     let mut out = vec![
         format!(
-            "Set-up removed (least-squares, all samples): table ball at x = {} µm, y = {} µm, z = {} µm from where assumed; length offset e = {} µm",
+            "Set-up removed (fitted): table ball at x = {} µm, y = {} µm, z = {} µm from where assumed; length offset e = {} µm",
             um(s[0]), um(s[1]), um(s[2]), um(s[3])
         ),
         "G: radial width of the minimum zone of one circle in one direction (ISO 230-4, minimum-zone centre); H: largest ccw − cw difference in a 1° bin".to_string(),

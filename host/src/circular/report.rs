@@ -12,17 +12,37 @@
 //! # One G
 //! A test has one circular deviation G per circle and direction: the radial width of the minimum
 //! zone of that trace (ISO 230-4 with the minimum-zone centre, [`super::zone`]). Text, JSON,
-//! `report.html` and the plots all show that G; the test's G is the largest of them. The
-//! least-squares centre serves only to remove the set-up before the plot and is labelled as such.
+//! `report.html` and the plots all show that G; the test's G is the largest of them. Beside it,
+//! the filtered G: the same of the trace low-passed at 50 undulations per revolution
+//! ([`super::zone`], *Filter*), which the instrument's noise does not inflate.
 //!
-//! # Shares of the error
-//! An effect's share is the mean square of the radial deviation it alone makes (with the plotted
-//! curve's set-up removal), over the sum of that of every machine effect and the mean square of
-//! the residual (`final.rms_um`²). The shares and `residual_share` therefore add up to 1; printed
-//! as whole percentages they are rounded by largest remainder so that they add up to exactly
-//! 100 % ([`crate::units::percentages`]). Effects that are correlated share some of their
-//! deviation, which this sum counts once per effect: a share says how large an effect is
-//! against the others, not how much of the variance its removal would take away.
+//! # One centre
+//! The fitted set-up (`setup_offset`, `length_offset`: where the table ball is relative to where
+//! it was assumed, and the bar's length offset) is the one centre: the text says it once as the
+//! move that centres the ball, the plotted traces have it removed, the zone centres are given
+//! from it. The least-squares centre of all samples (`lsq_setup`, which ISO 230-4's F is about)
+//! and the minimum-zone centres are details (`--verbose`, the JSON): an effect's first harmonic
+//! (backlash, servo mismatch) moves them, not the fitted set-up.
+//!
+//! # Shares
+//! Two shares, named plainly everywhere (text, JSON, `report.html`):
+//! - **share of G** (`g_share`): how much of the test's circular deviation G the effect makes,
+//!   (G − G without it) / G, where *G without it* (`g_without_um`) is the largest minimum-zone G
+//!   of the measured traces with the radial deviation the effect alone makes taken out; at
+//!   least 0. It is what a ballbar user reads a percentage as: what G would lose if the effect
+//!   were fixed. A reversal spike that sets G has a share of G even where its mean square is
+//!   nothing; an effect the zone's centring takes up (a first harmonic) has none. Shares of G
+//!   do not add up to 100 %: G is a peak-to-valley, and two effects can each set much of it.
+//! - **mean-square share** (`share`, `residual_share`): the mean square of the radial deviation
+//!   the effect alone makes (its own least-squares centring removed), over the sum of that of
+//!   every machine effect and the mean square of the residual (`final.rms_um`²). These add up to
+//!   1; printed as whole percentages they are rounded by largest remainder so that they add up
+//!   to exactly 100 % ([`crate::units::percentages`]). Correlated effects share some of their
+//!   deviation, which this sum counts once per effect: it says how large an effect is against
+//!   the others over the whole trace.
+//!
+//! Effects are listed by share of G, largest first, then by mean-square share
+//! ([`rank_order`]), in the text and in `report.html`.
 //!
 //! # Signs
 //! - `backlash_k`: positive = lost motion (play) at reversal, negative = the axis runs ahead
@@ -83,7 +103,7 @@
 //!                          interference that is a named cyclic error read where its lagging
 //!                          axis is (kept in the model, named as part of the cyclic error)
 //! final.rms_um             RMS of the residual of the exact refit, µm (the test's noise)
-//! residual_share           the residual's share of the error (see *Shares*)
+//! residual_share           the residual's mean-square share (see *Shares*)
 //! gain                     baseline.rms_um / final.rms_um
 //! noise_tau_int            how many samples of the residual make one independent sample (its
 //!                          integrated autocorrelation time; 1 = white noise). Above 2 the
@@ -93,7 +113,8 @@
 //!                          of the two axes with the largest travel, µm
 //! lsq_setup                {x_um, y_um, z_um, e_um}: the least-squares set-up of all samples,
 //!                          D ≈ |p − t| + e, t = where the table ball is relative to where it
-//!                          was assumed: the set-up removed before the polar plot
+//!                          was assumed: a detail, the centre ISO 230-4's F is about (the
+//!                          plot removes the fitted set-up, see *One centre*)
 //! circular_deviation_g_um  the test's G: the largest minimum-zone G of a circle in one
 //!                          direction (= minimum_zone.g_um), µm
 //! hysteresis_h_um          the test's H: the largest H of a circle (= minimum_zone.h_um), µm
@@ -114,9 +135,15 @@
 //! written before them still reads ([`super::document`]):
 //!
 //! ```text
-//! effects[].contribution_rms_um  RMS of the radial deviation the effect alone makes, with the
-//!                          plotted curve's set-up removal, µm (null for the set-up)
-//! effects[].share          the effect's share of the error (see *Shares*; null for the set-up)
+//! effects[].contribution_rms_um  RMS of the radial deviation the effect alone makes, with its
+//!                          own least-squares centring removed, µm (null for the set-up)
+//! effects[].share          the effect's mean-square share (see *Shares*; null for the set-up)
+//! effects[].g_share        the effect's share of G (see *Shares*; null for the set-up)
+//! effects[].g_without_um   the test's G with the effect's deviation taken out, µm
+//! circular_deviation_g_filtered_um  the test's G of the traces low-passed at filter_upr, µm
+//! filter_upr               the low-pass cut-off, undulations per revolution (50)
+//! circles[].g_filtered_um  {ccw, cw}: G of that trace low-passed at filter_upr, µm (null: not
+//!                          run)
 //! plane                    xy, yz or zx: the plane of the two axes with the largest travel; the
 //!                          polar angle is measured from the first axis towards the second
 //! pitch_mm                 {x, y, z}: the pitch per axis the diagnosis was given, mm or null
@@ -161,6 +188,7 @@
 // Index loops over the axes (k in 0..3) and samples mirror the equations; keep them.
 use super::diagnose::Diagnosis;
 use super::document::FORMAT;
+use super::model::{Effect, Pair};
 use super::plan::{Plan, Sense};
 use super::sync::Sync;
 use super::words::{cause, param_text};
@@ -168,63 +196,185 @@ use super::zone::CircleZone;
 use crate::numerics::mzc::MinimumZone;
 use crate::units::{format_estimate, format_to, percentages};
 
-/// Human summary of a diagnosis. Every figure is shown to the digits its σ supports (see the
-/// module docs, *Digits*): an effect's value and parameters to two significant digits of their
-/// standard error, G, H and RMS to those of the test's noise (the residual RMS).
+/// What a technician reads of a diagnosis (the default text of `jdbb diagnose`): where the table
+/// ball is and how to move it, the machine effects ranked by their share of G (see *Shares*)
+/// with the cause in the trade's words, what the test cannot tell apart among what it named,
+/// and G and H of every circle, raw and filtered. Nothing about an effect that was not named:
+/// that, and the figures of the method, are in [`details`]. Every figure is shown to the digits
+/// its σ supports (module docs, *Digits*).
 pub fn summary(d: &Diagnosis) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let um = |x: f64| format_to(x, d.final_rms_um);
+    let _ = writeln!(s, "{} samples", d.samples);
+    let _ = writeln!(s, "{}", centring_text(d));
+    let shares = share_percentages(d);
+    let g_shares = g_share_percentages(d);
+    let machine = ranked(d);
+    if machine.is_empty() {
+        let _ = writeln!(s, "no machine effect is supported by the data");
+    }
+    for (rank, &i) in machine.iter().enumerate() {
+        let f = &d.effects[i];
+        let pct = |p: Option<u32>| p.map_or("–".to_string(), |p| format!("{p} %"));
+        let _ = writeln!(
+            s,
+            "{}. {} = {} {}{}: {} of G, {} of the mean square — {}",
+            rank + 1,
+            f.effect.name(),
+            format_estimate(f.value, f.sigma),
+            crate::units::human(f.effect.unit()),
+            match f.effect {
+                Effect::Squareness(pair) =>
+                    format!(" ({})", squareness_angle(pair, f.value, f.sigma)),
+                _ => String::new(),
+            },
+            pct(g_shares[i]),
+            pct(shares.effects[i]),
+            cause(f.effect, f.value)
+        );
+        if f.params.len() > 1 {
+            let _ = writeln!(s, "    {}", params_text(f));
+        }
+    }
+    let named: Vec<String> = machine
+        .iter()
+        .map(|&i| d.effects[i].effect.name())
+        .collect();
+    for g in d
+        .confounded
+        .iter()
+        .filter(|g| g.iter().any(|n| named.contains(n)))
+    {
+        let _ = writeln!(s, "{}", confounded_text(g));
+    }
+    if let Some(p) = shares.residual.filter(|_| !machine.is_empty()) {
+        let _ = writeln!(
+            s,
+            "residual: RMS {} µm, {p} % of the mean square — noise and what no effect explains",
+            um(d.final_rms_um)
+        );
+    }
+    let normal = ['x', 'y', 'z'][3 - d.plane.0 - d.plane.1];
+    for (k, c) in d.circle_zones.iter().enumerate() {
+        let raw = |z: &Option<crate::numerics::mzc::MinimumZone>| z.map(|z| z.width_um);
+        let filtered = d.filtered_g_um.get(k).copied().unwrap_or([None, None]);
+        let g = |g: Option<f64>| g.map_or("not run".to_string(), |g| format!("{} µm", um(g)));
+        let _ = writeln!(
+            s,
+            "circle {} (r {:.1} mm, {normal} {:.1} mm): G ccw {}, cw {}; H {} µm; filtered G ccw {}, cw {}",
+            k + 1,
+            c.radius_mm,
+            c.height_mm,
+            g(raw(&c.ccw)),
+            g(raw(&c.cw)),
+            um(c.h_um),
+            g(filtered[0]),
+            g(filtered[1]),
+        );
+    }
+    if !d.circle_zones.is_empty() {
+        let _ = writeln!(
+            s,
+            "G: circular deviation (ISO 230-4, minimum zone) of the raw trace, the test's; H: hysteresis; filtered: the trace low-passed at {:.0} undulations per revolution, which takes out the instrument's noise",
+            d.filter_upr
+        );
+    }
+    let partial = partial_arcs(d);
+    if !partial.is_empty() {
+        let _ = writeln!(
+            s,
+            "partial arc: {}; the set-up and scale are less sure than on a full circle (their σ says by how much)",
+            partial.join(", ")
+        );
+        for w in d.weak_on_arc.iter().filter(|w| named.contains(&w.names[0])) {
+            let _ = writeln!(s, "{}", weak_text(w));
+        }
+    }
+    s
+}
+
+/// The details of a diagnosis behind `jdbb diagnose --verbose`: the ideal machine, the set-up
+/// with its σ and the other centres (least-squares, minimum zone), each selection step's RMS,
+/// gain and BIC, every group the test cannot tell apart, what was tried and not named and why,
+/// the residual's harmonics and noise, and on a partial arc what it barely tells apart.
+pub fn details(d: &Diagnosis) -> String {
     use std::fmt::Write;
     let mut s = String::new();
     let noise = d.final_rms_um;
     let um = |x: f64| format_to(x, noise);
-    let _ = writeln!(s, "{} samples", d.samples);
     let _ = writeln!(
         s,
         "ideal machine (D = |p|): RMS {} µm, peak-to-valley {} µm",
         um(d.baseline_rms_um),
         um(d.baseline_pv_um)
     );
-    let shares = share_percentages(d);
     for (i, f) in d.effects.iter().enumerate() {
         let step = if i < 2 {
             "set-up".to_string()
         } else {
-            format!("step {}", i - 1)
-        };
-        let share = match shares.effects.get(i).copied().flatten() {
-            Some(p) => format!(" ({p} % of the error)"),
-            None => String::new(),
+            format!("selection step {}", i - 1)
         };
         let _ = writeln!(
             s,
-            "{step}: {} = {} {}{share} — {}",
+            "{step}: {} = {} {}{}",
             f.effect.name(),
             format_estimate(f.value, f.sigma),
             crate::units::human(f.effect.unit()),
-            cause(f.effect, f.value)
+            if i >= 1 {
+                format!(
+                    "; RMS after {} µm, gain ×{:.2}{}",
+                    um(f.rms_after_um),
+                    f.rms_ratio,
+                    if f.delta_bic.is_finite() {
+                        format!(", ΔBIC {:.0}", f.delta_bic)
+                    } else {
+                        String::new()
+                    }
+                )
+            } else {
+                String::new()
+            }
         );
-        // The parameters, where they say more than the value.
         if f.params.len() > 1 {
-            let params: Vec<String> = f
-                .effect
-                .param_names()
-                .iter()
-                .zip(&f.params)
-                .zip(&f.param_sigma)
-                .map(|((n, v), s)| param_text(n, *v, *s, "undetermined, held"))
-                .collect();
-            let _ = writeln!(s, "    {}", params.join(", "));
+            let _ = writeln!(s, "    {}", params_text(f));
         }
-        if i >= 1 {
+        if !f.effect.is_setup() && f.g_without_um.is_finite() {
             let _ = writeln!(
                 s,
-                "    RMS after {} µm, gain ×{:.2}",
-                um(f.rms_after_um),
-                f.rms_ratio,
+                "    G without it {} µm (of {} µm); RMS of its deviation alone {} µm",
+                um(f.g_without_um),
+                um(d.circular_deviation_g_um),
+                um(f.contribution_rms_um)
             );
         }
     }
-    if d.effects.len() <= 2 {
-        let _ = writeln!(s, "no machine effect is supported by the data");
+    let l = ['x', 'y', 'z'];
+    let (a, b) = d.plane;
+    let _ = writeln!(
+        s,
+        "least-squares centre of all samples (ISO 230-4's F is about it): table ball at {} {} µm, {} {} µm; length offset {} µm",
+        l[a],
+        um(d.lsq_setup_um[a]),
+        l[b],
+        um(d.lsq_setup_um[b]),
+        um(d.lsq_setup_um[3])
+    );
+    let fitted = d.fitted_setup_um();
+    for (k, c) in d.circle_zones.iter().enumerate() {
+        for (dir, z) in [("ccw", &c.ccw), ("cw", &c.cw)] {
+            if let Some(z) = z {
+                let _ = writeln!(
+                    s,
+                    "minimum-zone centre, circle {} {dir}: table ball at {} {} µm, {} {} µm",
+                    k + 1,
+                    l[a],
+                    um(fitted[a] - z.centre_um[0]),
+                    l[b],
+                    um(fitted[b] - z.centre_um[1])
+                );
+            }
+        }
     }
     for g in &d.confounded {
         let _ = writeln!(
@@ -266,13 +416,9 @@ pub fn summary(d: &Diagnosis) -> String {
     }
     let _ = writeln!(
         s,
-        "final: RMS {} µm, gain ×{:.2} over the ideal machine{}",
+        "final: RMS {} µm, gain ×{:.2} over the ideal machine",
         um(d.final_rms_um),
         d.gain,
-        match shares.residual {
-            Some(p) if d.effects.len() > 2 => format!("; the residual is {p} % of the error"),
-            _ => String::new(),
-        }
     );
     if d.noise_tau_int > crate::circular::diagnose::CORRELATED_TAU {
         let _ = writeln!(
@@ -284,25 +430,111 @@ pub fn summary(d: &Diagnosis) -> String {
             d.samples
         );
     }
-    let normal = ['x', 'y', 'z'][3 - d.plane.0 - d.plane.1];
-    for (k, c) in d.circle_zones.iter().enumerate() {
-        let g = |z: &Option<crate::numerics::mzc::MinimumZone>| match z {
-            Some(z) => format!("{} µm", um(z.width_um)),
-            None => "not run".to_string(),
-        };
+    if partial_arcs(d).is_empty() {
+        // A harmonic's amplitude from m samples of noise σ has a standard error of about
+        // σ·√(2/m).
+        let harmonic_sigma = noise * (2.0 / d.samples.max(1) as f64).sqrt();
+        let h: Vec<String> = d
+            .harmonics_um
+            .iter()
+            .enumerate()
+            .map(|(k, a)| format!("{}:{}", k + 1, format_to(*a, harmonic_sigma)))
+            .collect();
+        let _ = writeln!(s, "residual harmonics vs angle (order:µm): {}", h.join(" "));
+    } else {
         let _ = writeln!(
             s,
-            "circle {} (r {:.1} mm, {normal} {:.1} mm): G ccw {}, cw {}; H {} µm (ISO 230-4, minimum-zone centre)",
-            k + 1,
-            c.radius_mm,
-            c.height_mm,
-            g(&c.ccw),
-            g(&c.cw),
-            um(c.h_um)
+            "residual harmonics are not shown on a partial arc (they need the whole circle)"
         );
+        for w in &d.weak_on_arc {
+            let _ = writeln!(s, "{}", weak_text(w));
+        }
     }
-    let partial: Vec<String> = d
-        .arcs
+    s
+}
+
+/// The one centre, in words a technician acts on: where the fitted set-up puts the table ball
+/// relative to where it was assumed, and the move that centres it (the components the path
+/// determines; to 0.1 µm, a machine's step).
+fn centring_text(d: &Diagnosis) -> String {
+    let t = d.fitted_setup_um();
+    let held = d
+        .effects
+        .first()
+        .map(|f| f.param_sigma.clone())
+        .unwrap_or_default();
+    let axes: Vec<usize> = (0..3)
+        .filter(|&k| held.get(k).copied().flatten().is_some() && t[k].abs() >= 0.05)
+        .collect();
+    if axes.is_empty() {
+        return "set-up: the table ball is where it was assumed (within 0.1 µm); the set-up is removed from everything below".into();
+    }
+    let list = |sign: f64| -> String {
+        axes.iter()
+            .map(|&k| format!("{:+.1} µm in {}", sign * t[k], ['X', 'Y', 'Z'][k]))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    format!(
+        "set-up: the table ball sits {} from where it was assumed — to centre it, move the table ball {} (or the program's centre {}); the set-up is removed from everything below, it is not a machine error",
+        list(1.0),
+        list(-1.0),
+        list(1.0)
+    )
+}
+
+/// The parameters of a found effect for people, `label value ± σ unit`, comma-separated.
+fn params_text(f: &super::diagnose::Found) -> String {
+    f.effect
+        .param_names()
+        .iter()
+        .zip(&f.params)
+        .zip(&f.param_sigma)
+        .map(|((n, v), s)| param_text(n, *v, *s, "undetermined, held"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// A group the test cannot tell apart, in plain words with what separates them: a second radius
+/// for the scales and the bar's length, and for a bow and a second-order scale (x² = R² − y² on
+/// one circle; the constant R² differs per circle, docs/mechanisms.md).
+fn confounded_text(group: &[String]) -> String {
+    let radius = |n: &String| {
+        ["scale", "length_offset", "straightness"]
+            .iter()
+            .any(|p| n.starts_with(p))
+    };
+    let remedy = if group.iter().any(radius) {
+        "run a second radius about the same table ball"
+    } else {
+        "run another radius or plane"
+    };
+    match group.split_last() {
+        Some((last, first)) if !first.is_empty() => format!(
+            "this test cannot tell {} from {last}: {remedy} to separate them",
+            first.join(", ")
+        ),
+        _ => format!(
+            "this test does not measure {}: the path does not move it; {remedy} to measure it",
+            group.join(", ")
+        ),
+    }
+}
+
+/// A candidate a partial arc barely tells from others, as the text says it.
+fn weak_text(w: &super::diagnose::WeakOnArc) -> String {
+    format!(
+        "weak on this arc: only {:.2} % of {}'s shape is its own beside {} (its σ some {:.0} times that of a shape of its own): where one of them is named, the others are its alternative",
+        100.0 * w.free_fraction,
+        w.names[0],
+        w.names[1..].join(", "),
+        1.0 / w.free_fraction.sqrt()
+    )
+}
+
+/// The partial arcs of a diagnosis, each as `circle k covers …° (a° to b° from x towards y)`.
+fn partial_arcs(d: &Diagnosis) -> Vec<String> {
+    d.arcs
         .iter()
         .enumerate()
         .filter(|(_, a)| a.is_partial())
@@ -323,36 +555,82 @@ pub fn summary(d: &Diagnosis) -> String {
                 ["x", "y", "z"][d.plane.1]
             )
         })
-        .collect();
-    if partial.is_empty() {
-        // A harmonic's amplitude from m samples of noise σ has a standard error of about
-        // σ·√(2/m).
-        let harmonic_sigma = noise * (2.0 / d.samples.max(1) as f64).sqrt();
-        let h: Vec<String> = d
-            .harmonics_um
-            .iter()
-            .enumerate()
-            .map(|(k, a)| format!("{}:{}", k + 1, format_to(*a, harmonic_sigma)))
-            .collect();
-        let _ = writeln!(s, "residual harmonics vs angle (order:µm): {}", h.join(" "));
+        .collect()
+}
+
+/// The included angle of a pair's axes for a squareness `s` µm/m (δ_i = s·j: i moves s per
+/// metre of j travel, so +j leans towards +i for s > 0 and the angle between +i and +j is
+/// 90° − atan(s·10⁻⁶)), e.g. `+X and +Y at 89.99857°, acute`; to the digits its σ supports.
+pub fn squareness_angle(pair: Pair, s_um_per_m: f64, sigma: Option<f64>) -> String {
+    let (i, j) = pair.axes();
+    let angle_deg = 90.0 - (1e-6 * s_um_per_m).atan().to_degrees();
+    let sigma_deg = sigma.map(|s| (1e-6 * s).to_degrees());
+    let kind = if angle_deg < 90.0 {
+        "acute"
+    } else if angle_deg > 90.0 {
+        "obtuse"
     } else {
-        let _ = writeln!(
-            s,
-            "partial arc: {}; the set-up and scale are less sure than on a full circle (their σ says by how much), residual harmonics are not shown (they need the whole circle), and what the arc barely tells apart is said here",
-            partial.join(", ")
-        );
-        for w in &d.weak_on_arc {
-            let _ = writeln!(
-                s,
-                "weak on this arc: only {:.2} % of {}'s shape is its own beside {} (its σ some {:.0} times that of a shape of its own): where one of them is named, the others are its alternative",
-                100.0 * w.free_fraction,
-                w.names[0],
-                w.names[1..].join(", "),
-                1.0 / w.free_fraction.sqrt()
-            );
+        "square"
+    };
+    let up = |a: super::model::Axis| a.letter().to_ascii_uppercase();
+    format!(
+        "+{} and +{} at {}°, {kind}",
+        up(i),
+        up(j),
+        match sigma_deg.filter(|s| s.is_finite() && *s > 0.0) {
+            Some(sd) => format_to(angle_deg, sd),
+            None => format!("{angle_deg:.5}"),
         }
+    )
+}
+
+/// The machine effects of a diagnosis (indices into [`Diagnosis::effects`]) in the order every
+/// output lists them ([`rank_order`]).
+pub fn ranked(d: &Diagnosis) -> Vec<usize> {
+    let keys: Vec<Option<(f64, f64)>> = d
+        .effects
+        .iter()
+        .map(|f| (!f.effect.is_setup()).then(|| (g_share(d, f), f.share)))
+        .collect();
+    rank_order(&keys)
+}
+
+/// The order effects are listed in (text, `report.html`): by share of G, largest first, then by
+/// mean-square share (an effect that does not move G, e.g. a scale on a circle whose zone
+/// takes it up, still has a mean square); `None` (the set-up) is left out. Returns indices.
+pub fn rank_order(shares: &[Option<(f64, f64)>]) -> Vec<usize> {
+    let key = |x: f64| if x.is_finite() { x } else { 0.0 };
+    let mut idx: Vec<usize> = (0..shares.len()).filter(|&i| shares[i].is_some()).collect();
+    idx.sort_by(|&a, &b| {
+        let (ga, ma) = shares[a].expect("filtered");
+        let (gb, mb) = shares[b].expect("filtered");
+        key(gb)
+            .total_cmp(&key(ga))
+            .then(key(mb).total_cmp(&key(ma)))
+    });
+    idx
+}
+
+/// An effect's share of G (see *Shares*): how much of the test's G it makes, (G − G without
+/// it) / G, at least 0; NaN for the set-up or where G is 0.
+pub fn g_share(d: &Diagnosis, f: &super::diagnose::Found) -> f64 {
+    let g = d.circular_deviation_g_um;
+    if f.effect.is_setup() || g.is_nan() || g <= 0.0 {
+        return f64::NAN;
     }
-    s
+    ((g - f.g_without_um) / g).max(0.0)
+}
+
+/// The shares of G as whole percentages, per effect of [`Diagnosis::effects`] (None for the
+/// set-up). They do not add up to 100: two effects can each set much of G.
+pub fn g_share_percentages(d: &Diagnosis) -> Vec<Option<u32>> {
+    d.effects
+        .iter()
+        .map(|f| {
+            let s = g_share(d, f);
+            s.is_finite().then(|| (100.0 * s).round() as u32)
+        })
+        .collect()
 }
 
 /// The shares of the error as whole percentages that add up to 100 (largest remainder, see
@@ -480,6 +758,8 @@ fn add_zones_and_shares(v: &mut serde_json::Value, d: &Diagnosis) {
         for (e, f) in effects.iter_mut().zip(&d.effects) {
             e["contribution_rms_um"] = num(f.contribution_rms_um);
             e["share"] = num(f.share);
+            e["g_share"] = num(g_share(d, f));
+            e["g_without_um"] = num(f.g_without_um);
         }
     }
     let axes = ['x', 'y', 'z'];
@@ -488,17 +768,13 @@ fn add_zones_and_shares(v: &mut serde_json::Value, d: &Diagnosis) {
         None => Value::Null,
         Some(z) => {
             // The zone's centre as a table-ball position, relative to where it was assumed: the
-            // least-squares set-up's t, moved by the zone centre. A trace centred at z in the
-            // plot (deviation ≈ z·u) is a table ball displaced by −z (D ≈ |p| − u·t).
+            // fitted set-up's t (removed from the traces), moved by the zone centre. A trace
+            // centred at z in the plot (deviation ≈ z·u) is a table ball displaced by −z
+            // (D ≈ |p| − u·t).
+            let fitted = d.fitted_setup_um();
             let mut centre = serde_json::Map::new();
-            centre.insert(
-                format!("{}_um", axes[a]),
-                num(d.lsq_setup_um[a] - z.centre_um[0]),
-            );
-            centre.insert(
-                format!("{}_um", axes[b]),
-                num(d.lsq_setup_um[b] - z.centre_um[1]),
-            );
+            centre.insert(format!("{}_um", axes[a]), num(fitted[a] - z.centre_um[0]));
+            centre.insert(format!("{}_um", axes[b]), num(fitted[b] - z.centre_um[1]));
             json!({"g_um": num(z.width_um), "centre": centre, "radius_offset_um": num(z.radius_offset_um)})
         }
     };
@@ -513,7 +789,9 @@ fn add_zones_and_shares(v: &mut serde_json::Value, d: &Diagnosis) {
         .enumerate()
         .map(|(k, c): (usize, &CircleZone)| {
             let [ccw, cw] = f.get(k).copied().unwrap_or([None, None]);
+            let [g_ccw, g_cw] = d.filtered_g_um.get(k).copied().unwrap_or([None, None]);
             json!({
+                "g_filtered_um": {"ccw": g_ccw.map(num), "cw": g_cw.map(num)},
                 "radial_deviation_f": {"ccw": f_json(&ccw), "cw": f_json(&cw)},
                 "radius_mm": num(c.radius_mm),
                 "height_mm": num(c.height_mm),
@@ -533,6 +811,14 @@ fn add_zones_and_shares(v: &mut serde_json::Value, d: &Diagnosis) {
     v["pitch_mm"] = json!({"x": d.pitch_mm[0], "y": d.pitch_mm[1], "z": d.pitch_mm[2]});
     v["circles"] = Value::Array(circles);
     v["minimum_zone"] = json!({"g_um": num(g), "h_um": num(h)});
+    v["filter_upr"] = num(d.filter_upr);
+    v["circular_deviation_g_filtered_um"] = num(d
+        .filtered_g_um
+        .iter()
+        .flatten()
+        .flatten()
+        .copied()
+        .fold(f64::NAN, f64::max));
 }
 
 /// ISO 230-4 radial deviation F of every circle, [ccw, cw], as (F max, F min) in µm: the
@@ -542,19 +828,32 @@ fn add_zones_and_shares(v: &mut serde_json::Value, d: &Diagnosis) {
 /// offset e (so F carries the instrument's length error, which its calibration bounds). None:
 /// the circle was not run in that direction.
 pub fn radial_deviation_f(d: &Diagnosis) -> Vec<[Option<(f64, f64)>; 2]> {
-    let e = if d.lsq_setup_um[3].is_finite() {
-        d.lsq_setup_um[3]
-    } else {
-        0.0
-    };
+    let finite = |x: f64| if x.is_finite() { x } else { 0.0 };
+    let e = finite(d.lsq_setup_um[3]);
+    // The plotted deviation is about the fitted set-up t_f: D − |p − t_f| − e_f. About the
+    // least-squares t_l it is that + u·(t_l − t_f) − (e_l − e_f) (µm offsets on a radius of
+    // mm: exact to 10⁻⁶ µm), u = p/|p| the sample's direction from the table ball.
+    let fitted = d.fitted_setup_um();
+    let (a, b) = d.plane;
+    let n = 3 - a - b;
+    let shift: Vec<f64> = (0..4)
+        .map(|k| finite(d.lsq_setup_um[k]) - fitted[k])
+        .collect();
     let mut out = vec![[None, None]; d.circles.len()];
     for run in &d.runs {
         let Some(slot) = out.get_mut(run.circle) else {
             continue;
         };
         let cell = &mut slot[usize::from(!run.ccw)];
+        let (r, h) = d
+            .circles
+            .get(run.circle)
+            .map_or((1.0, 0.0), |c| (c.radius_mm, c.height_mm));
+        let len = r.hypot(h);
         for i in run.range.clone() {
-            let v = d.measured_dev_um[i] + e;
+            let (sin, cos) = d.angle_rad[i].sin_cos();
+            let u_dot_shift = (r * (cos * shift[a] + sin * shift[b]) + h * shift[n]) / len;
+            let v = d.measured_dev_um[i] + u_dot_shift - shift[3] + e;
             if !v.is_finite() {
                 continue;
             }
@@ -572,8 +871,9 @@ pub fn radial_deviation_f(d: &Diagnosis) -> Vec<[Option<(f64, f64)>; 2]> {
 /// limits), while an override knob left at 80 % or 130 % changes every servo effect.
 pub const FEED_OVERRIDE_WARN_PERCENT: f64 = 5.0;
 
-/// Human summary of a synchronisation: cycle start, feed, clock, acceleration, the arcs used.
-pub fn sync_summary(plan: &Plan, s: &Sync) -> String {
+/// Human summary of a synchronisation: cycle start, feed and acceleration, and what the timing
+/// warns of ([`sync_details`] has the clock and the arcs used).
+pub fn sync_summary(_plan: &Plan, s: &Sync) -> String {
     use std::fmt::Write;
     let mut out = String::new();
     let _ = writeln!(
@@ -604,6 +904,14 @@ pub fn sync_summary(plan: &Plan, s: &Sync) -> String {
             s.feed_percent
         );
     }
+    out
+}
+
+/// The synchronisation's details behind `--verbose`: the clock scale and, per circle, the
+/// radius, height, D measured, feed, acceleration, timing σ and the data arcs' times.
+pub fn sync_details(plan: &Plan, s: &Sync) -> String {
+    use std::fmt::Write;
+    let mut out = String::new();
     let _ = writeln!(
         out,
         "clock scale {}",

@@ -13,6 +13,6 @@ pub fn run() -> Result<()> {
     for (name, what) in &ports {
         s += &format!("{name}\t{what}\n");
     }
-    s += "note: ptys are not listed; for QEMU pass the /dev/pts/N it prints (\"char device redirected to ...\") to --port\n";
+    s += "note: pseudo-terminals (QEMU's serial port) are not listed: pass the /dev/pts/N path QEMU prints when it starts to --port\n";
     print(&s)
 }

@@ -10,7 +10,9 @@ use crate::circular::model::parse_pitch;
 use crate::circular::plan::Plan;
 use crate::circular::planned::diagnose_record;
 use crate::circular::plot::write_report;
-use crate::circular::report::{plan_json, summary, sync_json, sync_summary, to_json};
+use crate::circular::report::{
+    details, plan_json, summary, sync_details, sync_json, sync_summary, to_json,
+};
 use crate::circular::sync::Record;
 use crate::fsio::{check_dir_destination, write_dir};
 use crate::{Error, Result};
@@ -45,6 +47,11 @@ pub struct DiagnoseArgs {
     /// Print the documented JSON instead of the human summary.
     #[arg(long)]
     pub json: bool,
+    /// Add the details to the human summary: the ideal machine, each selection step's RMS and
+    /// gain, every group the test cannot tell apart, what was tried and not named, the other
+    /// centres (least-squares, minimum zone), residual harmonics, the clock and the arcs used.
+    #[arg(long, short = 'v', conflicts_with = "json")]
+    pub verbose: bool,
     /// Write polar plots (SVG and PNG), the JSON and report.html to this directory, as a whole:
     /// built beside it and swapped in, never a mix of new and stale files.
     #[arg(long)]
@@ -316,6 +323,9 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     } else {
         if let Some((_, plan, sync, (note, _))) = &synced {
             print(&sync_summary(plan, sync))?;
+            if args.verbose {
+                print(&sync_details(plan, sync))?;
+            }
             if let Some(n) = note {
                 emit(n)?;
             }
@@ -324,6 +334,9 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             emit(n)?;
         }
         print(&summary(&diag))?;
+        if args.verbose {
+            print(&details(&diag))?;
+        }
         if let Some(v) = &verdict {
             emit(v)?;
         }
