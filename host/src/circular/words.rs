@@ -118,6 +118,14 @@ pub fn cause(effect: Effect, value: f64) -> String {
         Effect::Drift => {
             "the ball distance drifts during the test — the machine or the instrument is warming up".into()
         }
+        Effect::ScaleDrift(a) => format!(
+            "{}: its scale grows during the test (thermal drift of scale) — the screw is warming up; warm the machine up, or check its thermal compensation",
+            up(a)
+        ),
+        Effect::PositionDrift(a) => format!(
+            "{}: its position drifts during the test — a screw growing about its fixed bearing, or the spindle growing; warm the machine up, or check its thermal compensation",
+            up(a)
+        ),
     }
 }
 

@@ -259,6 +259,44 @@ impl Dialect {
     }
 }
 
+/// How a test closes on itself in time (`jdbb plan --close`, `close` in plan.json): heat grows an
+/// axis's scale during the test, and circles run one after the other cannot tell a scale that
+/// grows in time from one that depends on the radius. Running a circle again later can.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Close {
+    /// The circles once each, in the order given (as before: growth in time and dependence on
+    /// radius are confounded on more than one circle).
+    #[default]
+    None,
+    /// The first circle again at the end: A B … A.
+    First,
+    /// The circles in order, then in reverse: A B B A (ABBA), each circle's mean time the same.
+    Abba,
+}
+
+impl Close {
+    /// `none`, `first` or `abba`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Close::None => "none",
+            Close::First => "first",
+            Close::Abba => "abba",
+        }
+    }
+
+    /// The circles to run, in execution order, for `circles` given in order.
+    pub fn order<T: Clone>(self, circles: &[T]) -> Vec<T> {
+        let mut v = circles.to_vec();
+        match self {
+            Close::None => {}
+            Close::First => v.extend(circles.first().cloned()),
+            Close::Abba => v.extend(circles.iter().rev().cloned()),
+        }
+        v
+    }
+}
+
 /// What a plan is for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -596,6 +634,9 @@ pub struct Plan {
     pub start_mm: [f64; 3],
     /// The arc every circle runs (version 2; filled in from the segments for version 1).
     pub arc: CircleArc,
+    /// How the test closes on itself in time ([`Close`]; `none` when absent: plans written before).
+    #[serde(default)]
+    pub close: Close,
     pub circles: Vec<Circle>,
     pub segments: Vec<Segment>,
 }
@@ -937,6 +978,7 @@ impl PlanV1 {
     fn into_plan(self) -> Plan {
         Plan {
             arc: CircleArc::of_full_circles(&self.segments),
+            close: Close::None,
             format: self.format,
             version: self.version,
             purpose: self.purpose,
