@@ -121,6 +121,9 @@
 //!   `data_sweep_deg` (360 on a full circle, A − L − O on a partial arc), in both senses. A
 //!   version-1 plan (before partial arcs) is read as a full circle, its arc taken from its first
 //!   circle's segments.
+//! - `close` (`none`, `first`, `abba`; absent: `none`): how the test closes on itself in time
+//!   ([`Close`], `jdbb plan --close`): `circles` are listed in execution order, so a closed test
+//!   lists a radius twice.
 //! - `segments` are in execution order and tile the program's motion exactly: every G0, G1, G2,
 //!   G3, G4 and M0 of the program is one segment, in order, and each motion starts where the
 //!   previous one ended. `rapid` (G0; the first segment; its `from_mm` is its `to_mm`, because
