@@ -139,23 +139,25 @@ fn a_y_screw_growing_on_a_closed_two_radius_test_is_its_thermal_drift_of_scale()
     );
 }
 
-/// The issue's case: 1.5 µm/m per minute on Y, the radii one after the other (not closed). The
-/// growth is named as Y's drift of scale, nothing on X, and the test says that it cannot surely
-/// tell Y's drift from its scale (the rate read 1.63 for 1.5: the scale Y had grown by when the
-/// data began is under the floor and the rate takes it).
+/// The issue's case: 1.5 µm/m per minute on Y, the radii one after the other (not closed). A
+/// test run once reads growth in time as a difference between the directions or as scales, and
+/// cannot tell: every scale it names is listed as confounded with its thermal drift (before, the
+/// scales of both axes were named as the machine's, nothing said).
 #[test]
-fn heat_on_a_test_that_does_not_close_is_named_on_its_axis_and_said_confounded_with_its_scale() {
+fn heat_on_a_test_that_does_not_close_is_said_confounded_with_the_scales() {
     let p = xy_plan(&[95.0, 85.0], Close::None);
     let (d, _) = run(&p, grows(Axis::Y, 1.5, CENTRE[1]), 1);
     let s = summary(&d);
-    assert!(others(&d, &["scale_drift_y", "scale_y"]).is_empty(), "{s}");
-    let f = named(&d, "scale_drift_y");
-    assert!((f.value / 1.5 - 1.0).abs() < 0.15, "{s}");
-    assert!(
-        d.confounded
-            .contains(&vec!["scale_drift_y".to_string(), "scale_y".to_string()]),
-        "{s}"
-    );
+    let names = machine_names(&d);
+    assert!(names.iter().any(|n| n.starts_with("scale_")), "{s}");
+    for n in names
+        .iter()
+        .filter(|n| ["scale_x", "scale_y"].contains(&n.as_str()))
+    {
+        let drift = n.replace("scale_", "scale_drift_");
+        assert!(d.confounded.contains(&vec![drift, n.clone()]), "{s}");
+    }
+    assert!(!names.iter().any(|n| n.contains("drift")), "{s}");
 }
 
 /// An X screw growing 1.5 µm/m per minute about its fixed bearing at X 0 (100 mm from the table
@@ -182,8 +184,9 @@ fn an_x_screw_growing_about_its_fixed_bearing_is_a_drift_of_scale_and_position_n
     }
 }
 
-/// The spindle growing 2 µm/min towards the table on the ZX 220° arc: a drift of Z's position of
-/// −2 µm/min by the rule, and nothing else (issue 26: named as a lateral play before).
+/// The spindle growing 2 µm/min towards the table on the ZX 220° arc run twice (`--close
+/// first`): a drift of Z's position of −2 µm/min by the rule, and nothing else (issue 26: named
+/// as a lateral play; here, before, as a backlash of Z whose ends differ).
 #[test]
 fn spindle_growth_on_a_zx_arc_is_a_drift_of_z_not_lateral_play() {
     let mut e = MachineErrors::default();
@@ -191,7 +194,9 @@ fn spindle_growth_on_a_zx_arc_is_a_drift_of_z_not_lateral_play() {
         um_per_min: 2.0,
         time_constant_min: 0.0,
     };
-    let (d, _) = run(&arc_plan(Plane::Zx, Close::None), e, 4);
+    let p = arc_plan(Plane::Zx, Close::First);
+    assert_eq!(p.circles.len(), 2);
+    let (d, _) = run(&p, e, 4);
     let s = summary(&d);
     assert!(others(&d, &["position_drift_z"]).is_empty(), "{s}");
     let f = named(&d, "position_drift_z");

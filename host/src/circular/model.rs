@@ -210,6 +210,12 @@ impl Effect {
         }
     }
 
+    /// Growth in time (heat): a drift of an axis's scale or position, which only a test that
+    /// closes on itself tells from a scale or from a difference between the directions.
+    pub fn is_drift_in_time(&self) -> bool {
+        matches!(self, Effect::ScaleDrift(_) | Effect::PositionDrift(_))
+    }
+
     /// Setup (not a machine error): the ball positions of this particular set-up.
     pub fn is_setup(&self) -> bool {
         matches!(self, Effect::SetupOffset | Effect::LengthOffset)
