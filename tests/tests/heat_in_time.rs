@@ -189,10 +189,12 @@ fn an_x_screw_growing_about_its_fixed_bearing_is_a_drift_of_scale_and_position_n
 /// as a lateral play; here, before, as a backlash of Z whose ends differ).
 #[test]
 fn spindle_growth_on_a_zx_arc_is_a_drift_of_z_not_lateral_play() {
-    let mut e = MachineErrors::default();
-    e.spindle_growth = SpindleGrowth {
-        um_per_min: 2.0,
-        time_constant_min: 0.0,
+    let e = MachineErrors {
+        spindle_growth: SpindleGrowth {
+            um_per_min: 2.0,
+            time_constant_min: 0.0,
+        },
+        ..MachineErrors::default()
     };
     let p = arc_plan(Plane::Zx, Close::First);
     assert_eq!(p.circles.len(), 2);

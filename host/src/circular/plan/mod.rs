@@ -121,7 +121,7 @@
 //!   `data_sweep_deg` (360 on a full circle, A − L − O on a partial arc), in both senses. A
 //!   version-1 plan (before partial arcs) is read as a full circle, its arc taken from its first
 //!   circle's segments.
-//! - `close` (`none`, `first`, `abba`; absent: `none`): how the test closes on itself in time
+//! - `close` (`first`, `abba`; absent: not closed): how the test closes on itself in time
 //!   ([`Close`], `jdbb plan --close`): `circles` are listed in execution order, so a closed test
 //!   lists a radius twice.
 //! - `segments` are in execution order and tile the program's motion exactly: every G0, G1, G2,
@@ -279,6 +279,11 @@ pub enum Close {
 }
 
 impl Close {
+    /// Whether the test does not close on itself.
+    pub fn is_none(&self) -> bool {
+        *self == Close::None
+    }
+
     /// `none`, `first` or `abba`.
     pub fn name(self) -> &'static str {
         match self {
@@ -637,8 +642,9 @@ pub struct Plan {
     pub start_mm: [f64; 3],
     /// The arc every circle runs (version 2; filled in from the segments for version 1).
     pub arc: CircleArc,
-    /// How the test closes on itself in time ([`Close`]; `none` when absent: plans written before).
-    #[serde(default)]
+    /// How the test closes on itself in time ([`Close`]). `none` is not written, so a plan that
+    /// does not close is the plan.json, and has the [`Plan::id`], it had before `close` existed.
+    #[serde(default, skip_serializing_if = "Close::is_none")]
     pub close: Close,
     pub circles: Vec<Circle>,
     pub segments: Vec<Segment>,
