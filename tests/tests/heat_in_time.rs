@@ -8,17 +8,14 @@
 //! separates growth in time from dependence on radius.
 mod planned;
 
-use planned::{machine_names, read_back};
+use planned::machine_names;
 
 use jdbb::circular::diagnose::{diagnose, Diagnosis, Found, Options};
-use jdbb::circular::plan::{
-    plan, write_program, Close, Dialect as PlanDialect, Plan, PlanSpec, Plane,
-};
+use jdbb::circular::plan::{plan, Close, Dialect as PlanDialect, Plan, PlanSpec, Plane};
 use jdbb::circular::report::summary;
-use jdbb::circular::sync::{data_path, synchronise};
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
-    Axis, Dialect, MachineErrors, SimConfig, Simulation, SpindleGrowth, Squareness, ThermalGrowth,
+    Axis, Dialect, MachineErrors, SimConfig, SpindleGrowth, Squareness, ThermalGrowth,
 };
 
 const CENTRE: [f64; 3] = [100.0, 50.0, -20.0];
@@ -70,13 +67,7 @@ fn run(plan: &Plan, errors: MachineErrors, seed: u64) -> (Diagnosis, f64) {
     cfg.instrument.noise_um = 0.2;
     cfg.instrument.seed = seed;
     cfg.instrument.sample_rate_hz = 250.0;
-    let rec = Simulation::new(&write_program(plan, PlanDialect::Linuxcnc), cfg)
-        .unwrap()
-        .run()
-        .unwrap();
-    let r = read_back(&rec);
-    let sync = synchronise(plan, &r).unwrap();
-    let (path, d) = data_path(plan, &r, &sync, [None; 3]).unwrap();
+    let (rec, path, d) = planned::data_arcs(plan, cfg);
     let first_us = rec.rows[0].t_us as f64;
     let cycle_start_s = (rec.truth.cycle_start_us - first_us) * 1e-6;
     let before_min = (path.t_s[0] - cycle_start_s) / 60.0;
