@@ -10,8 +10,8 @@ use std::path::Path;
 use gcode::{Code, Value};
 use jdbb::circular::plan::{
     calibration_circles, default_calibration_distances, instrument, line_d_range, plan,
-    write_program, Dialect, LineRole, Plan, PlanSpec, Plane, Purpose, Segment, Sense, ON_CIRCLE_NM,
-    ON_CIRCLE_SEARCH_DEG,
+    write_program, Close, Dialect, LineRole, Plan, PlanSpec, Plane, Purpose, Segment, Sense,
+    ON_CIRCLE_NM, ON_CIRCLE_SEARCH_DEG,
 };
 use jdbb_core::calib::Calibration;
 mod common;
@@ -455,6 +455,62 @@ fn every_dialect_parses_back_to_the_plan() {
             }
         }
     }
+}
+
+/// A test that closes on itself in time (`--close`): the first circle again at the end, or the
+/// circles in ABBA order, in plan.json (`close`, and its circles in execution order) and in every
+/// dialect's program; `jdbb plan --close abba` writes it.
+#[test]
+fn a_test_closes_on_itself_in_every_dialect() {
+    let cal = Calibration::DEFAULT;
+    for dialect in Dialect::ALL {
+        for (close, radii) in [
+            (Close::None, vec![90.0, 85.0]),
+            (Close::First, vec![90.0, 85.0, 90.0]),
+            (Close::Abba, vec![90.0, 85.0, 85.0, 90.0]),
+        ] {
+            let s = PlanSpec {
+                close,
+                ..spec(&[90.0, 85.0], &[0.0], Plane::Xy, dialect)
+            };
+            let p = plan(&s, &cal).unwrap();
+            let back = Plan::from_json(Path::new("plan.json"), &p.to_json()).unwrap();
+            assert_eq!(back.close, close);
+            let got: Vec<f64> = back.circles.iter().map(|c| c.radius_mm).collect();
+            assert_eq!(got, radii, "{close:?}");
+            check_program(&back, &write_program(&back, dialect), dialect);
+        }
+    }
+    // A plan that does not close is written as before `close` existed (its id, which records
+    // made for it carry, unchanged), and reads as not closed.
+    let p = plan(&spec(&[90.0], &[0.0], Plane::Xy, Dialect::Linuxcnc), &cal).unwrap();
+    let old = p.to_json();
+    assert!(!old.contains("close"), "{old}");
+    assert_eq!(
+        Plan::from_json(Path::new("plan.json"), &old).unwrap().close,
+        Close::None
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("abba");
+    let o = jdbb(&[
+        "plan",
+        "--radius",
+        "90",
+        "--radius",
+        "85",
+        "--close",
+        "abba",
+        "--feed",
+        "1000",
+        "--centre",
+        "100,50,-20",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let p = Plan::read(&out.join("plan.json")).unwrap();
+    assert_eq!(p.close, Close::Abba);
+    assert_eq!(p.circles.len(), 4);
 }
 
 #[test]

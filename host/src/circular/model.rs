@@ -81,6 +81,14 @@ pub enum Effect {
     ReversalSpike(Axis),
     /// D changes linearly with time: +r·(t − t₀) with r in µm/min and t₀ the first sample.
     Drift,
+    /// Thermal drift of scale: axis k's scale grows in time (heat in its screw),
+    /// δ_k = ρ·((t − t₀)/60 s)·k with ρ in µm/m per minute, about the table ball (the growth about
+    /// the screw's fixed bearing elsewhere adds a [`Effect::PositionDrift`] of k). Told from a
+    /// static scale by a test that closes on itself in time (`jdbb plan --close`).
+    ScaleDrift(Axis),
+    /// Axis k's position drifts in time: δ_k = g·(t − t₀)/60 s, g in µm/min (a screw growing
+    /// about a fixed bearing away from the table ball, a spindle growing towards the table).
+    PositionDrift(Axis),
 }
 
 impl fmt::Display for Effect {
@@ -137,6 +145,8 @@ impl Effect {
             }
         }
         v.push(Effect::Drift);
+        v.extend(Axis::ALL.map(Effect::ScaleDrift));
+        v.extend(Axis::ALL.map(Effect::PositionDrift));
         v
     }
 
@@ -157,6 +167,8 @@ impl Effect {
             Effect::ScaleMismatch(p) => format!("scale_mismatch_{}", p.name()),
             Effect::ReversalSpike(a) => format!("reversal_spike_{}", a.letter()),
             Effect::Drift => "drift".into(),
+            Effect::ScaleDrift(a) => format!("scale_drift_{}", a.letter()),
+            Effect::PositionDrift(a) => format!("position_drift_{}", a.letter()),
         }
     }
 
@@ -192,8 +204,16 @@ impl Effect {
             "servo_mismatch" => Pair::parse(tail).map(Effect::ServoMismatch),
             "scale_mismatch" => Pair::parse(tail).map(Effect::ScaleMismatch),
             "reversal_spike" => Axis::parse(tail).map(Effect::ReversalSpike),
+            "scale_drift" => Axis::parse(tail).map(Effect::ScaleDrift),
+            "position_drift" => Axis::parse(tail).map(Effect::PositionDrift),
             _ => None,
         }
+    }
+
+    /// Growth in time (heat): a drift of an axis's scale or position, which only a test that
+    /// closes on itself tells from a scale or from a difference between the directions.
+    pub fn is_drift_in_time(&self) -> bool {
+        matches!(self, Effect::ScaleDrift(_) | Effect::PositionDrift(_))
     }
 
     /// Setup (not a machine error): the ball positions of this particular set-up.
@@ -215,7 +235,8 @@ impl Effect {
             | Effect::LateralPlay(..) => "um",
             Effect::Interference(_) => "um/(mm/s)",
             Effect::ServoMismatch(_) => "ms",
-            Effect::Drift => "um/min",
+            Effect::Drift | Effect::PositionDrift(_) => "um/min",
+            Effect::ScaleDrift(_) => "um/m/min",
         }
     }
 
@@ -235,7 +256,8 @@ impl Effect {
             Effect::Squareness(_) => &["s_um_per_m"],
             Effect::ServoMismatch(_) => &["dtau_ms", "lag_ms"],
             Effect::ReversalSpike(_) => &["h_um", "tau_ms"],
-            Effect::Drift => &["rate_um_per_min"],
+            Effect::Drift | Effect::PositionDrift(_) => &["rate_um_per_min"],
+            Effect::ScaleDrift(_) => &["rate_um_per_m_per_min"],
         }
     }
 
@@ -306,6 +328,18 @@ impl Effect {
                 let (k, s) = (a.index(), 1e-6 * theta[0]);
                 for (qj, pj) in q.iter_mut().zip(p) {
                     qj[k] += s * pj[k];
+                }
+            }
+            Effect::ScaleDrift(a) | Effect::PositionDrift(a) => {
+                let k = a.index();
+                let scale = matches!(self, Effect::ScaleDrift(_));
+                for (j, qj) in q.iter_mut().enumerate() {
+                    let minutes = elapsed_min(path, i0 + j);
+                    qj[k] += if scale {
+                        1e-6 * theta[0] * minutes * p[j][k]
+                    } else {
+                        1e-3 * theta[0] * minutes
+                    };
                 }
             }
             Effect::ScaleMismatch(pair) => {
@@ -509,6 +543,11 @@ impl Effect {
             _ => Some(vec![value; self.n_params()]),
         }
     }
+}
+
+/// Minutes from the path's first sample to sample i: the time of a drift in time.
+fn elapsed_min(path: &Path, i: usize) -> f64 {
+    (path.t_s[i] - path.t_s.first().copied().unwrap_or(0.0)) / 60.0
 }
 
 /// Beyond this many decay times a spike is taken as gone: e^(−37) ≈ 8.5·10⁻¹⁷ is under half an
@@ -760,6 +799,14 @@ impl Candidate {
                 let k = a.index();
                 for (j, o) in rows.enumerate() {
                     out[o] = 1e-3 * u[j][k] * p[j][k];
+                }
+            }
+            Effect::ScaleDrift(a) | Effect::PositionDrift(a) => {
+                let k = a.index();
+                let scale = matches!(self.effect, Effect::ScaleDrift(_));
+                for (j, o) in rows.enumerate() {
+                    let minutes = elapsed_min(path, i0 + j);
+                    out[o] = u[j][k] * minutes * if scale { 1e-3 * p[j][k] } else { 1.0 };
                 }
             }
             Effect::ScaleMismatch(pair) => {
@@ -1037,7 +1084,10 @@ mod tests {
             Effect::parse("straightness_x_y"),
             Some(Effect::Straightness(Axis::X, Axis::Y))
         );
-        assert_eq!(Effect::all().len(), 2 + 5 * 3 + 2 * 3 + 3 + 6 + 6 + 1);
+        assert_eq!(
+            Effect::all().len(),
+            2 + 5 * 3 + 2 * 3 + 3 + 6 + 6 + 1 + 2 * 3
+        );
     }
 
     #[test]

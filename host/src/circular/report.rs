@@ -66,7 +66,7 @@
 //!                          servo_mismatch_ij, or the identifiable scale_mismatch_ij)
 //!   .value                 |c| for setup_offset, amplitude for cyclic/interference, else the
 //!                          single parameter; from the exact-geometry refit
-//!   .unit                  um, um/m, um/m^2, um/(mm/s) or ms
+//!   .unit                  um, um/m, um/m^2, um/(mm/s), ms, um/min or um/m/min
 //!   .sigma                 standard error of value (delta method), null if undetermined
 //!   .params                {parameter: value}: setup_offset {x_um,y_um,z_um}, length_offset
 //!                          {e_um}, scale/scale_mismatch {a_um_per_m}, scale2 {b_um_per_m2},
@@ -78,7 +78,8 @@
 //!                          {s_um_per_m}, servo_mismatch {dtau_ms: how much later the first
 //!                          axis follows its command than the second, lag_ms: their common
 //!                          lag}, reversal_spike {h_um: height, tau_ms: decay time}, drift
-//!                          {rate_um_per_min}
+//!                          {rate_um_per_min}, scale_drift_k {rate_um_per_m_per_min: the
+//!                          thermal drift of k's scale}, position_drift_k {rate_um_per_min}
 //!   .params_sigma          {parameter: standard error or null (undetermined, held at 0)}
 //!   .rms_after_um          RMS of the residual after the step that added this effect (linear
 //!                          search); for the set-up, after the set-up fit

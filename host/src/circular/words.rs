@@ -118,6 +118,14 @@ pub fn cause(effect: Effect, value: f64) -> String {
         Effect::Drift => {
             "the ball distance drifts during the test — the machine or the instrument is warming up".into()
         }
+        Effect::ScaleDrift(a) => format!(
+            "{}: its scale grows during the test (thermal drift of scale) — the screw is warming up; warm the machine up, or check its thermal compensation",
+            up(a)
+        ),
+        Effect::PositionDrift(a) => format!(
+            "{}: its position drifts during the test — a screw growing about its fixed bearing, or the spindle growing; warm the machine up, or check its thermal compensation",
+            up(a)
+        ),
     }
 }
 
@@ -143,7 +151,7 @@ pub fn param_label(key: &str) -> &str {
         "bow_um" => "bow",
         "l_um" => "shift",
         "tau_ms" => "decay time",
-        "rate_um_per_min" => "rate",
+        "rate_um_per_min" | "rate_um_per_m_per_min" => "rate",
         other => other,
     }
 }
@@ -151,7 +159,8 @@ pub fn param_label(key: &str) -> &str {
 /// The unit of a parameter for people, from its JSON key's suffix (`tau_ms` → `ms`, `h_um` →
 /// `µm`, `a_um_per_m` → `µm/m`); empty for a key without one.
 pub fn param_unit(key: &str) -> &'static str {
-    const SUFFIXES: [(&str, &str); 6] = [
+    const SUFFIXES: [(&str, &str); 7] = [
+        ("_um_per_m_per_min", "µm/m per min"),
         ("_um_per_mm_s", "µm/(mm/s)"),
         ("_um_per_m2", "µm/m²"),
         ("_um_per_min", "µm/min"),
@@ -224,6 +233,7 @@ mod tests {
         assert_eq!(param_unit("a_um_per_m"), "µm/m");
         assert_eq!(param_unit("b_um_per_m2"), "µm/m²");
         assert_eq!(param_unit("sin_um_per_mm_s"), "µm/(mm/s)");
+        assert_eq!(param_unit("rate_um_per_m_per_min"), "µm/m per min");
     }
 
     #[test]

@@ -9,8 +9,8 @@ use crate::circular::plan::build::{
 };
 use crate::circular::plan::{
     calibration_circles, default_calibration_distances, default_lead_in_overshoot, gcode,
-    instrument, machine_test_circles, plan, write_program, Dialect, LineRole, Plan, PlanSpec,
-    Plane, Purpose, Segment,
+    instrument, machine_test_circles, plan, write_program, Close, Dialect, LineRole, Plan,
+    PlanSpec, Plane, Purpose, Segment,
 };
 use crate::circular::sync::MIN_CRUISE_FRACTION;
 use crate::fsio::FileSet;
@@ -89,6 +89,11 @@ pub struct PlanArgs {
     /// and Marlin pass the corner at their junction speed instead of stopping).
     #[arg(long, default_value_t = DEFAULT_CORNER_DWELL_S, value_parser = super::args::non_negative)]
     pub corner_dwell_s: f64,
+    /// Close the test on itself in time: `first` runs the first circle again at the end, `abba`
+    /// the circles in order and then in reverse; `none` runs each once. Heat grows an axis during
+    /// the test: a closed test tells that growth (`scale_drift_k`) from the scale.
+    #[arg(long, value_enum, default_value_t = Close::None)]
+    pub close: Close,
     /// Directory for plan.json and the program (created if missing); both are written as a set
     /// (both new, or both as they were).
     #[arg(long, short, value_name = "DIR")]
@@ -171,6 +176,7 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         dwell_s: args.dwell_s,
         reversal_dwell_s: args.reversal_dwell_s.unwrap_or(args.dwell_s),
         corner_dwell_s: args.corner_dwell_s,
+        close: args.close,
     };
     let plan = if args.volumetric {
         let distances_mm = if args.distances_mm.is_empty() {

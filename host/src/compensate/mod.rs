@@ -286,7 +286,9 @@ impl MachineErrors {
                 Effect::ServoMismatch(_)
                 | Effect::Interference(_)
                 | Effect::ReversalSpike(_)
-                | Effect::Drift => m.tuning.push(measured),
+                | Effect::Drift
+                | Effect::ScaleDrift(_)
+                | Effect::PositionDrift(_) => m.tuning.push(measured),
                 Effect::SetupOffset | Effect::LengthOffset => {}
             }
         }
@@ -490,6 +492,11 @@ fn tuning_advice(t: &Measured, c: Controller) -> Cannot {
                 instead: format!("adjust {a}'s gibs or roller preload, or renew worn guideway pads, and test again"),
             }
         }
+        Effect::ScaleDrift(_) | Effect::PositionDrift(_) => Cannot {
+            effect: t.text(),
+            why: "the axis grew during the test (heat in its screw or spindle): a state of the machine, not a setting of the axis".into(),
+            instead: "warm the machine up (run the spindle and axes for 15–30 min) and test again; if it persists, the machine's thermal compensation is the place for it".into(),
+        },
         Effect::Drift => Cannot {
             effect: t.text(),
             why: "D drifted during the test: the machine (or the instrument) was warming up; it is a state, not an error of an axis".into(),

@@ -3,8 +3,8 @@
 use jdbb_core::calib::Calibration;
 
 use super::{
-    instrument, line_d_range, ArcRole, Circle, CircleArc, Dialect, Instrument, LineRole, Plan,
-    Plane, Purpose, Segment, Sense, FORMAT, GRID_MM, MAX_ARC_DEG, VERSION,
+    instrument, line_d_range, ArcRole, Circle, CircleArc, Close, Dialect, Instrument, LineRole,
+    Plan, Plane, Purpose, Segment, Sense, FORMAT, GRID_MM, MAX_ARC_DEG, VERSION,
 };
 use crate::{Error, Result};
 
@@ -71,6 +71,8 @@ pub struct PlanSpec {
     pub reversal_dwell_s: f64,
     /// Dwell at the corner after each feed-in and before each feed-out (s; 0: none).
     pub corner_dwell_s: f64,
+    /// How the test closes on itself in time: `circles` are run in [`Close::order`].
+    pub close: Close,
 }
 
 impl PlanSpec {
@@ -99,6 +101,7 @@ impl PlanSpec {
             dwell_s: DEFAULT_DWELL_S,
             reversal_dwell_s: DEFAULT_DWELL_S,
             corner_dwell_s: DEFAULT_CORNER_DWELL_S,
+            close: Close::None,
         }
     }
 
@@ -293,7 +296,7 @@ pub fn plan(spec: &PlanSpec, cal: &Calibration) -> Result<Plan> {
     let mut circles = vec![];
     let mut segments = vec![];
     let mut previous_in: Option<[f64; 3]> = None;
-    for (k, cs) in spec.circles.iter().enumerate() {
+    for (k, cs) in spec.close.order(&spec.circles).iter().enumerate() {
         let (r, h) = (q(cs.radius_mm), q(cs.height_mm));
         check_circle(&inst, k, r, h, f + TAKE_UP_MM)?;
         let mut c = centre;
@@ -441,6 +444,7 @@ pub fn plan(spec: &PlanSpec, cal: &Calibration) -> Result<Plan> {
         instrument: inst,
         start_mm,
         arc: circle_arc(spec),
+        close: spec.close,
         circles,
         segments,
     };

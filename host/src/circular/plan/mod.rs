@@ -121,6 +121,9 @@
 //!   `data_sweep_deg` (360 on a full circle, A − L − O on a partial arc), in both senses. A
 //!   version-1 plan (before partial arcs) is read as a full circle, its arc taken from its first
 //!   circle's segments.
+//! - `close` (`first`, `abba`; absent: not closed): how the test closes on itself in time
+//!   ([`Close`], `jdbb plan --close`): `circles` are listed in execution order, so a closed test
+//!   lists a radius twice.
 //! - `segments` are in execution order and tile the program's motion exactly: every G0, G1, G2,
 //!   G3, G4 and M0 of the program is one segment, in order, and each motion starts where the
 //!   previous one ended. `rapid` (G0; the first segment; its `from_mm` is its `to_mm`, because
@@ -263,6 +266,49 @@ impl Dialect {
             Dialect::Fanuc => "O1000.nc",
             Dialect::Marlin => "ballbar.gcode",
         }
+    }
+}
+
+/// How a test closes on itself in time (`jdbb plan --close`, `close` in plan.json): heat grows an
+/// axis's scale during the test, and circles run one after the other cannot tell a scale that
+/// grows in time from one that depends on the radius. Running a circle again later can.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Close {
+    /// The circles once each, in the order given (as before: growth in time and dependence on
+    /// radius are confounded on more than one circle).
+    #[default]
+    None,
+    /// The first circle again at the end: A B … A.
+    First,
+    /// The circles in order, then in reverse: A B B A (ABBA), each circle's mean time the same.
+    Abba,
+}
+
+impl Close {
+    /// Whether the test does not close on itself.
+    pub fn is_none(&self) -> bool {
+        *self == Close::None
+    }
+
+    /// `none`, `first` or `abba`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Close::None => "none",
+            Close::First => "first",
+            Close::Abba => "abba",
+        }
+    }
+
+    /// The circles to run, in execution order, for `circles` given in order.
+    pub fn order<T: Clone>(self, circles: &[T]) -> Vec<T> {
+        let mut v = circles.to_vec();
+        match self {
+            Close::None => {}
+            Close::First => v.extend(circles.first().cloned()),
+            Close::Abba => v.extend(circles.iter().rev().cloned()),
+        }
+        v
     }
 }
 
@@ -611,6 +657,10 @@ pub struct Plan {
     pub start_mm: [f64; 3],
     /// The arc every circle runs (version 2; filled in from the segments for version 1).
     pub arc: CircleArc,
+    /// How the test closes on itself in time ([`Close`]). `none` is not written, so a plan that
+    /// does not close is the plan.json, and has the [`Plan::id`], it had before `close` existed.
+    #[serde(default, skip_serializing_if = "Close::is_none")]
+    pub close: Close,
     pub circles: Vec<Circle>,
     pub segments: Vec<Segment>,
 }
@@ -982,6 +1032,7 @@ impl PlanV1 {
     fn into_plan(self) -> Plan {
         Plan {
             arc: CircleArc::of_full_circles(&self.segments),
+            close: Close::None,
             format: self.format,
             version: self.version,
             purpose: self.purpose,
