@@ -69,6 +69,22 @@ fn only<'a>(d: &'a Diagnosis, name: &str) -> &'a Found {
     d.effects.iter().find(|f| f.effect.name() == name).unwrap()
 }
 
+/// Exactly `name` was named, as lost motion per end whose + and − ends are `pos_um` and
+/// `neg_um` by the one rule; returns it.
+fn only_per_end<'a>(d: &'a Diagnosis, name: &str, pos_um: f64, neg_um: f64) -> &'a Found {
+    let f = only(d, name);
+    assert_eq!(
+        f.effect.param_names(),
+        &["pos_um", "neg_um"],
+        "{}",
+        summary(d)
+    );
+    let s = |k: usize| f.param_sigma[k].unwrap();
+    assert_close("pos_um", f.params[0], s(0), pos_um, d);
+    assert_close("neg_um", f.params[1], s(1), neg_um, d);
+    f
+}
+
 #[test]
 fn a_dead_band_is_named_as_play_alone_at_250_hz_and_1_khz() {
     // 8 µm of play on X at R 90 mm: taken up over √(2b/R) ≈ 0.6° after each reversal. A step
@@ -123,16 +139,7 @@ fn lost_motion_that_differs_between_the_ends_is_given_per_end() {
             pos_um: 10.0,
         });
         let d = run(&p, errors, seed, rate_hz);
-        let f = only(&d, "backlash_x");
-        assert_eq!(
-            f.effect.param_names(),
-            &["pos_um", "neg_um"],
-            "{}",
-            summary(&d)
-        );
-        let s = |k: usize| f.param_sigma[k].unwrap();
-        assert_close("pos_um", f.params[0], s(0), 10.0, &d);
-        assert_close("neg_um", f.params[1], s(1), 5.0, &d);
+        let f = only_per_end(&d, "backlash_x", 10.0, 5.0);
         assert_close("backlash_x (mean)", f.value, f.sigma.unwrap(), 7.5, &d);
         // The JSON carries both ends under the one name.
         let j = to_json(&d);
@@ -331,14 +338,5 @@ fn a_screw_worn_over_its_whole_travel_is_lost_motion_at_the_circles_ends() {
     errors.backlash_ends[0] = Some(ends);
     let p = make_plan(&[90.0], 1000.0);
     let d = run(&p, errors, 16, 1000.0);
-    let f = only(&d, "backlash_x");
-    assert_eq!(
-        f.effect.param_names(),
-        &["pos_um", "neg_um"],
-        "{}",
-        summary(&d)
-    );
-    let s = |k: usize| f.param_sigma[k].unwrap();
-    assert_close("pos_um", f.params[0], s(0), pos, &d);
-    assert_close("neg_um", f.params[1], s(1), neg, &d);
+    only_per_end(&d, "backlash_x", pos, neg);
 }

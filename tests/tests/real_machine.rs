@@ -21,10 +21,11 @@
 //!
 //! CI runs [`CI_SEEDS`]; the full sweep is run by hand (`JDBB_REAL_SEEDS=A..B`, default 0..40):
 //! `cargo test --profile sweep -p jdbb-tests --test real_machine -- --ignored --nocapture`.
-//! Its pass rate is in `docs/tests.md`.
+//! Its pass rate is in `docs/tests.md` (with the cap raised, `JDBB_MAX_EFFECTS=12`: seeds 0–7,
+//! 6 of 8; 6 and 7 fail on the reversal spike's σ and bias).
 mod planned;
 
-use planned::{machine_names, read_back};
+use planned::{assert_cases, machine_names, pitch_fraction, read_back, signed, twin_stated};
 
 use jdbb::circular::diagnose::{Diagnosis, Found, Options};
 use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
@@ -67,23 +68,6 @@ struct Case {
     config: SimConfig,
     pitch: [Option<f64>; 3],
     expect: Vec<Expect>,
-}
-
-/// A value of random sign with magnitude in `lo..hi`.
-fn signed(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
-    let v = rng.gen_range(lo..hi);
-    if rng.gen_bool(0.5) {
-        v
-    } else {
-        -v
-    }
-}
-
-/// How far `p_mm` is from the nearest whole multiple of `pitch_mm`, as a fraction of the pitch
-/// (0 on a multiple, 0.5 halfway).
-fn pitch_fraction(p_mm: f64, pitch_mm: f64) -> f64 {
-    let f = (p_mm / pitch_mm).rem_euclid(1.0);
-    f.min(1.0 - f)
 }
 
 /// A coordinate in `lo..hi` at least 5 % of every pitch in `pitches_mm` away from its whole
@@ -343,16 +327,6 @@ fn param(f: &Found, name: &str) -> Option<(f64, f64)> {
     Some((f.params[k], f.param_sigma[k].unwrap_or(f64::INFINITY)))
 }
 
-/// The twin named in `x`'s place with the pair said to be confounded, if it is.
-fn stated<'a>(x: &'a Expect, named: &[String], d: &Diagnosis) -> Option<&'a String> {
-    x.twin.as_ref().filter(|t| {
-        named.contains(t)
-            && d.confounded
-                .iter()
-                .any(|g| g.contains(t) && g.contains(&x.name))
-    })
-}
-
 /// Every way the diagnosis of `d` misses the truth of case `c` (empty: it names exactly the
 /// hidden effects, each by the rule).
 fn misses(c: &Case, d: &Diagnosis) -> Vec<String> {
@@ -361,14 +335,22 @@ fn misses(c: &Case, d: &Diagnosis) -> Vec<String> {
     let mut want: Vec<String> = c
         .expect
         .iter()
-        .map(|x| stated(x, &named, d).unwrap_or(&x.name).clone())
+        .map(|x| {
+            twin_stated(&x.name, x.twin.as_ref(), &named, d)
+                .unwrap_or(&x.name)
+                .clone()
+        })
         .collect();
     want.sort();
     let mut out = vec![];
     if named != want {
         out.push(format!("named {named:?}, hidden {want:?}"));
     }
-    for x in c.expect.iter().filter(|x| stated(x, &named, d).is_none()) {
+    for x in c
+        .expect
+        .iter()
+        .filter(|x| twin_stated(&x.name, x.twin.as_ref(), &named, d).is_none())
+    {
         let Some(f) = d.effects.iter().find(|f| f.effect.name() == x.name) else {
             continue;
         };
@@ -446,19 +428,9 @@ fn check(seed: u64, options: &Options) -> Result<(), String> {
     }
 }
 
-/// Run the cases `seeds`; fail with every failing case.
+/// Run the cases `seeds` diagnosed with `options`; fail with every failing case.
 fn run_cases(seeds: &[u64], options: &Options) {
-    let failures: Vec<String> = seeds
-        .iter()
-        .filter_map(|&s| check(s, options).err())
-        .collect();
-    assert!(
-        failures.is_empty(),
-        "{} of {} cases failed:\n{}",
-        failures.len(),
-        seeds.len(),
-        failures.join("\n\n")
-    );
+    assert_cases(seeds, |s| check(s, options));
 }
 
 /// As `jdbb diagnose --record --plan` runs. It fails: the selection stops at

@@ -21,7 +21,7 @@
 //! acceleration 300–2000 mm/s² per axis.
 mod planned;
 
-use planned::{machine_names, read_back};
+use planned::{assert_cases, machine_names, pitch_fraction, read_back, signed, twin_stated};
 
 use jdbb::circular::diagnose::{diagnose, Options};
 use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
@@ -155,16 +155,6 @@ struct Geometry {
 const LETTERS: [&str; 3] = ["x", "y", "z"];
 const AXES: [Axis; 3] = [Axis::X, Axis::Y, Axis::Z];
 
-/// A value of random sign with magnitude in `lo..hi`.
-fn signed(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
-    let v = rng.gen_range(lo..hi);
-    if rng.gen_bool(0.5) {
-        v
-    } else {
-        -v
-    }
-}
-
 /// One of the plane's two axes, and the other.
 fn plane_axes(rng: &mut ChaCha8Rng, g: &Geometry) -> (usize, usize) {
     if rng.gen_bool(0.5) {
@@ -172,13 +162,6 @@ fn plane_axes(rng: &mut ChaCha8Rng, g: &Geometry) -> (usize, usize) {
     } else {
         (g.axes[1], g.axes[0])
     }
-}
-
-/// How far `p_mm` is from the nearest whole multiple of `pitch_mm`, as a fraction of the pitch
-/// (0 on a multiple, 0.5 halfway).
-fn pitch_fraction(p_mm: f64, pitch_mm: f64) -> f64 {
-    let f = (p_mm / pitch_mm).rem_euclid(1.0);
-    f.min(1.0 - f)
 }
 
 /// The truths of a periodic error's two components, as the diagnosis gives them against the
@@ -707,22 +690,12 @@ fn check(seed: u64) -> Result<(), String> {
     let mut named = machine_names(d);
     named.sort();
     // A twin named in the effect's place, with the pair said to be confounded, stands for it.
-    fn stated<'a>(
-        x: &'a Expect,
-        named: &[String],
-        d: &jdbb::circular::diagnose::Diagnosis,
-    ) -> Option<&'a String> {
-        x.twin.as_ref().filter(|t| {
-            named.contains(t)
-                && d.confounded
-                    .iter()
-                    .any(|g| g.contains(t) && g.contains(&x.name))
-        })
-    }
+    let stated =
+        |x: &Expect, named: &[String], d| twin_stated(&x.name, x.twin.as_ref(), named, d).cloned();
     let mut want: Vec<String> = c
         .expect
         .iter()
-        .map(|x| stated(x, &named, d).unwrap_or(&x.name).clone())
+        .map(|x| stated(x, &named, d).unwrap_or_else(|| x.name.clone()))
         .collect();
     want.sort();
     if named != want {
@@ -775,14 +748,7 @@ fn passing(range: std::ops::Range<usize>) -> Vec<u64> {
 
 /// Run the cases `seeds`; fail with every failing case.
 fn run_cases(seeds: &[u64]) {
-    let failures: Vec<String> = seeds.iter().filter_map(|&s| check(s).err()).collect();
-    assert!(
-        failures.is_empty(),
-        "{} of {} cases failed:\n{}",
-        failures.len(),
-        seeds.len(),
-        failures.join("\n\n")
-    );
+    assert_cases(seeds, check);
 }
 
 // Four tests over a quarter of the seeds each, so that the harness runs them in parallel.

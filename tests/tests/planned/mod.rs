@@ -1,10 +1,13 @@
 //! What the tests of planned runs on the G-code machine share (`sync_hidden`, `arc_hidden`,
-//! `mechanisms`): the recording read back as `jdbb diagnose --record` reads it, and the names a
-//! diagnosis gives. They use the host's reader, which the library of this crate must not: its
-//! simulators are written apart from the host.
+//! `mechanisms`, `sync_random`, `real_machine`, …): the recording read back as `jdbb diagnose
+//! --record` reads it, the names a diagnosis gives, and the seeded suites' draws and checks. They
+//! use the host's reader, which the library of this crate must not: its simulators are written
+//! apart from the host.
 use jdbb::circular::diagnose::Diagnosis;
 use jdbb::circular::sync::Record;
 use jdbb_tests::gmachine::Recording;
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
 
 /// The recording as `jdbb record` writes it (CSV in a temporary file) and `diagnose --record`
 /// reads it back.
@@ -31,3 +34,53 @@ pub fn machine_names(d: &Diagnosis) -> Vec<String> {
 // Not every test file that shares this module checks a value.
 #[allow(unused_imports)]
 pub use jdbb_tests::tolerance::{assert_unbiased, assert_unbiased_sigma};
+
+/// A value of random sign with magnitude in `lo..hi` (the seeded suites' draws).
+#[allow(dead_code)]
+pub fn signed(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
+    let v = rng.gen_range(lo..hi);
+    if rng.gen_bool(0.5) {
+        v
+    } else {
+        -v
+    }
+}
+
+/// How far `p_mm` is from the nearest whole multiple of `pitch_mm`, as a fraction of the pitch
+/// (0 on a multiple, 0.5 halfway).
+#[allow(dead_code)]
+pub fn pitch_fraction(p_mm: f64, pitch_mm: f64) -> f64 {
+    let f = (p_mm / pitch_mm).rem_euclid(1.0);
+    f.min(1.0 - f)
+}
+
+/// The twin a diagnosis named in place of the expected `name` (one circle cannot tell a bow from
+/// the second-order scale of the axis it bows in), if it was named and the pair said to be
+/// confounded.
+#[allow(dead_code)]
+pub fn twin_stated<'a>(
+    name: &str,
+    twin: Option<&'a String>,
+    named: &[String],
+    d: &Diagnosis,
+) -> Option<&'a String> {
+    twin.filter(|t| {
+        named.contains(t)
+            && d.confounded
+                .iter()
+                .any(|g| g.contains(t) && g.iter().any(|n| n == name))
+    })
+}
+
+/// Fail with every case of `seeds` that `check` finds wrong.
+#[allow(dead_code)]
+pub fn assert_cases(seeds: &[u64], check: impl Fn(u64) -> Result<(), String>) {
+    let failures: Vec<String> = seeds.iter().filter_map(|&s| check(s).err()).collect();
+    assert!(
+        failures.is_empty(),
+        "{} of {} cases failed:\n{}",
+        failures.len(),
+        seeds.len(),
+        failures.join("\n\n")
+    );
+}
