@@ -838,24 +838,24 @@ fn the_steps_settings_cancel_the_screws_lead_errors() {
         let out = compensate::render(&plan, None);
         let lines: Vec<String> = plan.blocks.iter().flat_map(|b| b.lines.clone()).collect();
         let old = |k: usize| steps_setting(controller, &in_force_lines(in_force), k);
-        for k in 0..2 {
+        for (k, &a_k) in a.iter().enumerate() {
             let new = steps_setting(controller, &lines, k);
-            let left = scale_left_um_per_m(controller, a[k], old(k), new);
-            let flipped = scale_left_um_per_m(controller, a[k], old(k), 2.0 * old(k) - new);
+            let left = scale_left_um_per_m(controller, a_k, old(k), new);
+            let flipped = scale_left_um_per_m(controller, a_k, old(k), 2.0 * old(k) - new);
             println!(
                 "{controller:?} axis {k}: {} → {new}: {left:.3} µm/m of {} left, {flipped:.2} flipped",
                 old(k),
-                a[k]
+                a_k
             );
             assert!(
-                left.abs() < 0.02 * a[k].abs(),
+                left.abs() < 0.02 * a_k.abs(),
                 "{controller:?} axis {k}: {left} of {}\n{out}",
-                a[k]
+                a_k
             );
             assert!(
-                (flipped / a[k] - 2.0).abs() < 0.1,
+                (flipped / a_k - 2.0).abs() < 0.1,
                 "{controller:?} axis {k}: flipped leaves {flipped} of {}\n{out}",
-                a[k]
+                a_k
             );
         }
     }

@@ -21,7 +21,10 @@
 //! acceleration 300–2000 mm/s² per axis.
 mod planned;
 
-use planned::{assert_cases, machine_names, pitch_fraction, read_back, signed, twin_stated};
+use planned::{
+    assert_cases, machine_names, pitch_fraction, read_back, seeded_config, signed, twin_stated,
+    Drawn,
+};
 
 use jdbb::circular::diagnose::{diagnose, Options};
 use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
@@ -591,16 +594,13 @@ fn draw(seed: u64) -> Case {
             }
         }
     }
-    let mut config = SimConfig::new(Dialect::LinuxCnc, centre);
-    config.errors = errors;
-    config.machine.feed_override_pct = override_pct;
-    config.machine.accel_mm_s2 = accel;
-    config.instrument.clock_ppm = clock_ppm;
-    config.instrument.start_delay_s = rng.gen_range(1.0..5.0);
-    config.instrument.t0_us = rng.gen_range(0..1_000_000_000);
-    config.instrument.noise_um = 0.2;
-    config.instrument.seed = seed;
-    config.instrument.sample_rate_hz = rate_hz;
+    let drawn = Drawn {
+        override_pct,
+        accel_mm_s2: accel,
+        clock_ppm,
+        rate_hz,
+    };
+    let config = seeded_config(&mut rng, seed, centre, errors, drawn);
     let what = format!(
         "seed {seed}: {plane:?}{} R {:?} mm at height {:?} mm, feed {feed:.0} mm/min × {override_pct:.2} %, clock {clock_ppm:+.1} ppm, {rate_hz:.0} Hz, accel {:.0}/{:.0}/{:.0} mm/s², centre ({:.2}, {:.2}, {:.2}) mm, set-up ({:.1}, {:.1}, {:.1}) µm, feed-in {feed_in_mm} mm; hidden: {}",
         if full { "" } else { " 220° arc" },

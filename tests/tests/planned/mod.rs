@@ -5,7 +5,7 @@
 //! apart from the host.
 use jdbb::circular::diagnose::Diagnosis;
 use jdbb::circular::sync::Record;
-use jdbb_tests::gmachine::Recording;
+use jdbb_tests::gmachine::{Dialect, MachineErrors, Recording, SimConfig};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
@@ -83,4 +83,37 @@ pub fn assert_cases(seeds: &[u64], check: impl Fn(u64) -> Result<(), String>) {
         seeds.len(),
         failures.join("\n\n")
     );
+}
+
+/// How a seeded case's machine runs and records, as the suite drew it.
+#[allow(dead_code)]
+pub struct Drawn {
+    pub override_pct: f64,
+    pub accel_mm_s2: [f64; 3],
+    pub clock_ppm: f64,
+    pub rate_hz: f64,
+}
+
+/// The G-code machine of seeded case `seed` (LinuxCNC, 0.2 µm of noise on D) with `errors`,
+/// the program's test centre at `centre_mm`, as `drawn`; the start delay (1–5 s) and the device
+/// clock's origin drawn from `rng`, in that order.
+#[allow(dead_code)]
+pub fn seeded_config(
+    rng: &mut ChaCha8Rng,
+    seed: u64,
+    centre_mm: [f64; 3],
+    errors: MachineErrors,
+    drawn: Drawn,
+) -> SimConfig {
+    let mut config = SimConfig::new(Dialect::LinuxCnc, centre_mm);
+    config.errors = errors;
+    config.machine.feed_override_pct = drawn.override_pct;
+    config.machine.accel_mm_s2 = drawn.accel_mm_s2;
+    config.instrument.clock_ppm = drawn.clock_ppm;
+    config.instrument.start_delay_s = rng.gen_range(1.0..5.0);
+    config.instrument.t0_us = rng.gen_range(0..1_000_000_000);
+    config.instrument.noise_um = 0.2;
+    config.instrument.seed = seed;
+    config.instrument.sample_rate_hz = drawn.rate_hz;
+    config
 }
