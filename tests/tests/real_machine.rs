@@ -21,8 +21,8 @@
 //!
 //! CI runs [`CI_SEEDS`]; the full sweep is run by hand (`JDBB_REAL_SEEDS=A..B`, default 0..40):
 //! `cargo test --profile sweep -p jdbb-tests --test real_machine -- --ignored --nocapture`.
-//! Its pass rate is in `docs/tests.md` (with the cap raised, `JDBB_MAX_EFFECTS=12`: seeds 0–9,
-//! 6 of 10; the other 4 fail on the reversal spike alone: its σ, its bias, or not named).
+//! Its pass rate is in `docs/tests.md` (with the cap raised, `JDBB_MAX_EFFECTS=12`: seeds 0–12,
+//! 7 of 13; the other 6 fail on the reversal spike alone: its σ, its bias, or not named).
 mod planned;
 
 use planned::{
