@@ -756,3 +756,112 @@ fn the_backlash_settings_take_up_the_play() {
         compensate::render(&klipper, None)
     );
 }
+
+/// The value `controller`'s emitted lines give axis `k`'s steps setting: grblHAL `$10k=`,
+/// Marlin `M92 X…`, Klipper `rotation_distance:` under `[stepper_x]`.
+fn steps_setting(controller: Controller, lines: &[String], k: usize) -> f64 {
+    let letter = ['X', 'Y', 'Z'][k];
+    let found = match controller {
+        Controller::GrblHal => lines
+            .iter()
+            .find_map(|l| l.strip_prefix(&format!("${}=", 100 + k))),
+        Controller::Marlin => lines
+            .iter()
+            .filter(|l| l.starts_with("M92 "))
+            .flat_map(|l| l.split_whitespace())
+            .find_map(|w| w.strip_prefix(letter)),
+        Controller::Klipper => lines
+            .iter()
+            .position(|l| *l == format!("[stepper_{}]", letter.to_ascii_lowercase()))
+            .and_then(|i| lines.get(i + 1))
+            .and_then(|l| l.strip_prefix("rotation_distance:")),
+        Controller::LinuxCnc => None,
+    };
+    found
+        .unwrap_or_else(|| panic!("{controller:?}: no setting for axis {letter} in {lines:?}"))
+        .trim()
+        .parse()
+        .unwrap()
+}
+
+/// The scale (µm/m) an axis of scale `a_um_per_m` is left with once `controller` runs it with
+/// its steps setting changed from `old` to `new`, by the controller's own semantics: a
+/// steps/mm controller (grblHAL `$10n`, Marlin `M92`) sends p·S steps for a move p, and the
+/// screw turns them into p·S/S_true mm (S_true = S_old/(1 + a) steps per real mm); Klipper's
+/// `rotation_distance` d is the travel it assumes per turn, so a move p is p/d turns and
+/// p·d_true/d mm (d_true = d_old·(1 + a)).
+fn scale_left_um_per_m(controller: Controller, a_um_per_m: f64, old: f64, new: f64) -> f64 {
+    let moved = match controller {
+        Controller::Klipper => old / new,
+        _ => new / old,
+    };
+    1e6 * ((1.0 + 1e-6 * a_um_per_m) * moved - 1.0)
+}
+
+/// Steps/mm and `rotation_distance` on the G-code machine (issue 27 §7): X's screw moves the
+/// carriage 70 µm/m too far, Y's 45 µm/m too short (δ_k = a_k·p_k from the program origin: a
+/// lead error). Two radii name `scale_x` and `scale_y`; `compensate` for grblHAL (`$100`,
+/// `$101`), Marlin (`M92`) and Klipper (`rotation_distance`), with the values in force given,
+/// writes new settings; applied by each controller's own semantics (the compensated machine is
+/// the G-code machine with its steps changed as the controller applies them) they leave under
+/// 2 % of each scale, and the same change with its sign flipped about twice the scale.
+#[test]
+fn the_steps_settings_cancel_the_screws_lead_errors() {
+    let p = make_plan(&[95.0, 85.0]);
+    let a = [70.0, -45.0];
+    let errors = MachineErrors {
+        scale_um_per_m: [a[0], a[1], 0.0],
+        ..MachineErrors::default()
+    };
+    let (diag, doc) = diagnosed(&p, errors, 45, [None; 3]);
+    let mut names = machine_names(&diag);
+    names.sort();
+    assert_eq!(names, ["scale_x", "scale_y"], "{}", summary(&diag));
+    let dir = tempfile::tempdir().unwrap();
+    for (controller, in_force) in [
+        (Controller::GrblHal, "$100=800.000000\n$101=640.000000\n"),
+        (Controller::Marlin, "M92 X80.000000 Y100.000000\n"),
+        (
+            Controller::Klipper,
+            "[stepper_x]\nrotation_distance: 40\n[stepper_y]\nrotation_distance: 32\n",
+        ),
+    ] {
+        let file = dir.path().join(format!("{controller:?}.txt"));
+        std::fs::write(&file, in_force).unwrap();
+        let current = Current::read(&file, controller).unwrap();
+        let opts = compensate::Options {
+            controller,
+            placement: Placement::default(),
+            comp_file_type: 1,
+        };
+        let plan = compensate::plan(&doc, &current, &opts).unwrap();
+        let out = compensate::render(&plan, None);
+        let lines: Vec<String> = plan.blocks.iter().flat_map(|b| b.lines.clone()).collect();
+        let old = |k: usize| steps_setting(controller, &in_force_lines(in_force), k);
+        for (k, &a_k) in a.iter().enumerate() {
+            let new = steps_setting(controller, &lines, k);
+            let left = scale_left_um_per_m(controller, a_k, old(k), new);
+            let flipped = scale_left_um_per_m(controller, a_k, old(k), 2.0 * old(k) - new);
+            println!(
+                "{controller:?} axis {k}: {} → {new}: {left:.3} µm/m of {} left, {flipped:.2} flipped",
+                old(k),
+                a_k
+            );
+            assert!(
+                left.abs() < 0.02 * a_k.abs(),
+                "{controller:?} axis {k}: {left} of {}\n{out}",
+                a_k
+            );
+            assert!(
+                (flipped / a_k - 2.0).abs() < 0.1,
+                "{controller:?} axis {k}: flipped leaves {flipped} of {}\n{out}",
+                a_k
+            );
+        }
+    }
+}
+
+/// The values in force as the lines [`steps_setting`] reads (Marlin's `M92` as given).
+fn in_force_lines(text: &str) -> Vec<String> {
+    text.lines().map(str::to_string).collect()
+}

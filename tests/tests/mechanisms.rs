@@ -69,6 +69,22 @@ fn only<'a>(d: &'a Diagnosis, name: &str) -> &'a Found {
     d.effects.iter().find(|f| f.effect.name() == name).unwrap()
 }
 
+/// Exactly `name` was named, as lost motion per end whose + and − ends are `pos_um` and
+/// `neg_um` by the one rule; returns it.
+fn only_per_end<'a>(d: &'a Diagnosis, name: &str, pos_um: f64, neg_um: f64) -> &'a Found {
+    let f = only(d, name);
+    assert_eq!(
+        f.effect.param_names(),
+        &["pos_um", "neg_um"],
+        "{}",
+        summary(d)
+    );
+    let s = |k: usize| f.param_sigma[k].unwrap();
+    assert_close("pos_um", f.params[0], s(0), pos_um, d);
+    assert_close("neg_um", f.params[1], s(1), neg_um, d);
+    f
+}
+
 #[test]
 fn a_dead_band_is_named_as_play_alone_at_250_hz_and_1_khz() {
     // 8 µm of play on X at R 90 mm: taken up over √(2b/R) ≈ 0.6° after each reversal. A step
@@ -123,16 +139,7 @@ fn lost_motion_that_differs_between_the_ends_is_given_per_end() {
             pos_um: 10.0,
         });
         let d = run(&p, errors, seed, rate_hz);
-        let f = only(&d, "backlash_x");
-        assert_eq!(
-            f.effect.param_names(),
-            &["pos_um", "neg_um"],
-            "{}",
-            summary(&d)
-        );
-        let s = |k: usize| f.param_sigma[k].unwrap();
-        assert_close("pos_um", f.params[0], s(0), 10.0, &d);
-        assert_close("neg_um", f.params[1], s(1), 5.0, &d);
+        let f = only_per_end(&d, "backlash_x", 10.0, 5.0);
         assert_close("backlash_x (mean)", f.value, f.sigma.unwrap(), 7.5, &d);
         // The JSON carries both ends under the one name.
         let j = to_json(&d);
@@ -263,4 +270,73 @@ fn lateral_play_is_named_as_such_and_not_as_backlash() {
     let d = run(&p, errors, 14, 1000.0);
     let f = only(&d, "lateral_play_x_y");
     assert_close("lateral_play_x_y", f.value, f.sigma.unwrap(), 6.0, &d);
+}
+
+#[test]
+fn a_bow_with_its_vertex_off_the_ball_is_straightness_and_a_squareness_slope() {
+    // X bows in Y with its vertex at the program origin, X 0, the end of the travel, 100 mm
+    // from the table ball: δy = κ·x² = κ·(x − c)² + 2κ·c·(x − c) + κ·c² about the ball c. The
+    // circle sees the same straightness as a bow about the ball (−κR²), plus a slope
+    // δy = 2κ·c·(x − c), a squareness (δy = s·x and δx = s·y change D alike on a circle),
+    // and a constant that moves the set-up. κ = −1000 µm/m², c = 0.1 m: s = −200 µm/m.
+    let kappa = -1000.0;
+    let vertex_mm = 0.0;
+    let errors = MachineErrors {
+        bows: vec![Bow {
+            axis: Axis::X,
+            toward: Axis::Y,
+            vertex_mm,
+            um_per_m2: kappa,
+        }],
+        ..MachineErrors::default()
+    };
+    // Two radii: the bow without its one-circle twin, over the larger circle's diameter.
+    let p = make_plan(&[95.0, 85.0], 1000.0);
+    let d = run(&p, errors, 15, 1000.0);
+    let mut names = machine_names(&d);
+    names.sort();
+    assert_eq!(
+        names,
+        ["squareness_xy", "straightness_x_y"],
+        "{}",
+        summary(&d)
+    );
+    let f = |n: &str| d.effects.iter().find(|f| f.effect.name() == n).unwrap();
+    let bow = f("straightness_x_y");
+    assert_close(
+        "straightness_x_y",
+        bow.value,
+        bow.sigma.unwrap(),
+        -kappa * 0.095 * 0.095,
+        &d,
+    );
+    let slope = 2.0 * kappa * (CENTRE[0] - vertex_mm) * 1e-3;
+    let sq = f("squareness_xy");
+    assert_close(
+        "squareness_xy (the bow's slope)",
+        sq.value,
+        sq.sigma.unwrap(),
+        slope,
+        &d,
+    );
+}
+
+#[test]
+fn a_screw_worn_over_its_whole_travel_is_lost_motion_at_the_circles_ends() {
+    // X's screw is worn from 4 µm at X 0 to 16 µm at X 500 (its whole travel), linear along it.
+    // The circle (ball at X 100, R 90) sees the clearance at its own ends: 4 + 12·10/500 =
+    // 4.24 µm at X 10 and 4 + 12·190/500 = 8.56 µm at X 190, not the screw's end values.
+    let ends = BacklashEnds {
+        neg_end_mm: 0.0,
+        neg_um: 4.0,
+        pos_end_mm: 500.0,
+        pos_um: 16.0,
+    };
+    let at = |x: f64| ends.neg_um + (x - ends.neg_end_mm) / 500.0 * (ends.pos_um - ends.neg_um);
+    let (neg, pos) = (at(CENTRE[0] - 90.0), at(CENTRE[0] + 90.0));
+    let mut errors = MachineErrors::default();
+    errors.backlash_ends[0] = Some(ends);
+    let p = make_plan(&[90.0], 1000.0);
+    let d = run(&p, errors, 16, 1000.0);
+    only_per_end(&d, "backlash_x", pos, neg);
 }
