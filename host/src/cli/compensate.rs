@@ -15,17 +15,21 @@ pub struct CompensateArgs {
     /// The diagnosis: diagnosis.json of `jdbb diagnose --report DIR`, or its `--json` output.
     #[arg(long, value_name = "DIAG.json")]
     pub diagnosis: PathBuf,
-    /// The controller: linuxcnc, grblhal, marlin or klipper.
+    /// The controller: linuxcnc, grblhal, marlin, klipper, fanuc (0i-F/30i), sinumerik (840D sl /
+    /// ONE) or heidenhain (iTNC 530 / TNC 640).
     #[arg(long)]
     pub controller: String,
     /// The values in force, in the controller's format (LinuxCNC INI lines with `[TRAJ]
     /// LINEAR_UNITS`, a `COMP_FILE` in force read beside this file; grblHAL `$n=v` lines; Marlin
     /// M425/M852/M92 lines; Klipper printer.cfg sections with the `SKEW_PROFILE LOAD=` line of
-    /// the start macro); the output gives new totals in the controller's units.
+    /// the start macro; a Fanuc parameter backup CNC-PARA.TXT; SINUMERIK machine-data lines
+    /// `$MA_…=`; Heidenhain `MPxxx.x:` lines); the output gives new totals in the controller's
+    /// units.
     #[arg(long, value_name = "FILE")]
     pub current: Option<PathBuf>,
     /// Machine coordinates of the table ball during the test, e.g. `x=250,y=150,z=-300` (mm),
-    /// where a table over machine positions is written (LinuxCNC COMP_FILE).
+    /// where a table over machine positions is written (LinuxCNC COMP_FILE, Fanuc pitch error
+    /// table, SINUMERIK EEC, Heidenhain *.COM).
     #[arg(long, value_name = "x=..,y=..,z=..")]
     pub table_ball: Option<String>,
     /// Machine travel to cover with a position table, e.g. `x=0:500,y=0:400` (mm).
@@ -34,7 +38,8 @@ pub struct CompensateArgs {
     /// LinuxCNC COMP_FILE_TYPE to write: 1 (corrections) or 0 (actual positions).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(0..=1))]
     pub comp_file_type: u8,
-    /// Write the files (LinuxCNC comp tables) into this directory instead of printing them; they
+    /// Write the files (LinuxCNC comp tables, Fanuc pitch.txt, SINUMERIK AX_EEC_INI.SPF,
+    /// Heidenhain *.COM and CONFIG.CMA) into this directory instead of printing them; they
     /// are written as a set (all new, or all as they were).
     #[arg(long, short)]
     pub out: Option<PathBuf>,
