@@ -862,6 +862,7 @@ fn industrial_backlash_settings_take_up_the_play_in_the_controls_units() {
         let b_um = block_value(&plan, prefix) * um_per_unit;
         let left = play_um - b_um;
         let flipped = play_um + b_um;
+        eprintln!("{controller:?} {current:?}: B {b_um:.3} µm, left {left:.3} µm, flipped {flipped:.3} µm");
         assert!(
             left.abs() < 0.02 * play_um + 3.0 * sigma + 0.5 * um_per_unit.min(1.0),
             "{controller:?} ({current:?}): setting {b_um} µm leaves {left} µm of {play_um}\n{}",
@@ -914,6 +915,7 @@ fn industrial_position_tables_cancel_a_lead_error_from_the_reference_point() {
             let left: Vec<f64> = xs.iter().map(|&x| delta_um(x) + comp_um(x)).collect();
             let flipped: Vec<f64> = xs.iter().map(|&x| delta_um(x) - comp_um(x)).collect();
             let (e, l, f) = (range(&err), range(&left), range(&flipped));
+            eprintln!("{what}: error {e:.3} µm, left {l:.3} µm, flipped {f:.3} µm");
             assert!(
                 l < 0.02 * e + slack_um,
                 "{what}: left {l} µm of {e} µm over the tested travel\n{text}"
