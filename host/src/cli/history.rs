@@ -15,6 +15,9 @@ pub struct HistoryArgs {
     /// ~/.local/share/jdbb/).
     #[arg(long, global = true, value_name = "PATH")]
     pub db: Option<PathBuf>,
+    /// The machine profile (`crate::profile`), checked; history's own flags are given as before.
+    #[arg(long, global = true, value_name = "FILE")]
+    pub machine_profile: Option<PathBuf>,
     #[command(subcommand)]
     pub command: HistoryCommand,
 }
@@ -83,6 +86,9 @@ pub enum HistoryCommand {
 
 /// Run `jdbb history`.
 pub fn run(args: &HistoryArgs) -> Result<()> {
+    if let Some(f) = &args.machine_profile {
+        crate::profile::MachineProfile::read(f)?;
+    }
     let path = match &args.db {
         Some(p) => p.clone(),
         None => default_path()?,
