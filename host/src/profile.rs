@@ -79,7 +79,9 @@ impl MachineProfile {
             }
         }
         for (k, [lo, hi]) in &p.travel_mm {
-            if !matches!(k.as_str(), "x" | "y" | "z") || !(lo < hi) {
+            if !matches!(k.as_str(), "x" | "y" | "z")
+                || lo.partial_cmp(hi) != Some(std::cmp::Ordering::Less)
+            {
                 return Err(bad(format!(
                     "travel_mm.{k} = [{lo}, {hi}]: an axis x, y, z with [min, max], min < max (mm)"
                 )));
