@@ -42,7 +42,9 @@ use std::fmt::Write;
 use std::path::Path;
 
 use super::current::Current;
-use super::{defaults_note, table_span_mm, Block, Cannot, Change, MachineErrors, Placement, Plan};
+use super::{
+    defaults_note, table_change, table_span_mm, Block, Cannot, MachineErrors, Placement, Plan,
+};
 use crate::circular::model::{Axis, Pair};
 use crate::{Error, Result};
 
@@ -362,23 +364,12 @@ pub fn plan(m: &MachineErrors, current: &Current, placement: &Placement) -> Resu
         else {
             continue;
         };
-        let because: Vec<String> = [
-            m.scale_um_per_m[a.index()].as_ref().map(|s| s.1.text()),
-            m.scale2_um_per_m2[a.index()].as_ref().map(|s| s.text()),
-            m.cyclic[a.index()].as_ref().map(|c| c.source.text()),
-        ]
-        .into_iter()
-        .flatten()
-        .collect();
-        p.changes.push(Change {
-            because: because.join(", "),
-            setting: format!("pitch error compensation {letter}"),
-            unit: String::new(),
-            current: 0.0,
-            assumed: !t.in_force,
-            new: 0.0,
-            decimals: 0,
-            text: Some(format!(
+        let because = m.position_sources(a);
+        p.changes.push(table_change(
+            because.join(", "),
+            format!("pitch error compensation {letter}"),
+            t.in_force,
+            format!(
                 "points {}..{} every {:.4} mm, reference position at point {}, magnification {}{}",
                 t.first_point,
                 t.last_point,
@@ -390,8 +381,8 @@ pub fn plan(m: &MachineErrors, current: &Current, placement: &Placement) -> Resu
                 } else {
                     ""
                 }
-            )),
-        });
+            ),
+        ));
         if !t.in_force {
             let n = axis_no(a);
             params.push(format!("N3620 A{n} P{}", t.reference_point));

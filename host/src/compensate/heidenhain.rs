@@ -33,8 +33,8 @@ use std::path::Path;
 
 use super::current::{key_value, number, Current};
 use super::{
-    change, defaults_note, linear_table, table_span_mm, Block, Change, MachineErrors, Placement,
-    Plan,
+    change, defaults_note, linear_table, table_change, table_span_mm, Block, MachineErrors,
+    Placement, Plan,
 };
 use crate::circular::model::{Axis, Pair};
 use crate::Result;
@@ -169,26 +169,14 @@ pub fn plan(m: &MachineErrors, current: &Current, placement: &Placement) -> Resu
         text.push_str("[END]\n");
         let mut because = vec![];
         if own {
-            because.extend(
-                [
-                    m.scale_um_per_m[j.index()].as_ref().map(|s| s.1.text()),
-                    m.scale2_um_per_m2[j.index()].as_ref().map(|s| s.text()),
-                    m.cyclic[j.index()].as_ref().map(|c| c.source.text()),
-                ]
-                .into_iter()
-                .flatten(),
-            );
+            because.extend(m.position_sources(j));
         }
         because.extend(leaning.iter().map(|(_, s)| s.text()));
-        p.changes.push(Change {
-            because: because.join(", "),
-            setting: format!("nonlinear axis error compensation {name}"),
-            unit: String::new(),
-            current: 0.0,
-            assumed: true,
-            new: 0.0,
-            decimals: 0,
-            text: Some(format!(
+        p.changes.push(table_change(
+            because.join(", "),
+            format!("nonlinear axis error compensation {name}"),
+            false,
+            format!(
                 "{} points every {:.4} mm of {}, columns {} = F({})",
                 table.len(),
                 table[1].0 - table[0].0,
@@ -199,8 +187,8 @@ pub fn plan(m: &MachineErrors, current: &Current, placement: &Placement) -> Resu
                     .collect::<Vec<_>>()
                     .join(", "),
                 col(j)
-            )),
-        });
+            ),
+        ));
         p.files.push((name.clone(), text));
         cma.push((j, name));
     }

@@ -351,6 +351,20 @@ impl MachineErrors {
         }
     }
 
+    /// The effects behind axis `a`'s position-dependent error (scale, scale2, cyclic), as people
+    /// read them: what a position table is "for".
+    pub fn position_sources(&self, a: Axis) -> Vec<String> {
+        let k = a.index();
+        [
+            self.scale_um_per_m[k].as_ref().map(|s| s.1.text()),
+            self.scale2_um_per_m2[k].as_ref().map(|s| s.text()),
+            self.cyclic[k].as_ref().map(|c| c.source.text()),
+        ]
+        .into_iter()
+        .flatten()
+        .collect()
+    }
+
     /// The squareness of `pair`.
     pub fn squareness(&self, pair: Pair) -> Option<&Measured> {
         self.squareness_um_per_m[pair_index(pair)].as_ref()
@@ -644,6 +658,26 @@ pub(crate) fn change(
         new: cur + delta,
         decimals,
         text: None,
+    }
+}
+
+/// A change that is a table or file to load rather than a number: `text` says what it becomes;
+/// `in_force` whether it builds on one in force.
+pub(crate) fn table_change(
+    because: String,
+    setting: String,
+    in_force: bool,
+    text: String,
+) -> Change {
+    Change {
+        because,
+        setting,
+        unit: String::new(),
+        current: 0.0,
+        assumed: !in_force,
+        new: 0.0,
+        decimals: 0,
+        text: Some(text),
     }
 }
 

@@ -35,8 +35,8 @@ use std::path::Path;
 
 use super::current::{number, Current};
 use super::{
-    change, defaults_note, linear_table, table_at, table_span_mm, Block, Change, MachineErrors,
-    Placement, Plan,
+    change, defaults_note, linear_table, table_at, table_change, table_span_mm, Block,
+    MachineErrors, Placement, Plan,
 };
 use crate::circular::model::{Axis, Pair};
 use crate::{Error, Result};
@@ -210,23 +210,12 @@ pub fn plan(m: &MachineErrors, current: &Current, placement: &Placement) -> Resu
         ));
         program.push(format!("$AA_ENC_COMP_IS_MODULO[0,{}]=0", ax(a)));
         enable.push(format!("$MA_ENC_COMP_ENABLE[0,{}]=1", ax(a)));
-        let because: Vec<String> = [
-            m.scale_um_per_m[a.index()].as_ref().map(|s| s.1.text()),
-            m.scale2_um_per_m2[a.index()].as_ref().map(|s| s.text()),
-            m.cyclic[a.index()].as_ref().map(|c| c.source.text()),
-        ]
-        .into_iter()
-        .flatten()
-        .collect();
-        p.changes.push(Change {
-            because: because.join(", "),
-            setting: format!("leadscrew error compensation {}", ax(a)),
-            unit: String::new(),
-            current: 0.0,
-            assumed: old.is_none(),
-            new: 0.0,
-            decimals: 0,
-            text: Some(format!(
+        let because = m.position_sources(a);
+        p.changes.push(table_change(
+            because.join(", "),
+            format!("leadscrew error compensation {}", ax(a)),
+            old.is_some(),
+            format!(
                 "{} points every {:.4} mm from {:.3} mm in AX_EEC_INI.SPF{} (MD38000 $MA_MM_ENC_COMP_MAX_POINTS[0,{}] ≥ {})",
                 table.len(),
                 step_mm,
@@ -234,8 +223,8 @@ pub fn plan(m: &MachineErrors, current: &Current, placement: &Placement) -> Resu
                 if old.is_some() { ", the table in force added to" } else { "" },
                 ax(a),
                 table.len()
-            )),
-        });
+            ),
+        ));
     }
     // Squareness: one CEC table per leaning pair, two points over the span of the input axis.
     let mut cec = vec![];
@@ -262,20 +251,16 @@ pub fn plan(m: &MachineErrors, current: &Current, placement: &Placement) -> Resu
         cec.push(format!("$AN_CEC_MAX[{t}]={:.d$}", hi / u, d = decimals));
         cec.push(format!("$SN_CEC_TABLE_ENABLE[{t}]=TRUE"));
         enable.push(format!("$MA_CEC_ENABLE[{}]=1", ax(i)));
-        p.changes.push(Change {
-            because: s.text(),
-            setting: format!("sag/angularity compensation table {t}"),
-            unit: String::new(),
-            current: 0.0,
-            assumed: true,
-            new: 0.0,
-            decimals: 0,
-            text: Some(format!(
+        p.changes.push(table_change(
+            s.text(),
+            format!("sag/angularity compensation table {t}"),
+            false,
+            format!(
                 "{} = f({}) in AX_EEC_INI.SPF (MD18342 $MN_MM_CEC_MAX_POINTS[{t}] ≥ 2)",
                 ax(i),
                 ax(j)
-            )),
-        });
+            ),
+        ));
         t += 1;
     }
     if !cec.is_empty() {
