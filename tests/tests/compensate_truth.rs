@@ -675,21 +675,14 @@ fn linuxcnc_matrixkins_cancels_the_vertical_planes() {
     );
 }
 
-/// Play: X's nut has 8 µm of clearance (the carriage stands still for the first 8 µm of the
-/// motor's travel after each reversal). Each controller's backlash compensation adds its
-/// setting B to the motor's travel at a reversal, so what is left is b − B: LinuxCNC's
-/// `BACKLASH`, grblHAL's `$160` and Marlin's `M425 X` (all mm) must each be +b within 1 % + 3σ.
-/// A sign flipped (the axis reads as running ahead) gives −b and doubles the play; Klipper has no
-/// backlash compensation and must say so rather than emit anything for it.
-#[test]
-fn the_backlash_settings_take_up_the_play() {
-    let p = make_plan(&[90.0]);
-    let play_um = 8.0;
+/// X with `play_um` of play, tested (one 90 mm circle) and diagnosed, which must name
+/// `backlash_x` alone: the diagnosis, its file and backlash_x's σ (µm).
+fn play_diagnosed(play_um: f64) -> (Diagnosis, DiagnosisDoc, f64) {
     let errors = MachineErrors {
         backlash_um: [play_um, 0.0, 0.0],
         ..MachineErrors::default()
     };
-    let (diag, doc) = diagnosed(&p, errors, 44, [None; 3]);
+    let (diag, doc) = diagnosed(&make_plan(&[90.0]), errors, 44, [None; 3]);
     assert_eq!(
         machine_names(&diag),
         vec!["backlash_x"],
@@ -703,6 +696,19 @@ fn the_backlash_settings_take_up_the_play() {
         .unwrap()
         .sigma
         .unwrap();
+    (diag, doc, sigma)
+}
+
+/// Play: X's nut has 8 µm of clearance (the carriage stands still for the first 8 µm of the
+/// motor's travel after each reversal). Each controller's backlash compensation adds its
+/// setting B to the motor's travel at a reversal, so what is left is b − B: LinuxCNC's
+/// `BACKLASH`, grblHAL's `$160` and Marlin's `M425 X` (all mm) must each be +b within 1 % + 3σ.
+/// A sign flipped (the axis reads as running ahead) gives −b and doubles the play; Klipper has no
+/// backlash compensation and must say so rather than emit anything for it.
+#[test]
+fn the_backlash_settings_take_up_the_play() {
+    let play_um = 8.0;
+    let (diag, doc, sigma) = play_diagnosed(play_um);
     let context = summary(&diag);
     let setting_mm = |controller: Controller, prefix: &str| -> f64 {
         let plan = compensate_for(&doc, controller);
@@ -804,26 +810,8 @@ fn file_text<'a>(p: &'a compensate::Plan, name: &str) -> &'a str {
 /// increment system (10×) or inch/mm (25.4×) fails.
 #[test]
 fn industrial_backlash_settings_take_up_the_play_in_the_controls_units() {
-    let p = make_plan(&[90.0]);
     let play_um = 8.0;
-    let errors = MachineErrors {
-        backlash_um: [play_um, 0.0, 0.0],
-        ..MachineErrors::default()
-    };
-    let (diag, doc) = diagnosed(&p, errors, 44, [None; 3]);
-    assert_eq!(
-        machine_names(&diag),
-        vec!["backlash_x"],
-        "{}",
-        summary(&diag)
-    );
-    let sigma = diag
-        .effects
-        .iter()
-        .find(|f| f.effect.name() == "backlash_x")
-        .unwrap()
-        .sigma
-        .unwrap();
+    let (_, doc, sigma) = play_diagnosed(play_um);
     // (controller, values in force, the line's prefix, µm per unit of the setting).
     let cases = [
         (
