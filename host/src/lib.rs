@@ -34,6 +34,7 @@ pub mod instrument;
 pub mod link;
 pub mod live_web;
 pub mod numerics;
+pub mod profile;
 pub mod rotary;
 pub mod rrsps;
 pub mod table;

@@ -186,7 +186,7 @@ fn compensate_bad_input_exits_2_with_the_place() {
             "--diagnosis",
             s(&diag),
             "--controller",
-            "fanuc",
+            "okuma",
         ],
         "use one of linuxcnc, grblhal, marlin, klipper",
     );

@@ -167,6 +167,15 @@ const CURRENT: &[(&str, &str)] = &[
         "klipper",
         "[stepper_x]\nrotation_distance: 40\n[skew_correction]\n",
     ),
+    (
+        "fanuc",
+        "%\nN01001P00000000\nN01013A1P00000010A2P00000010\nN01851 A1 P12 A2 P8\nN03620A1P40\nN10040P-2\n%\n",
+    ),
+    (
+        "sinumerik",
+        "$MN_SCALING_SYSTEM_IS_METRIC=1\n$MA_BACKLASH[0,AX1]=0.012\n$AA_ENC_COMP[0,3,AX2]=0.001\n",
+    ),
+    ("heidenhain", "MP710.0:+0.0120\nMP720.1:-0.0100\n"),
 ];
 
 /// plan.json and a diagnosis JSON written by the program itself, once.

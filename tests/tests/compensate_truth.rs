@@ -675,21 +675,14 @@ fn linuxcnc_matrixkins_cancels_the_vertical_planes() {
     );
 }
 
-/// Play: X's nut has 8 µm of clearance (the carriage stands still for the first 8 µm of the
-/// motor's travel after each reversal). Each controller's backlash compensation adds its
-/// setting B to the motor's travel at a reversal, so what is left is b − B: LinuxCNC's
-/// `BACKLASH`, grblHAL's `$160` and Marlin's `M425 X` (all mm) must each be +b within 1 % + 3σ.
-/// A sign flipped (the axis reads as running ahead) gives −b and doubles the play; Klipper has no
-/// backlash compensation and must say so rather than emit anything for it.
-#[test]
-fn the_backlash_settings_take_up_the_play() {
-    let p = make_plan(&[90.0]);
-    let play_um = 8.0;
+/// X with `play_um` of play, tested (one 90 mm circle) and diagnosed, which must name
+/// `backlash_x` alone: the diagnosis, its file and backlash_x's σ (µm).
+fn play_diagnosed(play_um: f64) -> (Diagnosis, DiagnosisDoc, f64) {
     let errors = MachineErrors {
         backlash_um: [play_um, 0.0, 0.0],
         ..MachineErrors::default()
     };
-    let (diag, doc) = diagnosed(&p, errors, 44, [None; 3]);
+    let (diag, doc) = diagnosed(&make_plan(&[90.0]), errors, 44, [None; 3]);
     assert_eq!(
         machine_names(&diag),
         vec!["backlash_x"],
@@ -703,6 +696,19 @@ fn the_backlash_settings_take_up_the_play() {
         .unwrap()
         .sigma
         .unwrap();
+    (diag, doc, sigma)
+}
+
+/// Play: X's nut has 8 µm of clearance (the carriage stands still for the first 8 µm of the
+/// motor's travel after each reversal). Each controller's backlash compensation adds its
+/// setting B to the motor's travel at a reversal, so what is left is b − B: LinuxCNC's
+/// `BACKLASH`, grblHAL's `$160` and Marlin's `M425 X` (all mm) must each be +b within 1 % + 3σ.
+/// A sign flipped (the axis reads as running ahead) gives −b and doubles the play; Klipper has no
+/// backlash compensation and must say so rather than emit anything for it.
+#[test]
+fn the_backlash_settings_take_up_the_play() {
+    let play_um = 8.0;
+    let (diag, doc, sigma) = play_diagnosed(play_um);
     let context = summary(&diag);
     let setting_mm = |controller: Controller, prefix: &str| -> f64 {
         let plan = compensate_for(&doc, controller);
@@ -864,4 +870,271 @@ fn the_steps_settings_cancel_the_screws_lead_errors() {
 /// The values in force as the lines [`steps_setting`] reads (Marlin's `M92` as given).
 fn in_force_lines(text: &str) -> Vec<String> {
     text.lines().map(str::to_string).collect()
+
+/// `compensate` for `controller` with the values in force `current` (the text of the file a
+/// service engineer has at hand) and the table ball's machine coordinates.
+fn compensate_with(doc: &DiagnosisDoc, controller: Controller, current: &str) -> compensate::Plan {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("current.txt");
+    std::fs::write(&file, current).unwrap();
+    let current = Current::read(&file, controller).unwrap();
+    let opts = compensate::Options {
+        controller,
+        placement: Placement {
+            table_ball_mm: BALL.map(Some),
+            ..Placement::default()
+        },
+        comp_file_type: 1,
+    };
+    compensate::plan(doc, &current, &opts).unwrap()
+}
+
+/// The number after `prefix` on the line of `p`'s blocks that starts with it.
+fn block_value(p: &compensate::Plan, prefix: &str) -> f64 {
+    p.blocks
+        .iter()
+        .flat_map(|b| &b.lines)
+        .find_map(|l| l.trim().strip_prefix(prefix)?.trim().parse::<f64>().ok())
+        .unwrap_or_else(|| panic!("no `{prefix}` line:\n{}", compensate::render(p, None)))
+}
+
+/// The text of the file `name` of `p`.
+fn file_text<'a>(p: &'a compensate::Plan, name: &str) -> &'a str {
+    &p.files
+        .iter()
+        .find(|(n, _)| n == name)
+        .unwrap_or_else(|| panic!("no {name}:\n{}", compensate::render(p, None)))
+        .1
+}
+
+/// Play of 8 µm on X, compensated on the three industrial controls as their manuals define the
+/// settings: each adds its whole backlash setting B at a reversal in the new direction of motion
+/// (Fanuc No. 1851 "the direction of movement", in the detection unit; SINUMERIK MD32450 and
+/// Heidenhain MP710 positive when the encoder leads the table), so what is left is b − B. The
+/// units are the control's, read here from the manuals, not from the host: Fanuc IS-C mm 0.0001
+/// mm and IS-C inch 0.00001 inch per detection unit (No. 1013#1, No. 1001#0 in the backup);
+/// SINUMERIK inch with `$MN_SCALING_SYSTEM_IS_METRIC=0`; Heidenhain mm. B must be b within 2 % +
+/// 3σ + half a detection unit, and with its sign flipped leave about 2b. A unit wrong by the
+/// increment system (10×) or inch/mm (25.4×) fails.
+#[test]
+fn industrial_backlash_settings_take_up_the_play_in_the_controls_units() {
+    let play_um = 8.0;
+    let (_, doc, sigma) = play_diagnosed(play_um);
+    // (controller, values in force, the line's prefix, µm per unit of the setting).
+    let cases = [
+        (
+            Controller::Fanuc,
+            "%\nN01013A1P00000010\n%\n",
+            "N1851 A1 P",
+            0.1,
+        ),
+        (
+            Controller::Fanuc,
+            "%\nN01001P00000001\nN01013A1P00000010\n%\n",
+            "N1851 A1 P",
+            0.254,
+        ),
+        (
+            Controller::Sinumerik,
+            "$MN_SCALING_SYSTEM_IS_METRIC=1\n",
+            "$MA_BACKLASH[0,AX1]=",
+            1000.0,
+        ),
+        (
+            Controller::Sinumerik,
+            "$MN_SCALING_SYSTEM_IS_METRIC=0\n",
+            "$MA_BACKLASH[0,AX1]=",
+            25400.0,
+        ),
+        (
+            Controller::Heidenhain,
+            "MP710.1:+0.0000\n",
+            "MP710.0:",
+            1000.0,
+        ),
+    ];
+    for (controller, current, prefix, um_per_unit) in cases {
+        let plan = compensate_with(&doc, controller, current);
+        let b_um = block_value(&plan, prefix) * um_per_unit;
+        let left = play_um - b_um;
+        let flipped = play_um + b_um;
+        eprintln!("{controller:?} {current:?}: B {b_um:.3} µm, left {left:.3} µm, flipped {flipped:.3} µm");
+        assert!(
+            left.abs() < 0.02 * play_um + 3.0 * sigma + 0.5 * um_per_unit.min(1.0),
+            "{controller:?} ({current:?}): setting {b_um} µm leaves {left} µm of {play_um}\n{}",
+            compensate::render(&plan, None)
+        );
+        assert!(
+            (flipped / play_um - 2.0).abs() < 0.05,
+            "{controller:?}: flipped leaves {flipped} µm"
+        );
+    }
+}
+
+/// A lead error δ = b·(x − o)² of X (as `linuxcnc_comp_table_cancels_a_lead_error_about_another_origin`),
+/// compensated by each industrial control's position table applied as its manual says:
+/// - Fanuc: point n's value is the increment over the section ending at n, the compensation at
+///   point n the sum from the reference point (No. 3620, machine 0) to n (minus the sum above n
+///   on the − side), in detection units (IS-C mm: 0.0001 mm) × the magnification (No. 3623), the
+///   interval No. 3624 in the least input increment; a value is added in its own direction, so
+///   what is left at point n is δ(p_n) + C_n. Checked at the points (between them the output's
+///   timing was not confirmed).
+/// - SINUMERIK: `$AA_ENC_COMP[0,N,AX1]` from `$AA_ENC_COMP_MIN` every `$AA_ENC_COMP_STEP`, linear
+///   between points, ends held; a positive value moves the axis negative: left δ(x) − comp(x).
+/// - Heidenhain: X.COM, column X over AXISPOS, linear between points; the value is the error
+///   (MP720's sign rule), which the TNC takes away: left δ(x) − com(x).
+///
+/// A constant moves the circle, not its shape, so what is compared is the range (max − min) of
+/// what is left over the tested travel: under 2 % of the error's range (+ one unit × magnification
+/// for Fanuc's integers), and about twice it with the table's sign flipped.
+#[test]
+fn industrial_position_tables_cancel_a_lead_error_from_the_reference_point() {
+    let p = make_plan(&[95.0, 85.0]);
+    let (b, origin) = (1500.0, BALL[0] - 50.0);
+    let mut errors = MachineErrors::default();
+    errors.scale2[0] = Scale2 {
+        um_per_m2: b,
+        origin_mm: origin,
+    };
+    let (diag, doc) = diagnosed(&p, errors, 42, [None; 3]);
+    let mut names = machine_names(&diag);
+    names.sort();
+    assert_eq!(names, vec!["scale2_x", "scale_x"], "{}", summary(&diag));
+    let delta_um = |x: f64| b * ((x - origin) * 1e-3).powi(2);
+    let (lo, hi) = (BALL[0] - 95.0, BALL[0] + 95.0);
+    let range = |v: &[f64]| {
+        v.iter().cloned().fold(f64::MIN, f64::max) - v.iter().cloned().fold(f64::MAX, f64::min)
+    };
+    let check =
+        |what: &str, xs: &[f64], comp_um: &dyn Fn(f64) -> f64, slack_um: f64, text: &str| {
+            let err: Vec<f64> = xs.iter().map(|&x| delta_um(x)).collect();
+            let left: Vec<f64> = xs.iter().map(|&x| delta_um(x) + comp_um(x)).collect();
+            let flipped: Vec<f64> = xs.iter().map(|&x| delta_um(x) - comp_um(x)).collect();
+            let (e, l, f) = (range(&err), range(&left), range(&flipped));
+            eprintln!("{what}: error {e:.3} µm, left {l:.3} µm, flipped {f:.3} µm");
+            assert!(
+                l < 0.02 * e + slack_um,
+                "{what}: left {l} µm of {e} µm over the tested travel\n{text}"
+            );
+            assert!(
+                (f / e - 2.0).abs() < 0.1,
+                "{what}: flipped leaves {f} µm of {e} µm"
+            );
+        };
+
+    // Fanuc, IS-C mm.
+    let fanuc = compensate_with(&doc, Controller::Fanuc, "%\nN01013A1P00000010\n%\n");
+    let text = compensate::render(&fanuc, None);
+    let unit_mm = 0.0001;
+    let reference = block_value(&fanuc, "N3620 A1 P") as i64;
+    let magnification = block_value(&fanuc, "N3623 A1 P");
+    let interval_mm = block_value(&fanuc, "N3624 A1 P") * unit_mm;
+    let values: std::collections::BTreeMap<i64, f64> = file_text(&fanuc, "pitch.txt")
+        .lines()
+        .filter_map(|l| {
+            let (n, v) = l.strip_prefix('N')?.split_once(" P")?;
+            Some((n.parse::<i64>().ok()? - 10000, v.parse::<f64>().ok()?))
+        })
+        .collect();
+    let c_um = |n: i64| -> f64 {
+        let sum: f64 = if n >= reference {
+            (reference + 1..=n).map(|i| values[&i]).sum()
+        } else {
+            -(n + 1..=reference).map(|i| values[&i]).sum::<f64>()
+        };
+        1e3 * sum * magnification * unit_mm
+    };
+    let points: Vec<i64> = values
+        .keys()
+        .copied()
+        .filter(|&n| {
+            let x = (n - reference) as f64 * interval_mm;
+            (lo..=hi).contains(&x)
+        })
+        .collect();
+    assert!(points.len() >= 10, "{text}");
+    let xs: Vec<f64> = points
+        .iter()
+        .map(|&n| (n - reference) as f64 * interval_mm)
+        .collect();
+    let by_x = |x: f64| c_um(reference + (x / interval_mm).round() as i64);
+    check(
+        "Fanuc pitch error table",
+        &xs,
+        &by_x,
+        1e3 * magnification * unit_mm,
+        &text,
+    );
+
+    // SINUMERIK, mm.
+    let siemens = compensate_with(
+        &doc,
+        Controller::Sinumerik,
+        "$MN_SCALING_SYSTEM_IS_METRIC=1\n",
+    );
+    let text = compensate::render(&siemens, None);
+    let program = file_text(&siemens, "AX_EEC_INI.SPF");
+    let get = |name: &str| -> f64 {
+        program
+            .lines()
+            .find_map(|l| l.strip_prefix(name)?.parse().ok())
+            .unwrap_or_else(|| panic!("no {name}\n{program}"))
+    };
+    let (min, step) = (
+        get("$AA_ENC_COMP_MIN[0,AX1]="),
+        get("$AA_ENC_COMP_STEP[0,AX1]="),
+    );
+    let mut eec: Vec<(usize, f64)> = program
+        .lines()
+        .filter_map(|l| {
+            let rest = l.strip_prefix("$AA_ENC_COMP[0,")?;
+            let (n, rest) = rest.split_once(",AX1]=")?;
+            Some((n.parse().ok()?, rest.parse().ok()?))
+        })
+        .collect();
+    eec.sort_by_key(|e| e.0);
+    let eec: Vec<f64> = eec.into_iter().map(|e| e.1).collect();
+    let interp = |min: f64, step: f64, v: &[f64], x: f64| -> f64 {
+        let u = ((x - min) / step).clamp(0.0, (v.len() - 1) as f64);
+        let i = (u.floor() as usize).min(v.len() - 2);
+        v[i] + (u - i as f64) * (v[i + 1] - v[i])
+    };
+    let xs: Vec<f64> = (0..=2000)
+        .map(|i| lo + (hi - lo) * i as f64 / 2000.0)
+        .collect();
+    check(
+        "SINUMERIK EEC",
+        &xs,
+        &|x| -1e3 * interp(min, step, &eec, x),
+        0.0,
+        &text,
+    );
+
+    // Heidenhain X.COM.
+    let tnc = compensate_with(&doc, Controller::Heidenhain, "MP710.0:+0.0000\n");
+    let text = compensate::render(&tnc, None);
+    let com = file_text(&tnc, "X.COM");
+    let header: Vec<&str> = com.lines().nth(1).unwrap().split_whitespace().collect();
+    let (pos_col, x_col) = (
+        header.iter().position(|h| *h == "AXISPOS").unwrap(),
+        header.iter().position(|h| *h == "X").unwrap(),
+    );
+    let rows: Vec<(f64, f64)> = com
+        .lines()
+        .skip(2)
+        .filter(|l| !l.starts_with('['))
+        .map(|l| {
+            let w: Vec<f64> = l.split_whitespace().map(|w| w.parse().unwrap()).collect();
+            (w[pos_col], w[x_col])
+        })
+        .collect();
+    let (cmin, cstep) = (rows[0].0, rows[1].0 - rows[0].0);
+    let cv: Vec<f64> = rows.iter().map(|r| r.1).collect();
+    check(
+        "Heidenhain X.COM",
+        &xs,
+        &|x| -1e3 * interp(cmin, cstep, &cv, x),
+        0.0,
+        &text,
+    );
 }

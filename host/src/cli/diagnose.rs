@@ -18,7 +18,7 @@ use crate::fsio::{check_dir_destination, write_dir};
 use crate::{Error, Result};
 
 /// Arguments of `jdbb diagnose`.
-#[derive(Debug, clap::Args)]
+#[derive(Debug, Clone, clap::Args)]
 pub struct DiagnoseArgs {
     /// CSV `t_s,x_mm,y_mm,z_mm,d_mm` (nominal path and measured D), e.g. from `jdbb simulate`.
     #[arg(long, required_unless_present = "record", conflicts_with = "record")]
@@ -62,6 +62,11 @@ pub struct DiagnoseArgs {
     /// The machine's name, for the report and the history (`jdbb history add`).
     #[arg(long)]
     pub machine: Option<String>,
+    /// The machine profile (`crate::profile`): its name, pitches (of the axes that move, with
+    /// --samples), tolerance and table ball stand where `--machine`, `--pitch`, `--tolerance-um`,
+    /// `--table-ball` are not given.
+    #[arg(long, value_name = "FILE")]
+    pub machine_profile: Option<PathBuf>,
     /// Tolerance on the circular deviation G (µm): the run passes if every circle's G (each
     /// direction, minimum-zone centre) is at most this.
     #[arg(long, value_parser = super::args::positive)]
@@ -262,8 +267,46 @@ fn set_aside_json(rec: &Record) -> serde_json::Value {
 /// Most glitches listed one by one in the diagnosis JSON.
 const MAX_LISTED_GLITCHES: usize = 1000;
 
+/// The profile's pitches (`--pitch`) of the axes that move in the test: a record's plane is not
+/// known before it is read, so samples are read once to see which axes move; for a record the
+/// profile's pitches are not used (give --pitch).
+fn profile_pitch(
+    args: &DiagnoseArgs,
+    profile: &crate::profile::MachineProfile,
+) -> Result<Option<String>> {
+    let (Some(samples), Some(all)) = (&args.samples, profile.pitch_arg()) else {
+        return Ok(None);
+    };
+    let (path, _) = read_samples(samples, [None; 3])?;
+    let pitch = parse_pitch(&all)?;
+    let moving: Vec<String> = crate::circular::model::Axis::ALL
+        .iter()
+        .filter_map(|&a| {
+            let p = pitch[a.index()]?;
+            path.moves(a).then(|| format!("{}={p}", a.letter()))
+        })
+        .collect();
+    Ok((!moving.is_empty()).then(|| moving.join(",")))
+}
+
 /// Run `jdbb diagnose`.
 pub fn run(args: &DiagnoseArgs) -> Result<()> {
+    let filled;
+    let args = match &args.machine_profile {
+        Some(f) => {
+            let p = crate::profile::MachineProfile::read(f)?;
+            let mut a = args.clone();
+            a.machine = a.machine.or(p.machine.clone());
+            if a.pitch.is_none() {
+                a.pitch = profile_pitch(&a, &p)?;
+            }
+            a.tolerance_um = a.tolerance_um.or(p.tolerance_um);
+            a.table_ball = a.table_ball.or(p.table_ball_arg());
+            filled = a;
+            &filled
+        }
+        None => args,
+    };
     if let Some(dir) = &args.report {
         // Before the work: a report directory that will be refused is refused at once.
         check_dir_destination(dir, args.force)?;

@@ -16,6 +16,9 @@ pub struct HistoryArgs {
     /// data directory, e.g. ~/.local/share/jdbb/) or a server, postgres://USER:PASSWORD@HOST/DB.
     #[arg(long, global = true, value_name = "PATH|URL")]
     pub db: Option<PathBuf>,
+    /// The machine profile (`crate::profile`), checked; history's own flags are given as before.
+    #[arg(long, global = true, value_name = "FILE")]
+    pub machine_profile: Option<PathBuf>,
     #[command(subcommand)]
     pub command: HistoryCommand,
 }
@@ -128,6 +131,9 @@ pub enum HistoryCommand {
 
 /// Run `jdbb history`.
 pub fn run(args: &HistoryArgs) -> Result<()> {
+    if let Some(f) = &args.machine_profile {
+        crate::profile::MachineProfile::read(f)?;
+    }
     let db = crate::history::location(args.db.as_deref().map(|p| p.as_os_str()))?;
     // A file's path, to keep the outputs off it; none for a server.
     let path = PathBuf::from(&db);

@@ -20,6 +20,9 @@ use crate::{Error, Result};
 /// Arguments of `jdbb plan`.
 #[derive(Debug, clap::Args)]
 pub struct PlanArgs {
+    /// The machine profile (`crate::profile`), checked; plan's own flags are given as before.
+    #[arg(long, value_name = "FILE")]
+    pub machine_profile: Option<std::path::PathBuf>,
     /// Circle radius in mm (repeat for several radii: the instrument stays mounted between them).
     #[arg(long = "radius", value_name = "MM", value_parser = super::args::positive, required_unless_present_any = ["calibration_test", "volumetric"])]
     pub radii_mm: Vec<f64>,
@@ -132,6 +135,9 @@ fn parse_centre(s: &str) -> std::result::Result<[f64; 3], String> {
 
 /// Run `jdbb plan`.
 pub fn run(args: &PlanArgs) -> Result<()> {
+    if let Some(f) = &args.machine_profile {
+        crate::profile::MachineProfile::read(f)?;
+    }
     let cal = match &args.calibration {
         Some(path) => crate::instrument::file::read_calibration(path)?,
         None => Calibration::DEFAULT,

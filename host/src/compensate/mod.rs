@@ -48,11 +48,14 @@ use crate::units::{format_estimate, human};
 use crate::{Error, Result};
 
 pub mod current;
+pub mod fanuc;
 pub mod grblhal;
+pub mod heidenhain;
 pub mod klipper;
 pub mod linuxcnc;
 pub mod marlin;
 pub mod plausible;
+pub mod sinumerik;
 
 pub use current::Current;
 
@@ -63,14 +66,23 @@ pub enum Controller {
     GrblHal,
     Marlin,
     Klipper,
+    /// Fanuc Series 0i-F / 30i.
+    Fanuc,
+    /// Siemens SINUMERIK 840D sl / ONE.
+    Sinumerik,
+    /// Heidenhain iTNC 530 / TNC 640.
+    Heidenhain,
 }
 
 impl Controller {
-    pub const ALL: [Controller; 4] = [
+    pub const ALL: [Controller; 7] = [
         Controller::LinuxCnc,
         Controller::GrblHal,
         Controller::Marlin,
         Controller::Klipper,
+        Controller::Fanuc,
+        Controller::Sinumerik,
+        Controller::Heidenhain,
     ];
 
     /// The name on the command line.
@@ -80,6 +92,9 @@ impl Controller {
             Controller::GrblHal => "grblhal",
             Controller::Marlin => "marlin",
             Controller::Klipper => "klipper",
+            Controller::Fanuc => "fanuc",
+            Controller::Sinumerik => "sinumerik",
+            Controller::Heidenhain => "heidenhain",
         }
     }
 
@@ -90,7 +105,7 @@ impl Controller {
             .find(|c| c.name() == name.trim().to_ascii_lowercase())
             .ok_or_else(|| {
                 Error::Usage(format!(
-                    "--controller `{name}`: use one of linuxcnc, grblhal, marlin, klipper"
+                    "--controller `{name}`: use one of linuxcnc, grblhal, marlin, klipper, fanuc, sinumerik, heidenhain"
                 ))
             })
     }
@@ -135,6 +150,9 @@ fn parse_current(path: &std::path::Path, text: &str, controller: Controller) -> 
         Controller::GrblHal => grblhal::parse_current(path, text),
         Controller::Marlin => marlin::parse_current(path, text),
         Controller::Klipper => klipper::parse_current(path, text),
+        Controller::Fanuc => fanuc::parse_current(path, text),
+        Controller::Sinumerik => sinumerik::parse_current(path, text),
+        Controller::Heidenhain => heidenhain::parse_current(path, text),
     }
 }
 
@@ -201,6 +219,8 @@ pub struct MachineErrors {
     pub notes: Vec<String>,
     /// The largest circle radius of the test (mm), the span a position table can rest on.
     pub radius_mm: Option<f64>,
+    /// reversal_spike_k as (h_um, tau_ms), for a control that compensates it (Heidenhain).
+    pub reversal_spike: [Option<(f64, f64)>; 3],
 }
 
 fn pair_index(p: Pair) -> usize {
@@ -283,9 +303,14 @@ impl MachineErrors {
                 Effect::Squareness(pair) => {
                     m.squareness_um_per_m[pair_index(pair)] = Some(measured)
                 }
+                Effect::ReversalSpike(a) => {
+                    if let [h_um, tau_ms] = p[..] {
+                        m.reversal_spike[a.index()] = Some((h_um, tau_ms));
+                    }
+                    m.tuning.push(measured)
+                }
                 Effect::ServoMismatch(_)
                 | Effect::Interference(_)
-                | Effect::ReversalSpike(_)
                 | Effect::Drift
                 | Effect::ScaleDrift(_)
                 | Effect::PositionDrift(_) => m.tuning.push(measured),
@@ -326,6 +351,20 @@ impl MachineErrors {
             }
             None => 0.0,
         }
+    }
+
+    /// The effects behind axis `a`'s position-dependent error (scale, scale2, cyclic), as people
+    /// read them: what a position table is "for".
+    pub fn position_sources(&self, a: Axis) -> Vec<String> {
+        let k = a.index();
+        [
+            self.scale_um_per_m[k].as_ref().map(|s| s.1.text()),
+            self.scale2_um_per_m2[k].as_ref().map(|s| s.text()),
+            self.cyclic[k].as_ref().map(|c| c.source.text()),
+        ]
+        .into_iter()
+        .flatten()
+        .collect()
     }
 
     /// The squareness of `pair`.
@@ -409,6 +448,9 @@ pub fn plan(doc: &DiagnosisDoc, current: &Current, opts: &Options) -> Result<Pla
         Controller::GrblHal => grblhal::plan(&m, current),
         Controller::Marlin => marlin::plan(&m, current),
         Controller::Klipper => klipper::plan(&m, current)?,
+        Controller::Fanuc => fanuc::plan(&m, current, &opts.placement)?,
+        Controller::Sinumerik => sinumerik::plan(&m, current, &opts.placement)?,
+        Controller::Heidenhain => heidenhain::plan(&m, current, &opts.placement)?,
     };
     for t in &m.tuning {
         p.cannot.push(tuning_advice(t, opts.controller));
@@ -432,6 +474,9 @@ fn tuning_advice(t: &Measured, c: Controller) -> Cannot {
                 lead.letter().to_ascii_uppercase(),
             );
             let how = match c {
+                Controller::Fanuc | Controller::Sinumerik | Controller::Heidenhain => format!(
+                    "match the position loops of {lag} and {lead}: the same position-loop gain (kv) and feed-forward on both (Fanuc: servo loop gain No. 1825 and feed-forward; SINUMERIK: MD32200 POSCTRL_GAIN and MD32620 FFW_MODE; Heidenhain: the kv factors), or raise {lag}'s, until a new test shows the mismatch within its standard error"
+                ),
                 Controller::LinuxCnc => format!(
                     "match the position loops: raise FF1 (velocity feed-forward, towards 1) or P of the PID of the joint of {lag}, or lower {lead}'s, until a new test shows the mismatch within its standard error"
                 ),
@@ -457,6 +502,12 @@ fn tuning_advice(t: &Measured, c: Controller) -> Cannot {
                     c.name()
                 ),
                 instead: match c {
+                    Controller::Heidenhain => format!(
+                        "the reversal-spike compensation written below (iTNC 530 MP711/MP712), then check {axis}'s ways and gibs (lubrication, preload): a spike is friction, the setting only hides it"
+                    ),
+                    Controller::Fanuc | Controller::Sinumerik => format!(
+                        "check {axis}'s ways and gibs (lubrication, preload); then the control's quadrant-error (friction) compensation, set with the machine builder (Fanuc: backlash acceleration in the servo parameters; SINUMERIK: friction compensation, MD32500 FRICT_COMP_ENABLE)"
+                    ),
                     Controller::LinuxCnc => format!(
                         "check {axis}'s ways and gibs (lubrication, preload); on a servo axis raise the PID's I or add friction feed-forward (a bias of BIAS/FF0 by direction) until a new test no longer shows the spike"
                     ),
@@ -617,6 +668,26 @@ pub(crate) fn change(
     }
 }
 
+/// A change that is a table or file to load rather than a number: `text` says what it becomes;
+/// `in_force` whether it builds on one in force.
+pub(crate) fn table_change(
+    because: String,
+    setting: String,
+    in_force: bool,
+    text: String,
+) -> Change {
+    Change {
+        because,
+        setting,
+        unit: String::new(),
+        current: 0.0,
+        assumed: !in_force,
+        new: 0.0,
+        decimals: 0,
+        text: Some(text),
+    }
+}
+
 /// The note said when `--current` was not given.
 pub(crate) fn defaults_note(current: &Current) -> Option<String> {
     current.is_empty().then(|| {
@@ -638,6 +709,97 @@ pub(crate) fn scale_epsilon(m: &MachineErrors, a: Axis) -> Option<(f64, &Measure
 pub(crate) fn skew_factors(m: &MachineErrors) -> [Option<(f64, &Measured)>; 3] {
     let f = |p: Pair| m.squareness(p).map(|s| (1e-6 * s.value, s));
     [f(Pair::Xy), f(Pair::Zx), f(Pair::Yz)]
+}
+
+/// The span (machine coordinates, mm) a position table of axis `a` covers: `--travel`, else the
+/// tested circle about the table ball; widened to take in `reference` (a control whose table is
+/// counted from its reference point, Fanuc's, needs the points between it and the tested span).
+pub(crate) fn table_span_mm(
+    m: &MachineErrors,
+    a: Axis,
+    placement: &Placement,
+    reference: Option<f64>,
+) -> Result<(f64, f64)> {
+    let k = a.index();
+    let k0 = placement.table_ball_mm[k].unwrap_or(0.0);
+    let (lo, hi) = match (placement.travel_mm[k], m.radius_mm) {
+        (Some(t), _) => t,
+        (None, Some(r)) => (k0 - r, k0 + r),
+        (None, None) => {
+            return Err(Error::Usage(format!(
+                "the diagnosis file does not say the circles' radius (written by an older jdbb): give --travel {}=MIN:MAX for the table",
+                a.letter()
+            )))
+        }
+    };
+    Ok(match reference {
+        Some(r) => (lo.min(r), hi.max(r)),
+        None => (lo, hi),
+    })
+}
+
+/// The position-dependent error δ (mm, the diagnosis' sign: actual − command) of axis `a` at
+/// machine position `x_mm`, counted from its value at machine position `reference_mm` (a table
+/// that is zero at the control's reference point does not shift the machine's zero).
+pub(crate) fn error_from_mm(
+    m: &MachineErrors,
+    a: Axis,
+    placement: &Placement,
+    x_mm: f64,
+    reference_mm: f64,
+) -> f64 {
+    let k0 = placement.table_ball_mm[a.index()].unwrap_or(0.0);
+    m.position_error_mm(a, x_mm - k0) - m.position_error_mm(a, reference_mm - k0)
+}
+
+/// A table of equal steps over `lo..hi` (mm) for a control that interpolates linearly between
+/// its points (SINUMERIK's `$AA_ENC_COMP`, Heidenhain's `*.COM`): (position, δ from
+/// `reference_mm`), at most `max_points`; 16 points per pitch of a cyclic error where they fit,
+/// else 65 over the span. The cyclic part of each point is divided by sinc²(step/pitch), the share
+/// of a sine that linear interpolation between the points keeps (as for LinuxCNC's COMP_FILE).
+pub(crate) fn linear_table(
+    m: &MachineErrors,
+    a: Axis,
+    placement: &Placement,
+    (lo, hi): (f64, f64),
+    max_points: usize,
+    reference_mm: f64,
+) -> Vec<(f64, f64)> {
+    let k0 = placement.table_ball_mm[a.index()].unwrap_or(0.0);
+    let (n, attenuation) = match &m.cyclic[a.index()] {
+        Some(c) => {
+            let n = (((hi - lo) / (c.pitch_mm / 16.0)).ceil() as usize).clamp(1, max_points - 1);
+            let x = std::f64::consts::PI * (hi - lo) / n as f64 / c.pitch_mm;
+            (n, (x.sin() / x).powi(2))
+        }
+        None => (64.min(max_points - 1), 1.0),
+    };
+    (0..=n)
+        .map(|i| {
+            let x = lo + (hi - lo) * i as f64 / n as f64;
+            let cyclic = m.cyclic_error_mm(a, x - k0) - m.cyclic_error_mm(a, reference_mm - k0);
+            let e = error_from_mm(m, a, placement, x, reference_mm) - cyclic + cyclic / attenuation;
+            (x, e)
+        })
+        .collect()
+}
+
+/// The value of an equal-step table (`min_mm`, `step_mm`, values) at `x_mm`: linear between its
+/// points, the end values held beyond it (SINUMERIK's and Heidenhain's tables in force).
+pub(crate) fn table_at(min_mm: f64, step_mm: f64, values: &[f64], x_mm: f64) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let u = (x_mm - min_mm) / step_mm;
+    if u <= 0.0 || step_mm <= 0.0 {
+        return values[0];
+    }
+    let i = u.floor() as usize;
+    if i + 1 >= values.len() {
+        return values[values.len() - 1];
+    }
+    let t = u - i as f64;
+    values[i] + t * (values[i + 1] - values[i])
 }
 
 #[cfg(test)]
@@ -968,8 +1130,10 @@ mod tests {
             assert_eq!(Controller::parse(c.name()).unwrap(), c);
         }
         assert_eq!(Controller::parse("LinuxCNC").unwrap(), Controller::LinuxCnc);
-        let e = Controller::parse("fanuc").unwrap_err();
-        assert!(e.to_string().contains("linuxcnc, grblhal, marlin, klipper"));
+        let e = Controller::parse("okuma").unwrap_err();
+        assert!(e
+            .to_string()
+            .contains("linuxcnc, grblhal, marlin, klipper, fanuc, sinumerik, heidenhain"));
         assert_eq!(e.exit_code(), 2);
     }
 }
