@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Install what the firmware build and the QEMU runs need, when missing: the thumbv7em-none-eabihf
 # target, rustfmt/clippy, and Debian's qemu-system-arm; and headless Chromium for the report
-# rendering test (required: setup fails loudly when it cannot be installed, and test.sh sets
+# rendering test and poppler-utils for the PDF report test (required: setup fails loudly when it cannot be installed, and test.sh sets
 # JDBB_REQUIRE_CHROMIUM=1 so that test cannot skip). Safe to run again. Sourced by test.sh and
 # demo.sh.
 set -euo pipefail
@@ -18,6 +18,12 @@ fi
 if ! command -v chromium >/dev/null && ! command -v chromium-headless-shell >/dev/null; then
   if ! { as_root apt-get update -qq && DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq chromium >/dev/null; }; then
     echo "setup.sh: could not install chromium (Debian's package): the report rendering test needs it" >&2
+    exit 1
+  fi
+fi
+if ! command -v pdftotext >/dev/null || ! command -v pdftoppm >/dev/null; then
+  if ! { as_root apt-get update -qq && DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq poppler-utils >/dev/null; }; then
+    echo "setup.sh: could not install poppler-utils (Debian's package): the PDF report test reads page one with pdftotext and pdftoppm" >&2
     exit 1
   fi
 fi

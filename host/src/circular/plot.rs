@@ -730,3 +730,103 @@ pub fn write_report(dir: &FsPath, d: &Diagnosis, json: &serde_json::Value) -> Re
         source,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::circular::runs::{split_runs, MAX_RUN_STEP_RAD};
+
+    #[test]
+    fn a_vertical_plane_is_drawn_from_the_front_with_z_up() {
+        // ZX: the angle runs from +Z towards +X. Seen from the front, +X is to the right and +Z
+        // up; drawn as XY is (angle 0 to the right), +Z would lie to the right.
+        let zx = Orientation::of((2, 0));
+        let (r, u) = zx.at(1.0, 0.0); // +Z
+        assert!(
+            r.abs() < 1e-12 && (u - 1.0).abs() < 1e-12,
+            "+Z at ({r}, {u})"
+        );
+        let (r, u) = zx.at(1.0, 90f64.to_radians()); // +X
+        assert!(
+            (r - 1.0).abs() < 1e-12 && u.abs() < 1e-12,
+            "+X at ({r}, {u})"
+        );
+        assert_eq!((zx.right, zx.up), (0, 2));
+        assert_eq!(zx.axis_at((2, 0), 90), "+X");
+        // YZ from its +X side: +Y right, +Z up; XY from above: +X right, +Y up.
+        let yz = Orientation::of((1, 2));
+        assert_eq!((yz.right, yz.up), (1, 2));
+        let (r, u) = yz.at(1.0, 90f64.to_radians()); // +Z
+        assert!(r.abs() < 1e-12 && (u - 1.0).abs() < 1e-12);
+        let xy = Orientation::of((0, 1));
+        assert_eq!((xy.right, xy.up), (0, 1));
+        assert!(xy.words().contains("+X right, +Y up"));
+    }
+
+    #[test]
+    fn a_pass_cut_by_gaps_at_the_reversals_starts_once() {
+        // One circle ccw then cw, sampled every 1 ms, with 9 ms left out around each axis
+        // reversal (0°, 90°, 180°, 270°) as the synchronisation does: the runs split there, but
+        // each direction starts once (the binned record's plot put a start at every reversal).
+        let (mut t, mut p) = (vec![], vec![]);
+        let n = 3600;
+        for (k, sense) in [1.0f64, -1.0].into_iter().enumerate() {
+            for i in 0..n {
+                let a = sense * (i as f64 / n as f64) * std::f64::consts::TAU;
+                let quarter = (i as f64 * 4.0 / n as f64).fract();
+                if i > 0 && !(0.005..=0.995).contains(&quarter) {
+                    continue;
+                }
+                t.push(k as f64 * 10.0 + i as f64 * 1e-3);
+                p.push([50.0 * a.cos(), 50.0 * a.sin(), 0.0]);
+            }
+        }
+        let (_, runs) = split_runs(&t, &p, (0, 1), MAX_RUN_STEP_RAD);
+        assert!(runs.len() > 4, "the gaps split the runs: {}", runs.len());
+        let angle: Vec<f64> = p.iter().map(|q| q[1].atan2(q[0])).collect();
+        let starts = pass_starts(&runs, &angle);
+        let started: Vec<(bool, usize)> = runs
+            .iter()
+            .zip(&starts)
+            .filter(|(_, s)| **s)
+            .map(|(r, _)| (r.ccw, r.range.start))
+            .collect();
+        assert_eq!(started.len(), 2, "{started:?}");
+        assert!(started[0].0 && !started[1].0, "{started:?}");
+    }
+
+    #[test]
+    fn a_decimated_trace_keeps_every_bins_extremes() {
+        let dev: Vec<f64> = (0..10_000)
+            .map(|i| (i as f64 * 0.37).sin() + if i == 4321 { 9.0 } else { 0.0 })
+            .collect();
+        let kept = decimate(0..dev.len(), &dev, 100);
+        assert!(kept.len() <= 2 * 100 + 1, "{}", kept.len());
+        assert!(kept.windows(2).all(|w| w[0] < w[1]), "in sample order");
+        assert!(kept.contains(&4321), "the spike");
+        for b in 0..100 {
+            let bin = &dev[b * 100..(b + 1) * 100];
+            let lo = bin.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = bin.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            assert!(kept.iter().any(|&i| dev[i] == lo) && kept.iter().any(|&i| dev[i] == hi));
+        }
+        assert_eq!(decimate(5..9, &dev, 1), vec![5, 6, 7, 8]);
+    }
+
+    #[test]
+    fn text_is_fitted_to_the_canvas() {
+        register_font();
+        let usable = WIDTH - 2 * TEXT_MARGIN;
+        let title = "J-DBB circular test, set-up removed: G = 1234.56 µm (largest), H = 1234.56 µm, 200 µm/div, and a machine name";
+        assert!(
+            text_width_px(title, TITLE_PX) > usable,
+            "at 20 px it overflows"
+        );
+        assert!(text_width_px(title, fitting_size(title, TITLE_PX, usable)) <= usable);
+        let long = "Set-up removed (least-squares, all samples): table ball at x = -0.01 µm, y = 0.01 µm, z = 0.00 µm from where assumed; length offset e = -0.02 µm, and more words to wrap";
+        let lines = wrap(long, CAPTION_PX, usable);
+        assert!(lines.len() >= 2);
+        assert!(lines.iter().all(|l| text_width_px(l, CAPTION_PX) <= usable));
+        assert_eq!(lines.join(" "), long);
+    }
+}
