@@ -472,33 +472,112 @@ fn run_points<'a>(
         })
 }
 
+/// A text of the canvas: its size, whether it is centred on `at` (else it starts there, centred
+/// vertically), and `at` in pixels of the whole canvas.
+struct Label {
+    text: String,
+    size_px: u32,
+    centred: bool,
+    at: (i32, i32),
+}
+
+/// Draw `label` on `root`. With `glyphs` (the PNG) each glyph is rasterised here from the
+/// embedded font at its own bearing and baseline: plotters' bitmap text drops both (a hyphen
+/// over the J of "J-DBB", a comma or a decimal point raised to mid-height: "50·0 mm"). Without
+/// (the SVG) the text goes as a text element, for the viewer's renderer to set.
+fn put_text<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    label: &Label,
+    glyphs: bool,
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    use plotters::style::text_anchor::{HPos, Pos, VPos};
+    if !glyphs {
+        let h = if label.centred {
+            HPos::Center
+        } else {
+            HPos::Left
+        };
+        return root
+            .draw_text(
+                &label.text,
+                &TextStyle::from(("sans-serif", label.size_px).into_font())
+                    .pos(Pos::new(h, VPos::Center)),
+                label.at,
+            )
+            .map_err(plot_err);
+    }
+    use ab_glyph::{Font, FontRef, PxScale, ScaleFont};
+    let font = FontRef::try_from_slice(FONT).map_err(plot_err)?;
+    // The scale plotters sets text at, so that the sizes (and [`text_width_px`]) agree.
+    let scaled = font.as_scaled(PxScale::from(label.size_px as f32));
+    let mut width = 0.0f32;
+    let mut prev = None;
+    for c in label.text.chars() {
+        let id = scaled.glyph_id(c);
+        if let Some(p) = prev {
+            width += scaled.kern(p, id);
+        }
+        width += scaled.h_advance(id);
+        prev = Some(id);
+    }
+    let x0 = label.at.0 as f32 - if label.centred { width / 2.0 } else { 0.0 };
+    // The baseline puts the middle of the ascent-descent box on `at`'s row.
+    let baseline = label.at.1 as f32 + (scaled.ascent() + scaled.descent()) / 2.0;
+    let mut pen = x0;
+    let mut prev = None;
+    for c in label.text.chars() {
+        let id = scaled.glyph_id(c);
+        if let Some(p) = prev {
+            pen += scaled.kern(p, id);
+        }
+        prev = Some(id);
+        let glyph = id.with_scale_and_position(scaled.scale(), ab_glyph::point(pen, baseline));
+        pen += scaled.h_advance(id);
+        let Some(outline) = font.outline_glyph(glyph) else {
+            continue;
+        };
+        let b = outline.px_bounds();
+        let mut result = Ok(());
+        outline.draw(|gx, gy, coverage| {
+            if coverage > 0.0 && result.is_ok() {
+                let p = (b.min.x as i32 + gx as i32, b.min.y as i32 + gy as i32);
+                result = root.draw_pixel(p, &BLACK.mix(f64::from(coverage.min(1.0))));
+            }
+        });
+        result.map_err(plot_err)?;
+    }
+    Ok(())
+}
+
 /// Draw the polar plot on any plotters backend.
 fn draw<DB: DrawingBackend>(
     root: DrawingArea<DB, plotters::coord::Shift>,
     d: &Diagnosis,
     view: &View,
     layout: &Layout,
+    glyphs: bool,
 ) -> Result<()>
 where
     DB::ErrorType: 'static,
 {
-    use plotters::style::text_anchor::{HPos, Pos, VPos};
     root.fill(&WHITE).map_err(plot_err)?;
-    let (title_area, rest) = root.split_vertically(TITLE_H);
+    let (_, rest) = root.split_vertically(TITLE_H);
     let (chart_area, bottom) = rest.split_vertically(WIDTH);
     let (step, rings, outer) = scale(d, view);
     // Plot radius: deviation −outer..+outer maps to 0.2..1.0 around the zero ring at 0.6.
     let rad = |dev: f64| 0.6 + 0.4 * dev / outer;
     let orient = Orientation::of(d.plane);
     let at = |dev: f64, a: f64| orient.at(rad(dev), a);
-    let centred = Pos::new(HPos::Center, VPos::Center);
-    title_area
-        .draw_text(
-            &layout.title,
-            &TextStyle::from(("sans-serif", layout.title_px).into_font()).pos(centred),
-            (WIDTH as i32 / 2, TITLE_H as i32 / 2),
-        )
-        .map_err(plot_err)?;
+    // Every text, placed in pixels of the whole canvas, drawn last ([`put_text`]).
+    let mut labels: Vec<Label> = vec![Label {
+        text: layout.title.clone(),
+        size_px: layout.title_px,
+        centred: true,
+        at: (WIDTH as i32 / 2, TITLE_H as i32 / 2),
+    }];
     // A square area with equal margins keeps circles round; room outside the spokes for their
     // labels.
     let mut chart = ChartBuilder::on(&chart_area)
@@ -540,13 +619,12 @@ where
         } else {
             (format!("{deg}°"), 1.12, 12)
         };
-        chart
-            .draw_series(std::iter::once(Text::new(
-                label,
-                orient.at(r, a),
-                TextStyle::from(("sans-serif", px).into_font()).pos(centred),
-            )))
-            .map_err(plot_err)?;
+        labels.push(Label {
+            text: label,
+            size_px: px,
+            centred: true,
+            at: chart.backend_coord(&orient.at(r, a)),
+        });
     }
     chart
         .draw_series(LineSeries::new(circle(rad(0.0)), IDEAL.stroke_width(2)))
@@ -628,21 +706,20 @@ where
     // (at 105° of the screen, whatever the plane).
     let la = 105f64.to_radians();
     for v in [-outer, 0.0, outer] {
-        chart
-            .draw_series(std::iter::once(Text::new(
-                if v == 0.0 {
-                    "0 µm".to_string()
-                } else {
-                    format!("{v:+} µm")
-                },
-                (rad(v) * la.cos(), rad(v) * la.sin()),
-                TextStyle::from(("sans-serif", 11).into_font()).pos(centred),
-            )))
-            .map_err(plot_err)?;
+        labels.push(Label {
+            text: if v == 0.0 {
+                "0 µm".to_string()
+            } else {
+                format!("{v:+} µm")
+            },
+            size_px: 11,
+            centred: true,
+            at: chart.backend_coord(&(rad(v) * la.cos(), rad(v) * la.sin())),
+        });
     }
     // Legend in two columns (one if an entry is too wide), then the caption, under the chart.
     let rows = layout.legend_rows;
-    let font = ("sans-serif", LEGEND_PX).into_font();
+    let top = (TITLE_H + WIDTH) as i32;
     for (k, (colours, text)) in layout.legend.iter().enumerate() {
         let x = (2 * TEXT_MARGIN) as i32 + (k / rows) as i32 * (WIDTH as i32 / 2);
         let y = (k % rows) as i32 * LEGEND_ROW_H as i32 + 10;
@@ -655,24 +732,24 @@ where
                 ))
                 .map_err(plot_err)?;
         }
-        bottom
-            .draw_text(
-                text,
-                &TextStyle::from(font.clone()).pos(Pos::new(HPos::Left, VPos::Center)),
-                (x + LEGEND_SAMPLE_W as i32, y),
-            )
-            .map_err(plot_err)?;
+        labels.push(Label {
+            text: text.clone(),
+            size_px: LEGEND_PX,
+            centred: false,
+            at: (x + LEGEND_SAMPLE_W as i32, top + y),
+        });
     }
-    let small = ("sans-serif", CAPTION_PX).into_font();
     for (k, line) in layout.caption.iter().enumerate() {
         let y = (rows as u32 * LEGEND_ROW_H + 10 + k as u32 * CAPTION_ROW_H) as i32;
-        bottom
-            .draw_text(
-                line,
-                &TextStyle::from(small.clone()).pos(Pos::new(HPos::Left, VPos::Center)),
-                (TEXT_MARGIN as i32, y),
-            )
-            .map_err(plot_err)?;
+        labels.push(Label {
+            text: line.clone(),
+            size_px: CAPTION_PX,
+            centred: false,
+            at: (TEXT_MARGIN as i32, top + y),
+        });
+    }
+    for l in &labels {
+        put_text(&root, l, glyphs)?;
     }
     root.present().map_err(plot_err)?;
     Ok(())
@@ -690,6 +767,7 @@ pub fn polar_svg(d: &Diagnosis, view: &View) -> Result<String> {
             d,
             view,
             &layout,
+            false,
         )?;
     }
     Ok(svg)
@@ -711,6 +789,7 @@ pub fn write_report(dir: &FsPath, d: &Diagnosis, json: &serde_json::Value) -> Re
         d,
         &View::ALL,
         &layout,
+        false,
     )?;
     let png = dir.join("polar.png");
     draw(
@@ -718,6 +797,7 @@ pub fn write_report(dir: &FsPath, d: &Diagnosis, json: &serde_json::Value) -> Re
         d,
         &View::ALL,
         &layout,
+        true,
     )?;
     let jp = dir.join("diagnosis.json");
     std::fs::write(
@@ -813,20 +893,37 @@ mod tests {
         assert_eq!(decimate(5..9, &dev, 1), vec![5, 6, 7, 8]);
     }
 
+    /// The lowest inked row of `text` drawn at (20, 20) in a 60 × 40 PNG canvas.
+    fn lowest_ink_row(text: &str, glyphs: bool) -> usize {
+        let (w, h) = (60usize, 40usize);
+        let mut buf = vec![255u8; w * h * 3];
+        {
+            let root =
+                BitMapBackend::with_buffer(&mut buf, (w as u32, h as u32)).into_drawing_area();
+            let label = Label {
+                text: text.into(),
+                size_px: 13,
+                centred: false,
+                at: (20, 20),
+            };
+            put_text(&root, &label, glyphs).unwrap();
+            root.present().unwrap();
+        }
+        (0..h)
+            .filter(|y| (0..w).any(|x| buf[(y * w + x) * 3] < 128))
+            .max()
+            .unwrap()
+    }
+
     #[test]
-    fn text_is_fitted_to_the_canvas() {
+    fn a_decimal_point_and_a_comma_sit_on_the_baseline_of_the_png() {
+        // plotters' bitmap text put them at mid-height ("50·0 mm").
         register_font();
-        let usable = WIDTH - 2 * TEXT_MARGIN;
-        let title = "J-DBB circular test, set-up removed: G = 1234.56 µm (largest), H = 1234.56 µm, 200 µm/div, and a machine name";
+        let digit = lowest_ink_row("5", true);
+        assert_eq!(lowest_ink_row(".", true), digit, "the point");
         assert!(
-            text_width_px(title, TITLE_PX) > usable,
-            "at 20 px it overflows"
+            lowest_ink_row(",", true) >= digit,
+            "the comma reaches the baseline"
         );
-        assert!(text_width_px(title, fitting_size(title, TITLE_PX, usable)) <= usable);
-        let long = "Set-up removed (least-squares, all samples): table ball at x = -0.01 µm, y = 0.01 µm, z = 0.00 µm from where assumed; length offset e = -0.02 µm, and more words to wrap";
-        let lines = wrap(long, CAPTION_PX, usable);
-        assert!(lines.len() >= 2);
-        assert!(lines.iter().all(|l| text_width_px(l, CAPTION_PX) <= usable));
-        assert_eq!(lines.join(" "), long);
     }
 }
