@@ -8,25 +8,18 @@ use std::time::{Duration, Instant};
 mod common;
 use common::ok;
 
-fn find_chromium() -> Option<PathBuf> {
-    if let Ok(p) = std::env::var("JDBB_CHROMIUM") {
-        return Some(PathBuf::from(p));
-    }
-    let path = std::env::var_os("PATH")?;
-    for name in [
-        "chromium",
-        "chromium-browser",
-        "chromium-headless-shell",
-        "google-chrome",
-    ] {
-        for dir in std::env::split_paths(&path) {
-            let p = dir.join(name);
-            if p.is_file() {
-                return Some(p);
-            }
+/// The Chromium `jdbb diagnose --pdf` prints with (`JDBB_CHROMIUM`, else on `PATH`); None, said
+/// as a skip, without one (a failure with `JDBB_REQUIRE_CHROMIUM=1`).
+fn chromium_or_skip() -> Option<PathBuf> {
+    let found = jdbb::circular::pdf::find_chromium().ok();
+    if found.is_none() {
+        let msg = "chromium not found (scripts/setup.sh installs it; JDBB_CHROMIUM names a binary)";
+        if std::env::var("JDBB_REQUIRE_CHROMIUM").as_deref() == Ok("1") {
+            panic!("{msg}");
         }
+        println!("skipped: {msg}");
     }
-    None
+    found
 }
 
 /// A page written by `jdbb diagnose --report` for a failing machine, with `extra` options.
@@ -263,12 +256,7 @@ fn the_page_is_self_contained_and_says_what_it_must() {
 
 #[test]
 fn chromium_renders_the_report() {
-    let Some(chromium) = find_chromium() else {
-        let msg = "chromium not found (scripts/setup.sh installs it; JDBB_CHROMIUM names a binary)";
-        if std::env::var("JDBB_REQUIRE_CHROMIUM").as_deref() == Ok("1") {
-            panic!("{msg}");
-        }
-        println!("skipped: {msg}");
+    let Some(chromium) = chromium_or_skip() else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -598,14 +586,9 @@ fn without_chromium_pdf_says_what_to_install_and_writes_nothing() {
 
 #[test]
 fn the_pdf_s_page_one_has_the_verdict_the_polar_plot_and_the_ranked_effects() {
-    let Some(chromium) = find_chromium() else {
-        let msg = "chromium not found (scripts/setup.sh installs it; JDBB_CHROMIUM names a binary)";
-        if std::env::var("JDBB_REQUIRE_CHROMIUM").as_deref() == Ok("1") {
-            panic!("{msg}");
-        }
-        println!("skipped: {msg}");
+    if chromium_or_skip().is_none() {
         return;
-    };
+    }
     if Command::new("pdftotext").arg("-v").output().is_err() {
         let msg = "pdftotext not found (scripts/setup.sh installs poppler-utils)";
         if std::env::var("JDBB_REQUIRE_CHROMIUM").as_deref() == Ok("1") {
@@ -615,46 +598,8 @@ fn the_pdf_s_page_one_has_the_verdict_the_polar_plot_and_the_ranked_effects() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let out = common::command()
-        .env("JDBB_CHROMIUM", &chromium)
-        .args([
-            "simulate",
-            "--radius",
-            "50",
-            "--radius",
-            "80",
-            "--rate",
-            "100",
-            "--effect",
-            "backlash_x=8",
-            "--effect",
-            "squareness_xy=30",
-            "--sigma-um",
-            "0.3",
-            "-o",
-            dir.path().join("t.csv").to_str().unwrap(),
-        ])
-        .output()
-        .unwrap();
-    assert!(out.status.success());
-    let rep = dir.path().join("rep");
-    let out = common::command()
-        .env("JDBB_CHROMIUM", &chromium)
-        .args([
-            "diagnose",
-            "--samples",
-            dir.path().join("t.csv").to_str().unwrap(),
-            "--report",
-            rep.to_str().unwrap(),
-            "--machine",
-            "mill 7",
-            "--tolerance-um",
-            "5",
-            "--pdf",
-        ])
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", common::stderr(&out));
+    // JDBB_CHROMIUM, if set, is inherited: jdbb prints with the Chromium found here.
+    let rep = report_with(dir.path(), &["--pdf"]).parent().unwrap().to_path_buf();
     let pdf = rep.join("report.pdf");
     // Page one as poppler reads it: machine, test, verdict, the polar plot's own text, the
     // effects in the order of their share.
@@ -666,7 +611,7 @@ fn the_pdf_s_page_one_has_the_verdict_the_polar_plot_and_the_ranked_effects() {
         .unwrap();
     let page = String::from_utf8_lossy(&text.stdout).into_owned();
     for want in [
-        "Circular test report: mill 7",
+        "Circular test report: mill <1> & co",
         "Test: plane XY, 2 circles",
         "FAIL: largest circular deviation G",
         "J-DBB circular test, set-up removed",

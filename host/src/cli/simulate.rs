@@ -95,42 +95,28 @@ fn run_plan(
         ));
     }
     let (samples, truth) = record(&plan, &machine)?;
-    let mut head = header(&[(PLAN_ID_KEY, plan.id())]);
+    let mut text = header(&[(PLAN_ID_KEY, plan.id())]).into_bytes();
     // As `jdbb record` writes it: the serial the device reported, before the samples.
-    head.push_str(&format!(
-        "# {}: {}\n",
-        crate::table::INSTRUMENT_SERIAL,
-        machine.instrument.serial
-    ));
-    // The lines are written as they are made, a block at a time: neither a copy of the samples
-    // nor the whole text is held beside them (memory, README "Limits").
-    let write_lines = |w: &mut dyn Write| -> std::io::Result<()> {
-        w.write_all(head.as_bytes())?;
-        let mut text = Vec::with_capacity(LINES_PER_BLOCK * 48);
-        for (block, chunk) in samples.chunks(LINES_PER_BLOCK).enumerate() {
-            let seq: Vec<SeqSample> = chunk
-                .iter()
-                .enumerate()
-                .map(|(k, s)| SeqSample {
-                    seq: (block * LINES_PER_BLOCK + k) as u64,
-                    sample: *s,
-                })
-                .collect();
-            text.clear();
-            write_csv_lines(&mut text, &seq);
-            w.write_all(&text)?;
-        }
-        w.flush()
-    };
+    text.extend_from_slice(
+        format!(
+            "# {}: {}\n",
+            crate::table::INSTRUMENT_SERIAL,
+            machine.instrument.serial
+        )
+        .as_bytes(),
+    );
+    let seq: Vec<SeqSample> = samples
+        .iter()
+        .enumerate()
+        .map(|(k, s)| SeqSample {
+            seq: k as u64,
+            sample: *s,
+        })
+        .collect();
+    write_csv_lines(&mut text, &seq);
     match &args.out {
         Some(file) => {
-            let mut w = Staged::create(file, args.force)?;
-            write_lines(&mut w).map_err(|source| Error::File {
-                action: "cannot write",
-                path: file.clone(),
-                source,
-            })?;
-            w.commit()?;
+            crate::fsio::write_file(file, &text, args.force)?;
             let rate = machine.instrument.sample_rate_hz;
             note(&format!(
                 "wrote {}: {} samples at {rate} Hz ({:.1} s) of plan {} on {}; truth: cycle start at t_us {:.0}, program {:.1} s, feed factor {:.6}",
@@ -145,15 +131,9 @@ fn run_plan(
             ));
             Ok(())
         }
-        None => {
-            let mut w = std::io::BufWriter::new(std::io::stdout().lock());
-            stdout_result(write_lines(&mut w))
-        }
+        None => super::output::write_stdout(&text),
     }
 }
-
-/// Record lines `simulate --plan` formats at a time.
-const LINES_PER_BLOCK: usize = 8192;
 
 /// Run `jdbb simulate`.
 pub fn run(args: &SimulateArgs) -> Result<()> {
