@@ -599,7 +599,10 @@ fn the_pdf_s_page_one_has_the_verdict_the_polar_plot_and_the_ranked_effects() {
     }
     let dir = tempfile::tempdir().unwrap();
     // JDBB_CHROMIUM, if set, is inherited: jdbb prints with the Chromium found here.
-    let rep = report_with(dir.path(), &["--pdf"]).parent().unwrap().to_path_buf();
+    let rep = report_with(dir.path(), &["--pdf"])
+        .parent()
+        .unwrap()
+        .to_path_buf();
     let pdf = rep.join("report.pdf");
     // Page one as poppler reads it: machine, test, verdict, the polar plot's own text, the
     // effects in the order of their share.
