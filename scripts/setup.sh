@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Install what the firmware build and the QEMU runs need, when missing: the thumbv7em-none-eabihf
 # target, rustfmt/clippy, and Debian's qemu-system-arm; and headless Chromium for the report
-# rendering test (required: setup fails loudly when it cannot be installed, and test.sh sets
-# JDBB_REQUIRE_CHROMIUM=1 so that test cannot skip); and Debian's PostgreSQL server for the
-# history tests on a server (JDBB_REQUIRE_POSTGRES=1 likewise). Safe to run again. Sourced by test.sh and
+# rendering test and poppler-utils for the PDF report test (required: setup fails loudly when it
+# cannot be installed, and test.sh sets JDBB_REQUIRE_CHROMIUM=1 so that test cannot skip); and
+# Debian's PostgreSQL server for the history tests on a server (JDBB_REQUIRE_POSTGRES=1
+# likewise). Safe to run again. Sourced by test.sh and
 # demo.sh.
 set -euo pipefail
 
@@ -27,6 +28,12 @@ fi
 if ! ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1; then
   if ! { as_root apt-get update -qq && DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq postgresql >/dev/null; }; then
     echo "setup.sh: could not install postgresql (Debian's package): the history tests on a server need it" >&2
+    exit 1
+  fi
+fi
+if ! command -v pdftotext >/dev/null || ! command -v pdftoppm >/dev/null; then
+  if ! { as_root apt-get update -qq && DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq poppler-utils >/dev/null; }; then
+    echo "setup.sh: could not install poppler-utils (Debian's package): the PDF report test reads page one with pdftotext and pdftoppm" >&2
     exit 1
   fi
 fi

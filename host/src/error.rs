@@ -111,6 +111,13 @@ pub enum Error {
     /// A fit or computation could not produce a trustworthy answer.
     #[error("{0}")]
     Numerics(String),
+    /// A program an option runs is not installed, or failed.
+    #[error("{option} needs {program}: {message}")]
+    Program {
+        option: &'static str,
+        program: &'static str,
+        message: String,
+    },
     /// The history database could not be opened, read or written.
     #[error("history database {path}: {source}. Is it a jdbb history file, on a disk you may write? (--db PATH chooses another)")]
     Database {

@@ -1017,3 +1017,65 @@ fn each_circle_names_the_hidden_effects_and_circle_2_before_its_feed_out() {
         list[1].text
     );
 }
+
+#[test]
+fn the_page_shows_every_warning_as_it_comes_and_the_verdict() {
+    use jdbb::live_web::state::Verdict;
+    let board = new_board();
+    let server = LiveServer::start("127.0.0.1:0".parse().unwrap(), board.clone()).unwrap();
+    let addr = server.addr();
+    let plan = test_plan();
+    let mut feed = LiveFeed::new(board, Some(&plan), None);
+    let stats = Stats::default();
+    let state = || -> serde_json::Value { serde_json::from_str(&get(addr, "/state").1).unwrap() };
+    feed.publish_if_due(&stats, Instant::now());
+    assert_eq!(state()["warnings"], serde_json::json!([]));
+    // A warning said on the terminal (here the missed cycle start's) is on the next publication,
+    // which is due at once, not after the publication interval.
+    let missed = "warning: D was already moving when the record started (cycle start missed?)";
+    feed.warn(missed);
+    feed.warn(missed);
+    feed.publish_if_due(&stats, Instant::now());
+    let st = state();
+    assert_eq!(st["warnings"], serde_json::json!([missed]), "{st}");
+    // The verdict, as its own field the page shows large.
+    feed.diagnosis(
+        &stats,
+        "…\nFAIL: largest circular deviation G 12 µm\n",
+        Some(Verdict {
+            pass: false,
+            text: "FAIL: largest circular deviation G 12 µm".into(),
+        }),
+    );
+    let st = state();
+    assert_eq!(st["verdict"]["pass"], false, "{st}");
+    assert_eq!(st["warnings"][0], missed);
+    // The page has the places for them at its top, before the figures.
+    let page = get(addr, "/").1;
+    let (v, w, fig) = (
+        page.find("id=\"verdict\"").unwrap(),
+        page.find("id=\"warnings\"").unwrap(),
+        page.find("class=\"figures\"").unwrap(),
+    );
+    assert!(v < fig && w < fig);
+    assert!(page.contains("st.warnings") && page.contains("st.verdict"));
+}
+
+#[test]
+fn a_page_on_every_address_gets_a_url_a_person_can_open() {
+    let server = LiveServer::start("0.0.0.0:0".parse().unwrap(), new_board()).unwrap();
+    let url = server.url();
+    let note = server.url_note().expect("a note on 0.0.0.0");
+    // Either the URL names this computer's address, or the note says what to put for 0.0.0.0.
+    assert!(
+        !url.contains("//0.0.0.0:") || note.contains("in place of 0.0.0.0"),
+        "{url}; {note}"
+    );
+    assert!(
+        url.contains(&format!(":{}/?token=", server.addr().port())),
+        "{url}"
+    );
+    let local = LiveServer::start("127.0.0.1:0".parse().unwrap(), new_board()).unwrap();
+    assert!(local.url_note().is_none());
+    assert!(local.url().starts_with("http://127.0.0.1:"));
+}

@@ -8,25 +8,18 @@ use std::time::{Duration, Instant};
 mod common;
 use common::ok;
 
-fn find_chromium() -> Option<PathBuf> {
-    if let Ok(p) = std::env::var("JDBB_CHROMIUM") {
-        return Some(PathBuf::from(p));
-    }
-    let path = std::env::var_os("PATH")?;
-    for name in [
-        "chromium",
-        "chromium-browser",
-        "chromium-headless-shell",
-        "google-chrome",
-    ] {
-        for dir in std::env::split_paths(&path) {
-            let p = dir.join(name);
-            if p.is_file() {
-                return Some(p);
-            }
+/// The Chromium `jdbb diagnose --pdf` prints with (`JDBB_CHROMIUM`, else on `PATH`); None, said
+/// as a skip, without one (a failure with `JDBB_REQUIRE_CHROMIUM=1`).
+fn chromium_or_skip() -> Option<PathBuf> {
+    let found = jdbb::circular::pdf::find_chromium().ok();
+    if found.is_none() {
+        let msg = "chromium not found (scripts/setup.sh installs it; JDBB_CHROMIUM names a binary)";
+        if std::env::var("JDBB_REQUIRE_CHROMIUM").as_deref() == Ok("1") {
+            panic!("{msg}");
         }
+        println!("skipped: {msg}");
     }
-    None
+    found
 }
 
 /// A page written by `jdbb diagnose --report` for a failing machine, with `extra` options.
@@ -254,8 +247,8 @@ fn the_page_is_self_contained_and_says_what_it_must() {
     );
     assert!(html.contains("2026-11-23T00:00:00Z"));
     assert!(html.contains("minimum-zone centre"));
-    // One inline polar plot per circle, effects ranked by share.
-    assert_eq!(html.matches("<svg").count(), 2);
+    // The polar plot of all circles on page one, then one per circle; effects ranked by share.
+    assert_eq!(html.matches("<svg").count(), 3);
     let bx = html.find("<td>backlash_x</td>").unwrap();
     let sq = html.find("<td>squareness_xy</td>").unwrap();
     assert!(bx < sq, "backlash_x has the larger share here");
@@ -263,12 +256,7 @@ fn the_page_is_self_contained_and_says_what_it_must() {
 
 #[test]
 fn chromium_renders_the_report() {
-    let Some(chromium) = find_chromium() else {
-        let msg = "chromium not found (scripts/setup.sh installs it; JDBB_CHROMIUM names a binary)";
-        if std::env::var("JDBB_REQUIRE_CHROMIUM").as_deref() == Ok("1") {
-            panic!("{msg}");
-        }
-        println!("skipped: {msg}");
+    let Some(chromium) = chromium_or_skip() else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -475,4 +463,189 @@ fn what_was_not_named_is_on_the_page_with_its_reason() {
         let name = b["name"].as_str().unwrap();
         assert!(page.contains(&format!("below the reporting floor: {name} ")));
     }
+}
+
+/// `jdbb diagnose --samples` of a one-circle test at `rate_hz` into `dir/rep` with `extra`
+/// options; the report directory.
+fn one_circle_report(dir: &Path, plane: &str, rate_hz: &str, extra: &[&str]) -> PathBuf {
+    let csv = dir.join("c.csv");
+    ok(&[
+        "simulate",
+        "--radius",
+        "50",
+        "--plane",
+        plane,
+        "--rate",
+        rate_hz,
+        "--effect",
+        "backlash_x=8",
+        "--sigma-um",
+        "0.3",
+        "-o",
+        csv.to_str().unwrap(),
+    ]);
+    let rep = dir.join("rep");
+    let mut args = vec![
+        "diagnose",
+        "--samples",
+        csv.to_str().unwrap(),
+        "--report",
+        rep.to_str().unwrap(),
+        "--machine",
+        "mill 7",
+        "--tolerance-um",
+        "5",
+    ];
+    args.extend_from_slice(extra);
+    ok(&args);
+    rep
+}
+
+#[test]
+fn a_long_record_makes_a_small_report_with_its_extremes() {
+    // 150 000 samples: the page was 2.4 MB (every sample a point of its plot); traces are drawn
+    // through each bin's least and largest deviation, so it stays small whatever the length.
+    let dir = tempfile::tempdir().unwrap();
+    let rep = one_circle_report(dir.path(), "xy", "4000", &[]);
+    let bytes = std::fs::metadata(rep.join("report.html")).unwrap().len();
+    assert!(bytes <= 2_000_000, "report.html is {bytes} bytes");
+    let svg = std::fs::metadata(rep.join("polar.svg")).unwrap().len();
+    assert!(svg <= 1_000_000, "polar.svg is {svg} bytes");
+}
+
+/// The (x, y) of the SVG `<text>` whose content is `label`.
+fn text_at(svg: &str, label: &str) -> (f64, f64) {
+    let end = svg
+        .find(&format!(">\n{label}\n</text>"))
+        .unwrap_or_else(|| panic!("no text {label}"));
+    let start = svg[..end].rfind("<text").unwrap();
+    let tag = &svg[start..end];
+    let attr = |name: &str| -> f64 {
+        let k = tag.find(&format!(" {name}=\"")).unwrap() + name.len() + 3;
+        tag[k..k + tag[k..].find('"').unwrap()].parse().unwrap()
+    };
+    (attr("x"), attr("y"))
+}
+
+#[test]
+fn a_zx_plot_is_seen_from_the_front_with_z_up_and_names_its_axes() {
+    let dir = tempfile::tempdir().unwrap();
+    let rep = one_circle_report(dir.path(), "zx", "100", &[]);
+    let svg = std::fs::read_to_string(rep.join("polar.svg")).unwrap();
+    // The angle runs from +Z towards +X: +Z (0°) is drawn up, +X (90°) to the right.
+    let (zx, zy) = text_at(&svg, "0° +Z");
+    let (xx, xy) = text_at(&svg, "90° +X");
+    let (mx, _) = text_at(&svg, "270° −X");
+    let (_, my) = text_at(&svg, "180° −Z");
+    assert!(
+        zy < my && (zx - 400.0).abs() < 5.0,
+        "+Z at ({zx}, {zy}), −Z at y {my}"
+    );
+    assert!(
+        xx > mx && (xy - zy).abs() > 100.0,
+        "+X at ({xx}, {xy}), −X at x {mx}"
+    );
+    assert!(svg.contains("seen from the front of the machine (from −Y), +X right, +Z up"));
+}
+
+#[test]
+fn without_chromium_pdf_says_what_to_install_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("c.csv");
+    ok(&[
+        "simulate",
+        "--radius",
+        "50",
+        "--rate",
+        "50",
+        "-o",
+        csv.to_str().unwrap(),
+    ]);
+    let rep = dir.path().join("rep");
+    let out = common::command()
+        .env("PATH", dir.path())
+        .env_remove("JDBB_CHROMIUM")
+        .args([
+            "diagnose",
+            "--samples",
+            csv.to_str().unwrap(),
+            "--report",
+            rep.to_str().unwrap(),
+            "--pdf",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let err = common::stderr(&out);
+    assert!(
+        err.contains("--pdf needs Chromium") && err.contains("apt install chromium"),
+        "{err}"
+    );
+    assert!(!rep.exists(), "nothing written");
+}
+
+#[test]
+fn the_pdf_s_page_one_has_the_verdict_the_polar_plot_and_the_ranked_effects() {
+    if chromium_or_skip().is_none() {
+        return;
+    }
+    if Command::new("pdftotext").arg("-v").output().is_err() {
+        let msg = "pdftotext not found (scripts/setup.sh installs poppler-utils)";
+        if std::env::var("JDBB_REQUIRE_CHROMIUM").as_deref() == Ok("1") {
+            panic!("{msg}");
+        }
+        println!("skipped: {msg}");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    // JDBB_CHROMIUM, if set, is inherited: jdbb prints with the Chromium found here.
+    let rep = report_with(dir.path(), &["--pdf"])
+        .parent()
+        .unwrap()
+        .to_path_buf();
+    let pdf = rep.join("report.pdf");
+    // Page one as poppler reads it: machine, test, verdict, the polar plot's own text, the
+    // effects in the order of their share.
+    let text = Command::new("pdftotext")
+        .args(["-f", "1", "-l", "1", "-layout"])
+        .arg(&pdf)
+        .arg("-")
+        .output()
+        .unwrap();
+    let page = String::from_utf8_lossy(&text.stdout).into_owned();
+    for want in [
+        "Circular test report: mill <1> & co",
+        "Test: plane XY, 2 circles",
+        "FAIL: largest circular deviation G",
+        "J-DBB circular test, set-up removed",
+        "0° +X",
+        "90° +Y",
+        "What the errors are, largest share first",
+    ] {
+        assert!(page.contains(want), "page one lacks {want:?}:\n{page}");
+    }
+    let (bx, sq) = (page.find("backlash_x"), page.find("squareness_xy"));
+    assert!(
+        matches!((bx, sq), (Some(b), Some(s)) if b < s),
+        "ranked effects on page one:\n{page}"
+    );
+    // And the plot is drawn, not only its words: page one rendered has the traces' colours.
+    let png = dir.path().join("p1");
+    let done = Command::new("pdftoppm")
+        .args(["-f", "1", "-l", "1", "-r", "100", "-png", "-singlefile"])
+        .arg(&pdf)
+        .arg(&png)
+        .status()
+        .unwrap();
+    assert!(done.success());
+    let img = image::open(dir.path().join("p1.png")).unwrap().to_rgb8();
+    let near = |p: &image::Rgb<u8>, c: [i32; 3]| {
+        p.0.iter().zip(c).all(|(&a, b)| (a as i32 - b).abs() <= 40)
+    };
+    let green = img.pixels().filter(|p| near(p, [0, 160, 0])).count();
+    let blue = img.pixels().filter(|p| near(p, [31, 119, 180])).count();
+    assert!(
+        green > 100 && blue > 100,
+        "green {green}, blue {blue} pixels"
+    );
 }

@@ -76,6 +76,24 @@ td.share { white-space: nowrap; }
 .plot { flex: 1 1 520px; max-width: 800px; }
 .plot svg { width: 100%; height: auto; border: 1px solid #ddd; }
 pre.comp { margin: 4px 0; font-size: 12px; white-space: pre-wrap; }
+.overview { max-width: 800px; margin: 0 auto; }
+.overview svg { width: 100%; height: auto; }
+@page { size: A4; margin: 12mm; }
+@media print {
+  body { margin: 0; max-width: none; font-size: 9pt; line-height: 1.25; }
+  h1 { font-size: 15pt; margin: 0; }
+  .sub, .test { margin: 2px 0; }
+  .verdict { font-size: 12pt; padding: 5px 8px; margin: 6px 0; }
+  .overview { width: 118mm; }
+  .overview svg { border: none; }
+  .first h2 { margin-top: 4px; }
+  h2.details { break-before: page; }
+  table { font-size: 8pt; }
+  th, td { padding: 2px 4px; }
+  .plot { break-inside: avoid; }
+  .bar { print-color-adjust: exact; -webkit-print-color-adjust: exact; }
+  .verdict { print-color-adjust: exact; -webkit-print-color-adjust: exact; }
+}
 ";
 
 fn fmt_opt(x: Option<f64>, decimals: usize) -> String {
@@ -393,6 +411,28 @@ fn f_cell(r: Option<&super::document::RangeDoc>, noise_um: f64) -> String {
     }
 }
 
+/// The test in one line, for page one: plane, circles and their feed.
+fn test_line(doc: &DiagnosisDoc, plane: &str, normal: char) -> String {
+    let circles: Vec<String> = doc
+        .circles
+        .iter()
+        .map(|c| {
+            format!(
+                "{} at {} mm/min",
+                circle_label(c, normal),
+                fmt_opt(c.feed_mm_min, 0)
+            )
+        })
+        .collect();
+    format!(
+        "Test: plane {}, {} circle{} ({}), ccw and cw",
+        plane.to_ascii_uppercase(),
+        circles.len(),
+        if circles.len() == 1 { "" } else { "s" },
+        circles.join("; ")
+    )
+}
+
 /// The whole page (see the module docs).
 pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
     let mut h = String::new();
@@ -456,109 +496,34 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         }
     }
 
-    // Conditions.
-    let _ = writeln!(h, "<h2>Test conditions</h2>\n<table>");
-    let mut rows: Vec<(String, String)> = vec![
-        ("Machine".into(), machine.to_string()),
-        (
-            date_label.into(),
-            doc.date_utc
-                .as_ref()
-                .map_or("not recorded".into(), |d| format!("{d}{date_note}")),
-        ),
-        (
-            "Plane".into(),
-            format!("{plane} (angle measured from the first axis towards the second)"),
-        ),
-    ];
-    for (k, c) in doc.circles.iter().enumerate() {
-        rows.push((
-            format!("Circle {}", k + 1),
-            format!(
-                "{}, {}, {} samples (ccw and cw)",
-                circle_label(c, normal),
-                feed_text(doc, k, c.feed_mm_min),
-                c.samples
-            ),
-        ));
-    }
-    let pitch: Vec<String> = doc
-        .pitch_mm
-        .iter()
-        .filter_map(|(k, v)| v.map(|p| format!("{k} {p} mm")))
-        .collect();
-    if !pitch.is_empty() {
-        rows.push(("Screw/scale pitch".into(), pitch.join(", ")));
-    }
-    for (k, v) in rows.drain(..) {
-        let _ = writeln!(h, "<tr><th>{}</th><td>{}</td></tr>", escape(&k), escape(&v));
-    }
+    // Page one (also printed, `--pdf`): the test in a line, the polar plot of all circles, then
+    // the effects ranked by share.
     let _ = writeln!(
         h,
-        "<tr><th>Instrument calibration</th><td>{}</td></tr>",
-        match &doc.calibration {
-            Some(c) => calibration_html(c, doc.calibration_file.as_deref()),
-            None => "not given (jdbb diagnose --calibration FILE)".into(),
-        }
+        "<p class=\"test\">{}</p>",
+        escape(&test_line(doc, &plane, normal))
     );
-    rows.push((
-        "Tolerance on G".into(),
-        tol.map_or("not given".into(), |t| format!("{t} µm")),
-    ));
-    rows.push((
-        "Fit".into(),
-        format!(
-            "RMS {} µm before (ideal machine), {} µm after the model (gain ×{})",
-            um(doc.baseline.rms_um, noise),
-            um(doc.final_fit.rms_um, noise),
-            fmt_opt(doc.gain, 1)
-        ),
-    ));
-    rows.extend(iso_rows(doc));
-    for (k, v) in rows {
-        let _ = writeln!(h, "<tr><th>{}</th><td>{}</td></tr>", escape(&k), escape(&v));
-    }
-    let _ = writeln!(
-        h,
-        "<tr><th>Compensation in force during the test</th><td>{}</td></tr>",
-        match &doc.compensation {
-            Some(c) => format!(
-                "{}<pre class=\"comp\">{}</pre>",
-                c.file
-                    .as_deref()
-                    .map_or(String::new(), |f| format!("from {}:", escape(f))),
-                escape(c.text.trim_end())
-            ),
-            None =>
-                "not given (jdbb diagnose --compensation TEXT or --compensation-file FILE)".into(),
-        }
-    );
-    let _ = writeln!(
-        h,
-        "<tr><th>Plan</th><td>{}</td></tr>",
-        plan_html(doc.plan.as_ref())
-    );
-    let _ = writeln!(h, "</table>");
-
+    let svg = polar_svg(d, &View::ALL)?;
+    let _ = writeln!(h, "<div class=\"plot overview\">{svg}</div>");
     // Effects ranked by share.
     let _ = writeln!(h, "<h2>What the errors are, largest share first</h2>");
     // Whole percentages adding up to 100, over the file's effects in its order, then ranked.
-    let machine: Vec<_> = doc.machine_effects().collect();
+    let named: Vec<_> = doc.machine_effects().collect();
     let pct = split_percentages(
-        &machine
+        &named
             .iter()
             .map(|(e, _)| Some(e.share.unwrap_or(f64::NAN)))
             .collect::<Vec<_>>(),
         doc.residual_share.unwrap_or(f64::NAN),
     );
     // Ranked as the text ranks them: by share of G, then by mean-square share.
-    let keys: Vec<_> = machine
+    let keys: Vec<_> = named
         .iter()
         .map(|(e, _)| Some((e.g_share.unwrap_or(f64::NAN), e.share.unwrap_or(f64::NAN))))
         .collect();
     let effects: Vec<_> = super::report::rank_order(&keys)
         .into_iter()
-        .map(|i| (machine[i], pct.effects[i]))
+        .map(|i| (named[i], pct.effects[i]))
         .collect();
     if effects.is_empty() {
         let _ = writeln!(
@@ -689,6 +654,91 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         );
     }
 
+    // Conditions.
+
+    let _ = writeln!(h, "<h2 class=\"details\">Test conditions</h2>\n<table>");
+    let mut rows: Vec<(String, String)> = vec![
+        ("Machine".into(), machine.to_string()),
+        (
+            date_label.into(),
+            doc.date_utc
+                .as_ref()
+                .map_or("not recorded".into(), |d| format!("{d}{date_note}")),
+        ),
+        (
+            "Plane".into(),
+            format!("{plane} (angle measured from the first axis towards the second)"),
+        ),
+    ];
+    for (k, c) in doc.circles.iter().enumerate() {
+        rows.push((
+            format!("Circle {}", k + 1),
+            format!(
+                "{}, {}, {} samples (ccw and cw)",
+                circle_label(c, normal),
+                feed_text(doc, k, c.feed_mm_min),
+                c.samples
+            ),
+        ));
+    }
+    let pitch: Vec<String> = doc
+        .pitch_mm
+        .iter()
+        .filter_map(|(k, v)| v.map(|p| format!("{k} {p} mm")))
+        .collect();
+    if !pitch.is_empty() {
+        rows.push(("Screw/scale pitch".into(), pitch.join(", ")));
+    }
+    for (k, v) in rows.drain(..) {
+        let _ = writeln!(h, "<tr><th>{}</th><td>{}</td></tr>", escape(&k), escape(&v));
+    }
+    let _ = writeln!(
+        h,
+        "<tr><th>Instrument calibration</th><td>{}</td></tr>",
+        match &doc.calibration {
+            Some(c) => calibration_html(c, doc.calibration_file.as_deref()),
+            None => "not given (jdbb diagnose --calibration FILE)".into(),
+        }
+    );
+    rows.push((
+        "Tolerance on G".into(),
+        tol.map_or("not given".into(), |t| format!("{t} µm")),
+    ));
+    rows.push((
+        "Fit".into(),
+        format!(
+            "RMS {} µm before (ideal machine), {} µm after the model (gain ×{})",
+            um(doc.baseline.rms_um, noise),
+            um(doc.final_fit.rms_um, noise),
+            fmt_opt(doc.gain, 1)
+        ),
+    ));
+    rows.extend(iso_rows(doc));
+    for (k, v) in rows {
+        let _ = writeln!(h, "<tr><th>{}</th><td>{}</td></tr>", escape(&k), escape(&v));
+    }
+    let _ = writeln!(
+        h,
+        "<tr><th>Compensation in force during the test</th><td>{}</td></tr>",
+        match &doc.compensation {
+            Some(c) => format!(
+                "{}<pre class=\"comp\">{}</pre>",
+                c.file
+                    .as_deref()
+                    .map_or(String::new(), |f| format!("from {}:", escape(f))),
+                escape(c.text.trim_end())
+            ),
+            None =>
+                "not given (jdbb diagnose --compensation TEXT or --compensation-file FILE)".into(),
+        }
+    );
+    let _ = writeln!(
+        h,
+        "<tr><th>Plan</th><td>{}</td></tr>",
+        plan_html(doc.plan.as_ref())
+    );
+    let _ = writeln!(h, "</table>");
+
     // G and H.
     let _ = writeln!(
         h,
@@ -719,28 +769,31 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         "</table>\n<p class=\"note\">G: the radial width of the minimum zone (two concentric circles, closest together, enclosing the trace) of one circle in one direction; its centre is given as where it puts the table ball, relative to where the ball was assumed (as the set-up offset). H: the largest difference between the ccw and cw traces in a 1° bin. F (radial deviation, ISO 230-4): the largest (max) and smallest (min) deviation of the trace from the nominal circle, about the centre of the least-squares circle of all samples, with the radius as the calibrated bar measures it (so F includes the bar's length error, which its calibration bounds). Pass: every circle's G in each direction is at most the tolerance.</p>"
     );
 
-    // Plots.
-    let _ = writeln!(h, "<h2>Polar plots</h2>\n<div class=\"plots\">");
-    for (k, c) in doc.circles.iter().enumerate() {
-        if k >= d.circles.len() {
-            break;
+    // Plots of each circle on its own scale (one circle: the plot above is its own).
+    if doc.circles.len() > 1 {
+        let _ = writeln!(
+            h,
+            "<h2>Polar plots, one circle each</h2>\n<div class=\"plots\">"
+        );
+        for (k, c) in doc.circles.iter().enumerate().take(d.circles.len()) {
+            let view = View {
+                circle: Some(k),
+                title: Some(format!(
+                    "{}: G ccw {} µm, cw {} µm, H {} µm",
+                    circle_label(c, normal),
+                    um(c.ccw.as_ref().and_then(|z| z.g_um), noise),
+                    um(c.cw.as_ref().and_then(|z| z.g_um), noise),
+                    um(c.h_um, noise)
+                )),
+            };
+            let svg = polar_svg(d, &view)?;
+            let _ = writeln!(h, "<div class=\"plot\">{svg}</div>");
         }
-        let view = View {
-            circle: Some(k),
-            title: Some(format!(
-                "{}: G ccw {} µm, cw {} µm, H {} µm",
-                circle_label(c, normal),
-                um(c.ccw.as_ref().and_then(|z| z.g_um), noise),
-                um(c.cw.as_ref().and_then(|z| z.g_um), noise),
-                um(c.h_um, noise)
-            )),
-        };
-        let svg = polar_svg(d, &view)?;
-        let _ = writeln!(h, "<div class=\"plot\">{svg}</div>");
+        let _ = writeln!(h, "</div>");
     }
     let _ = writeln!(
         h,
-        "</div>\n<p class=\"note\">Measured deviation with the fitted set-up removed (ccw blue, cw orange), the ideal machine (green, zero deviation) and the model's machine effects (black).</p>\n<p class=\"note\">jdbb {}</p>\n</body>\n</html>",
+        "</div>\n<p class=\"note\">Polar plots: the measured deviation with the fitted set-up removed (one circle: ccw blue, cw orange), the ideal machine (green, zero deviation) and the model's machine effects (black); a long record is drawn through the least and largest deviation of each bin of consecutive samples, so every extreme is on the plot.</p>\n<p class=\"note\">jdbb {}</p>\n</body>\n</html>",
         env!("CARGO_PKG_VERSION")
     );
     Ok(h)

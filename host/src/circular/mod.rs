@@ -12,7 +12,7 @@
 //! - [`words`]: what each effect means in the trade's words (the causes every output shows).
 //! - [`report`] (text, JSON) and [`plot`] (polar plot, SVG and PNG) of a diagnosis;
 //!   [`document`] reads that JSON back (the input contract of compensation and history);
-//!   [`html`] is the report a person reads (`report.html`).
+//!   [`html`] is the report a person reads (`report.html`), [`pdf`] the same page printed.
 //! - [`plan`]: the program a test runs (plan.json and G-code for four controller dialects);
 //!   [`sync`]: a recording lined up with its plan from D alone (its glitches set aside first,
 //!   [`glitch`]); [`planned`]: its diagnosis, the ramps read again through the errors it finds.
@@ -33,6 +33,7 @@ pub mod input;
 pub mod machine;
 pub mod model;
 pub mod path;
+pub mod pdf;
 pub mod plan;
 pub mod planned;
 pub mod plot;

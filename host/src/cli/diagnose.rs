@@ -56,6 +56,11 @@ pub struct DiagnoseArgs {
     /// built beside it and swapped in, never a mix of new and stale files.
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// With --report: also report.pdf, the report printed (A4; page one: machine, test, verdict,
+    /// polar plot, ranked effects) by headless Chromium, which must be installed (Debian: `apt
+    /// install chromium`; JDBB_CHROMIUM names another binary).
+    #[arg(long, requires = "report")]
+    pub pdf: bool,
     /// Replace the --report directory if it exists (only one jdbb wrote, holding nothing else; never a link).
     #[arg(long, requires = "report")]
     pub force: bool,
@@ -312,6 +317,11 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         check_dir_destination(dir, args.force)?;
         crate::fsio::check_not_input(dir, &inputs(args))?;
     }
+    // Before the work too: a --pdf that cannot be printed costs nothing.
+    let chromium = args
+        .pdf
+        .then(crate::circular::pdf::find_chromium)
+        .transpose()?;
     let pitch = match &args.pitch {
         Some(s) => parse_pitch(s)?,
         None => [None; 3],
@@ -393,7 +403,17 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         let html = report_html(&diag, &doc)?;
         write_dir(dir, args.force, |stage| {
             write_report(stage, &diag, &json)?;
-            crate::fsio::write_file(&stage.join("report.html"), html.as_bytes(), false)
+            let page = stage.join("report.html");
+            crate::fsio::write_file(&page, html.as_bytes(), false)?;
+            match &chromium {
+                Some(c) => crate::circular::pdf::print_to_pdf(
+                    c,
+                    &page,
+                    &stage.join("report.pdf"),
+                    &stage.join(".chromium-profile"),
+                ),
+                None => Ok(()),
+            }
         })?;
         if !args.json {
             emit(&format!("report written to {}", dir.display()))?;

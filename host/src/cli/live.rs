@@ -62,8 +62,12 @@ pub fn run(args: &LiveArgs) -> Result<()> {
             // Said on a line of its own, so that it stays visible above the redrawn status.
             resets_shown = stream.stats().resets;
             if let Some(r) = stream.last_restart() {
+                let text = format!("warning: {r}; the counts go on with its new run");
                 let _ = write!(out, "{}", if tty { "\r\x1b[2K" } else { "" });
-                let _ = writeln!(out, "warning: {r}; the counts go on with its new run");
+                let _ = writeln!(out, "{text}");
+                if let Some(f) = feed.as_mut() {
+                    f.warn(&text);
+                }
             }
         }
         if let Err(e) = stream.check_start() {

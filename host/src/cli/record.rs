@@ -71,17 +71,21 @@ impl Watch {
         }
     }
 
-    /// Take the samples of one read; true when the program has ended.
-    fn see(&mut self, samples: &[SeqSample], stats: &Stats) -> bool {
+    /// Take the samples of one read: whether the program has ended, and the warning said now (for
+    /// the live page too).
+    fn see(&mut self, samples: &[SeqSample], stats: &Stats) -> (bool, Option<String>) {
         for s in samples {
             self.tracker
                 .push(s.sample.t_us as f64 * 1e-6, s.sample.d_mm);
         }
+        let mut warning = None;
         if let (Some(m), false) = (&self.tracker.missed_start, self.missed_told) {
             self.missed_told = true;
-            note(&format!(
+            let text = format!(
                 "warning: {m}. This record cannot be synchronised with the plan: stop (Ctrl-C), run the machine back to the plan's start point, start `jdbb record --plan` first, then press cycle start"
-            ));
+            );
+            note(&text);
+            warning = Some(text);
         }
         let now = Instant::now();
         if self.last_line.is_none_or(|t| now - t >= PROGRESS_EVERY) {
@@ -98,7 +102,7 @@ impl Watch {
                 ));
             }
         }
-        self.stop_at_end && self.tracker.ended()
+        (self.stop_at_end && self.tracker.ended(), warning)
     }
 }
 
@@ -155,11 +159,17 @@ pub fn run(args: &RecordArgs) -> Result<()> {
         &interrupted,
         &mut |info| note(&format!("device: {}", describe_info(info))),
         &mut |samples, stats| {
+            let (ended, warning) = watch
+                .as_mut()
+                .map_or((false, None), |w| w.see(samples, stats));
             if let Some(f) = feed.as_mut() {
                 f.samples(samples);
+                if let Some(w) = &warning {
+                    f.warn(w);
+                }
                 f.publish_if_due(stats, Instant::now());
             }
-            watch.as_mut().is_some_and(|w| w.see(samples, stats))
+            ended
         },
     );
     let seconds = t0.elapsed().as_secs_f64();
@@ -219,15 +229,15 @@ pub fn run(args: &RecordArgs) -> Result<()> {
             ))
         });
         match result {
-            Ok(text) => {
+            Ok((text, verdict)) => {
                 print(&text)?;
-                f.diagnosis(stream.stats(), &text);
+                f.diagnosis(stream.stats(), &text, verdict);
             }
             // The record is complete and in place; only its diagnosis failed: say why.
             Err(e) => {
                 let text = format!("no end-of-test diagnosis: {e}");
                 note(&text);
-                f.diagnosis(stream.stats(), &text);
+                f.diagnosis(stream.stats(), &text, None);
             }
         }
     }

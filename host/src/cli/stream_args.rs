@@ -50,6 +50,9 @@ impl StreamArgs {
         };
         let server = crate::live_web::server::LiveServer::start(addr, board.clone())?;
         super::output::note(&format!("live page: {}", server.url()));
+        if let Some(n) = server.url_note() {
+            super::output::note(&n);
+        }
         if server.token().is_some() {
             super::output::note(
                 "the page is reachable from other computers; only with this URL's token",

@@ -3,6 +3,7 @@
 //! (same functions, default options, no pitch), as the text that command prints.
 use std::path::Path;
 
+use super::state::Verdict;
 use crate::circular::diagnose::Options;
 use crate::circular::plan::Plan;
 use crate::circular::planned::diagnose_record as diagnose_planned_record;
@@ -11,8 +12,13 @@ use crate::circular::sync::Record;
 use crate::Result;
 
 /// Synchronise and diagnose the record at `record` with `plan`; the text `jdbb diagnose --record
-/// --plan [--tolerance-um]` prints (synchronisation, diagnosis, verdict).
-pub fn diagnose_record(plan: &Plan, record: &Path, tolerance_um: Option<f64>) -> Result<String> {
+/// --plan [--tolerance-um]` prints (synchronisation, diagnosis, verdict), and the verdict when a
+/// tolerance is given.
+pub fn diagnose_record(
+    plan: &Plan,
+    record: &Path,
+    tolerance_um: Option<f64>,
+) -> Result<(String, Option<Verdict>)> {
     let rec = Record::read(record)?;
     let done = diagnose_planned_record(plan, &rec, [None; 3], &Options::default())?;
     let diag = done.diagnosis;
@@ -23,9 +29,11 @@ pub fn diagnose_record(plan: &Plan, record: &Path, tolerance_um: Option<f64>) ->
         text.push('\n');
     }
     text.push_str(&summary(&diag));
-    if let Some(tol) = tolerance_um {
-        text.push_str(&tolerance_verdict(&diag, tol).1);
+    let verdict = tolerance_um.map(|tol| {
+        let (pass, line) = tolerance_verdict(&diag, tol);
+        text.push_str(&line);
         text.push('\n');
-    }
-    Ok(text)
+        Verdict { pass, text: line }
+    });
+    Ok((text, verdict))
 }

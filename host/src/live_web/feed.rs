@@ -6,7 +6,7 @@
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use super::state::{Counts, LiveState, Tracker};
+use super::state::{Counts, LiveState, Tracker, Verdict};
 use super::worker::Diagnoser;
 use crate::circular::plan::Plan;
 use crate::link::live::RateMeter;
@@ -137,10 +137,21 @@ impl LiveFeed {
         }
     }
 
-    /// Publish the end-of-test diagnosis summary (waits for the board: the recording is over).
-    pub fn diagnosis(&mut self, stats: &Stats, text: &str) {
+    /// Publish the end-of-test diagnosis summary and its verdict, if a tolerance was given
+    /// (waits for the board: the recording is over).
+    pub fn diagnosis(&mut self, stats: &Stats, text: &str, verdict: Option<Verdict>) {
         self.state.diagnosis = Some(text.to_string());
+        self.state.verdict = verdict;
         self.publish_now(stats, Instant::now());
+    }
+
+    /// A warning the terminal shows (its whole text): on the page with the next publication,
+    /// which is due at once. The same text twice is shown once.
+    pub fn warn(&mut self, text: &str) {
+        if !self.state.warnings.iter().any(|w| w == text) {
+            self.state.warnings.push(text.to_string());
+            self.last_publish = None;
+        }
     }
 
     fn fill(&mut self, stats: &Stats, now: Instant) {

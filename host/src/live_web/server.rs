@@ -262,13 +262,56 @@ impl LiveServer {
         self.token.as_deref()
     }
 
-    /// The page's URL, with the token when one is needed.
+    /// The page's URL, with the token when one is needed. Bound to every address (0.0.0.0,
+    /// `::`), which no browser opens, the URL names this computer's address instead
+    /// ([`reachable_ip`]); without one, the unspecified address stays and [`Self::url_note`] says
+    /// what to put in its place.
     pub fn url(&self) -> String {
+        let mut addr = self.addr;
+        if addr.ip().is_unspecified() {
+            if let Some(ip) = reachable_ip(addr.is_ipv6()) {
+                addr.set_ip(ip);
+            }
+        }
         match &self.token {
-            Some(t) => format!("http://{}/?token={t}", self.addr),
-            None => format!("http://{}/", self.addr),
+            Some(t) => format!("http://{addr}/?token={t}"),
+            None => format!("http://{addr}/"),
         }
     }
+
+    /// For a server bound to every address: which addresses the page answers on, or, when this
+    /// computer's address is not known, that the URL's address must be replaced by it.
+    pub fn url_note(&self) -> Option<String> {
+        if !self.addr.ip().is_unspecified() {
+            return None;
+        }
+        Some(match reachable_ip(self.addr.is_ipv6()) {
+            Some(ip) => format!(
+                "{} listens on every address of this computer; the URL names {ip}, its address on the network (another of its addresses or its name works too)",
+                self.addr.ip()
+            ),
+            None => format!(
+                "{} listens on every address of this computer, but none was found to name: open the URL with this computer's IP address or name in place of {}",
+                self.addr.ip(),
+                self.addr.ip()
+            ),
+        })
+    }
+}
+
+/// The address of this computer that its default route leaves from: an address other computers
+/// on the network reach it at. A UDP socket "connected" to a documentation address (RFC 5737,
+/// RFC 3849) sends nothing; its local address is the answer. None without a route.
+fn reachable_ip(v6: bool) -> Option<std::net::IpAddr> {
+    let (bind, probe) = if v6 {
+        ("[::]:0", "[2001:db8::1]:9")
+    } else {
+        ("0.0.0.0:0", "192.0.2.1:9")
+    };
+    let socket = std::net::UdpSocket::bind(bind).ok()?;
+    socket.connect(probe).ok()?;
+    let ip = socket.local_addr().ok()?.ip();
+    (!ip.is_unspecified() && !ip.is_loopback()).then_some(ip)
 }
 
 impl Drop for LiveServer {

@@ -115,6 +115,19 @@ pub struct LiveState {
     pub ended: Option<String>,
     /// The end-of-test diagnosis summary, once computed (the text `jdbb diagnose` prints).
     pub diagnosis: Option<String>,
+    /// The end-of-test verdict against the tolerance (`record --plan --tolerance-um`), once
+    /// computed; the page shows it large.
+    pub verdict: Option<Verdict>,
+    /// Every warning the terminal showed during the session, in the order it showed them, each
+    /// once (the page shows them as they come).
+    pub warnings: Vec<String>,
+}
+
+/// PASS or FAIL against the tolerance, and the line the terminal prints for it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Verdict {
+    pub pass: bool,
+    pub text: String,
 }
 
 impl LiveState {

@@ -35,6 +35,15 @@
       svg.appendChild(el("circle", { cx: 0, cy: 0, r: rad(i * s.step), fill: "none",
         stroke: i === 0 ? "#00a000" : "#ddd", "stroke-width": i === 0 ? 0.006 : 0.003 }));
     }
+    // The inner, zero and outer rings' deviation, between the spokes (105°), as the report's.
+    const la = (105 * Math.PI) / 180;
+    for (const v of [-s.outer, 0, s.outer]) {
+      const t = el("text", { x: (rad(v) * Math.cos(la)).toFixed(4),
+        y: (-rad(v) * Math.sin(la)).toFixed(4), "font-size": 0.055, "text-anchor": "middle",
+        "dominant-baseline": "middle", fill: "#444", class: "ring_label" });
+      t.textContent = v === 0 ? "0 µm" : (v > 0 ? "+" : "") + v + " µm";
+      svg.appendChild(t);
+    }
     for (const sense of ["ccw", "cw"]) {
       const mine = pts.filter((p) => p.sense === sense);
       const xy = mine.map((p) => {
@@ -128,6 +137,21 @@
     if (st.ended) {
       $("ended").hidden = false;
       $("ended").textContent = "Session ended: " + st.ended;
+    }
+    // Every warning the terminal showed, at the top, as it comes.
+    const warnings = st.warnings || [];
+    $("warnings").hidden = warnings.length === 0;
+    if ($("warnings").childElementCount !== warnings.length) {
+      const ul = $("warnings");
+      while (ul.firstChild) ul.removeChild(ul.firstChild);
+      for (const w of warnings) ul.appendChild(h("li", w));
+    }
+    if (st.verdict) {
+      const v = $("verdict");
+      v.hidden = false;
+      v.className = "verdict " + (st.verdict.pass ? "pass" : "fail");
+      v.textContent = st.verdict.pass ? "PASS" : "FAIL";
+      v.appendChild(h("small", st.verdict.text));
     }
     if (st.diagnosis) {
       $("diagnosis").hidden = false;
