@@ -23,6 +23,7 @@ pub fn read_back(rec: &Recording) -> Record {
 }
 
 /// The machine effects a diagnosis names (not the set-up), in the order selected.
+#[allow(dead_code)]
 pub fn machine_names(d: &Diagnosis) -> Vec<String> {
     d.effects
         .iter()
