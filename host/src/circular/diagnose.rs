@@ -224,6 +224,62 @@ pub struct Diagnosis {
     /// [`CORRELATED_TAU`] the selection counted m/τ_int samples and every σ is √τ_int larger
     /// than a white-noise fit's.
     pub noise_tau_int: f64,
+    /// Where `following_error` is named: the radius it takes off each circle at each speed the
+    /// test ran it (a feed sweep runs one radius at several), q·v²/R ([`RadiusLoss`]).
+    pub radius_loss: Vec<RadiusLoss>,
+}
+
+/// The radius a named following error takes off one circle at one feed: q·v²/R
+/// ([`super::model::radius_loss_um`]), with v the mean commanded speed of the circle's runs at
+/// that feed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RadiusLoss {
+    pub radius_mm: f64,
+    /// The speed the circle ran at (mm/min, the synchronised feed, override included).
+    pub feed_mm_min: f64,
+    pub loss_um: f64,
+    pub sigma_um: Option<f64>,
+}
+
+/// [`Diagnosis::radius_loss`]: for each circle and each speed its runs ran at (speeds within
+/// 2 % are one), q·v²/R from the named following error in `found`; empty where none is named.
+fn radius_losses(
+    path: &Path,
+    found: &[Found],
+    runs: &[Run],
+    circles: &[Circle],
+) -> Vec<RadiusLoss> {
+    let Some(f) = found.iter().find(|f| f.effect == Effect::FollowingError) else {
+        return vec![];
+    };
+    let mut out: Vec<RadiusLoss> = vec![];
+    for run in runs {
+        let n = run.range.len();
+        if n == 0 {
+            continue;
+        }
+        let speed_mm_s = path.v_mm_s[run.range.clone()]
+            .iter()
+            .map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt())
+            .sum::<f64>()
+            / n as f64;
+        let feed_mm_min = 60.0 * speed_mm_s;
+        let radius_mm = circles[run.circle].radius_mm;
+        let known = out.iter().any(|l| {
+            l.radius_mm == radius_mm && (l.feed_mm_min - feed_mm_min).abs() <= 0.02 * feed_mm_min
+        });
+        if known || !(feed_mm_min > 0.0 && radius_mm > 0.0) {
+            continue;
+        }
+        let per_q = super::model::radius_loss_um(1.0, feed_mm_min, radius_mm);
+        out.push(RadiusLoss {
+            radius_mm,
+            feed_mm_min,
+            loss_um: f.value * per_q,
+            sigma_um: f.sigma.map(|s| s * per_q),
+        });
+    }
+    out
 }
 
 /// A candidate a partial arc barely tells from others (see [`Diagnosis::weak_on_arc`]).
@@ -650,6 +706,9 @@ pub fn candidate_effects(path: &Path) -> Vec<Effect> {
         }
     }
     v.push(Effect::Drift);
+    if moving.len() >= 2 {
+        v.push(Effect::FollowingError);
+    }
     v
 }
 
@@ -841,8 +900,8 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
             .collect();
         let mut block: Vec<usize> = setup_free.clone();
         block.extend(&scale_cols);
-        let isotropic_confounded = design.independent(&block).len() < block.len();
-        if isotropic_confounded {
+        let scale_with_setup = design.independent(&block).len() < block.len();
+        if scale_with_setup {
             let mut with_all_setup = vec![0, 1, 2, 3];
             with_all_setup.extend(&scale_cols);
             for g in design.confounded_names(&with_all_setup) {
@@ -851,6 +910,15 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
                 }
             }
         }
+        let following = following_error_confounding(&design, &setup_free, &scale_cols);
+        for g in &following.groups {
+            if !confounded.contains(g) {
+                confounded.push(g.clone());
+            }
+        }
+        // The isotropic scale is searched only where the test tells it from the set-up and
+        // from the loops' following error; otherwise the scale mismatches are.
+        let isotropic_confounded = scale_with_setup || following.hides_scale;
         confounded.retain(|g| !g.is_empty());
         // A second-order scale of j that a bow of another axis towards j already explains (one
         // circle: i² = R² − j²) is not searched; the bow is named, with the pair said.
@@ -882,6 +950,7 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
         }
         let mut candidates: Vec<usize> = (2..design.cands.len())
             .filter(|&c| match design.cands[c].effect {
+                Effect::FollowingError => following.searched,
                 Effect::Scale(_) => !isotropic_confounded,
                 Effect::ScaleMismatch(_) => isotropic_confounded,
                 Effect::Scale2(_) => !twin_of_bow[c],
@@ -1356,6 +1425,7 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
         let f = found.remove(ii);
         not_significant.push(NotSignificant::of(&f, reason));
     }
+    let radius_loss = radius_losses(path, &found, &runs, &circles);
     Ok(Diagnosis {
         samples: m,
         baseline_rms_um,
@@ -1384,6 +1454,7 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
         arcs,
         weak_on_arc: weak,
         noise_tau_int,
+        radius_loss,
     })
 }
 
@@ -1485,6 +1556,79 @@ fn weak_on_arc(
 
 /// The set-up's distance |p − c| + e (mm) for `setup_um` = [c_x, c_y, c_z, e] in µm (c: where
 /// the table ball is relative to where it was assumed).
+/// What the test tells of the position loops' following error ([`Effect::FollowingError`]): its
+/// column −q·v²/R per circle against the set-up's length offset (one circle, or every circle at
+/// one angular speed, cannot tell them: not searched) and against the isotropic scale a·R (radii
+/// at one feed: the three columns are collinear on circles of two radii). Where the scale cannot
+/// be told from it, the following error is searched and the scale is not (a loop is always
+/// there at feed, a scale error may not be; the pair is named as confounded), so identical loops
+/// on two radii are not read as a scale. A feed sweep separates them.
+struct FollowingConfounding {
+    /// Whether the following error is a search candidate.
+    searched: bool,
+    /// Whether it hides the isotropic scale (search the scale mismatches instead).
+    hides_scale: bool,
+    /// The groups to name as confounded.
+    groups: Vec<Vec<String>>,
+}
+
+fn following_error_confounding(
+    design: &Design,
+    setup_free: &[usize],
+    scale_cols: &[usize],
+) -> FollowingConfounding {
+    let none = FollowingConfounding {
+        searched: false,
+        hides_scale: false,
+        groups: vec![],
+    };
+    let Some(c) = design
+        .cands
+        .iter()
+        .position(|c| c.effect == Effect::FollowingError)
+    else {
+        return none;
+    };
+    let fe = design.cols_of(c);
+    let independent = |cols: &[usize]| design.independent(cols).len() == cols.len();
+    let with_setup: Vec<usize> = setup_free.iter().chain(&fe).copied().collect();
+    let named_with_fe = |cols: &[usize]| -> Vec<Vec<String>> {
+        design
+            .confounded_names(cols)
+            .into_iter()
+            .filter(|g| g.iter().any(|n| n == "following_error"))
+            .collect()
+    };
+    if !independent(&with_setup) {
+        let mut all_setup = vec![0, 1, 2, 3];
+        all_setup.extend(&fe);
+        return FollowingConfounding {
+            groups: named_with_fe(&all_setup),
+            ..none
+        };
+    }
+    let mut setup_scale: Vec<usize> = setup_free.to_vec();
+    setup_scale.extend(scale_cols);
+    if scale_cols.is_empty() || !independent(&setup_scale) {
+        return FollowingConfounding {
+            searched: true,
+            ..none
+        };
+    }
+    let mut all: Vec<usize> = setup_scale;
+    all.extend(&fe);
+    let hides_scale = !independent(&all);
+    FollowingConfounding {
+        searched: true,
+        hides_scale,
+        groups: if hides_scale {
+            named_with_fe(&all)
+        } else {
+            vec![]
+        },
+    }
+}
+
 fn setup_distance_mm(p: [f64; 3], setup_um: &[f64]) -> f64 {
     let q = [
         p[0] - 1e-3 * setup_um[0],

@@ -59,7 +59,7 @@ squareness_xy = 30.0           # example: X and Y out of square, µm/m
 
 /// One family of effects for [`effect_list`]: a representative (axis x, pair xy), and what it is
 /// on the machine in a few words.
-const FAMILIES: [(Effect, &str); 14] = [
+const FAMILIES: [(Effect, &str); 15] = [
     (
         Effect::SetupOffset,
         "the table ball is not where the plan says (set-up)",
@@ -110,6 +110,10 @@ const FAMILIES: [(Effect, &str); 14] = [
         "k steps sideways (along j) where k reverses",
     ),
     (Effect::Drift, "D drifts in time (thermal)"),
+    (
+        Effect::FollowingError,
+        "the position loops draw circles smaller by q·v²/R (following error)",
+    ),
 ];
 
 /// The name of `e`'s family: its axes as k (one axis), ij (a pair) or k_j (two axes).

@@ -81,6 +81,34 @@ pub enum Effect {
     ReversalSpike(Axis),
     /// D changes linearly with time: +r·(t − t₀) with r in µm/min and t₀ the first sample.
     Drift,
+    /// The position loops' following error beyond their delay (issue 26): every axis is drawn
+    /// δ_k = q·a_k off its command, a_k the command's acceleration, q in ms². A loop of gain Kv
+    /// with velocity feed-forward k_v follows as H(s) = (Kv + k_v·s)/(s + Kv)
+    /// = 1 − (1 − k_v)·s/Kv + (1 − k_v)·s²/Kv² − …: the s term is a delay along the path (the
+    /// servo delay, absorbed by the timeline), the s² term this δ; with the delay's own
+    /// second-order part a circle of radius R at speed v (ω = v/R) is drawn with amplitude
+    /// |H(jω)| ≈ 1 − (1 − k_v²)·ω²/(2Kv²), i.e. smaller by the **radius loss**
+    /// q·v²/R = q·ω²·R with q = (1 − k_v²)/(2Kv²) (no feed-forward: v²/(2R·Kv²)). The
+    /// reported value is q (`q_ms2`); [`following_error_kv_per_s`] turns it into the loop gain
+    /// of a loop without feed-forward that loses as much, and [`radius_loss_um`] into the radius
+    /// lost at a circle's feed and radius. It grows with feed and falls with radius: a scale
+    /// grows with radius and not with feed, so two feeds (or radii and feeds such that a·R,
+    /// −q·v²/R and the length offset are not collinear) tell them apart.
+    FollowingError,
+}
+
+/// The loop gain Kv (s⁻¹) of a position loop without feed-forward whose following error is
+/// `q_ms2` (q = 1/(2Kv²)): the equivalent loop gain a servo engineer compares with the drive's
+/// setting; None where q is not positive (a loop with feed-forward above 1 draws circles larger).
+pub fn following_error_kv_per_s(q_ms2: f64) -> Option<f64> {
+    (q_ms2 > 0.0).then(|| 1.0 / (2.0 * q_ms2 * 1e-6).sqrt())
+}
+
+/// The radius (µm) a following error `q_ms2` takes off a circle of `radius_mm` run at
+/// `feed_mm_min`: q·v²/R ([`Effect::FollowingError`]).
+pub fn radius_loss_um(q_ms2: f64, feed_mm_min: f64, radius_mm: f64) -> f64 {
+    let v_mm_s = feed_mm_min / 60.0;
+    1e-3 * q_ms2 * v_mm_s * v_mm_s / radius_mm
 }
 
 impl fmt::Display for Effect {
@@ -137,6 +165,7 @@ impl Effect {
             }
         }
         v.push(Effect::Drift);
+        v.push(Effect::FollowingError);
         v
     }
 
@@ -157,6 +186,7 @@ impl Effect {
             Effect::ScaleMismatch(p) => format!("scale_mismatch_{}", p.name()),
             Effect::ReversalSpike(a) => format!("reversal_spike_{}", a.letter()),
             Effect::Drift => "drift".into(),
+            Effect::FollowingError => "following_error".into(),
         }
     }
 
@@ -166,6 +196,7 @@ impl Effect {
             "setup_offset" => return Some(Effect::SetupOffset),
             "length_offset" => return Some(Effect::LengthOffset),
             "drift" => return Some(Effect::Drift),
+            "following_error" => return Some(Effect::FollowingError),
             _ => {}
         }
         for (prefix, make) in [
@@ -216,6 +247,7 @@ impl Effect {
             Effect::Interference(_) => "um/(mm/s)",
             Effect::ServoMismatch(_) => "ms",
             Effect::Drift => "um/min",
+            Effect::FollowingError => "ms^2",
         }
     }
 
@@ -236,6 +268,7 @@ impl Effect {
             Effect::ServoMismatch(_) => &["dtau_ms", "lag_ms"],
             Effect::ReversalSpike(_) => &["h_um", "tau_ms"],
             Effect::Drift => &["rate_um_per_min"],
+            Effect::FollowingError => &["q_ms2"],
         }
     }
 
@@ -300,6 +333,15 @@ impl Effect {
                 );
                 for (x, t) in dd.iter_mut().zip(&path.t_s[i0..i0 + n]) {
                     *x += r * (t - t0);
+                }
+            }
+            Effect::FollowingError => {
+                // q in ms², a in mm/s²: δ = q·a·1e-6 mm.
+                let q_s2 = 1e-6 * theta[0];
+                for (qj, aj) in q.iter_mut().zip(&path.a_mm_s2[i0..i0 + n]) {
+                    for k in 0..3 {
+                        qj[k] += q_s2 * aj[k];
+                    }
                 }
             }
             Effect::Scale(a) => {
@@ -756,6 +798,14 @@ impl Candidate {
                     out[o] = (t[j] - t0) / 60.0;
                 }
             }
+            Effect::FollowingError => {
+                // Per ms²: δ = a·1e-6 mm = a·1e-3 µm along u.
+                let acc = &path.a_mm_s2[i0..i0 + n];
+                for (j, o) in rows.enumerate() {
+                    out[o] =
+                        1e-3 * (u[j][0] * acc[j][0] + u[j][1] * acc[j][1] + u[j][2] * acc[j][2]);
+                }
+            }
             Effect::Scale(a) => {
                 let k = a.index();
                 for (j, o) in rows.enumerate() {
@@ -1037,7 +1087,7 @@ mod tests {
             Effect::parse("straightness_x_y"),
             Some(Effect::Straightness(Axis::X, Axis::Y))
         );
-        assert_eq!(Effect::all().len(), 2 + 5 * 3 + 2 * 3 + 3 + 6 + 6 + 1);
+        assert_eq!(Effect::all().len(), 2 + 5 * 3 + 2 * 3 + 3 + 6 + 6 + 2);
     }
 
     #[test]

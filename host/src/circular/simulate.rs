@@ -235,7 +235,8 @@ pub fn distances_mm(path: &Path, effects: &[EffectValue]) -> Result<Vec<f64>> {
             Effect::Backlash(_)
             | Effect::BacklashEnds(_)
             | Effect::Straightness(..)
-            | Effect::LateralPlay(..) => path_effects.push(ev.clone()),
+            | Effect::LateralPlay(..)
+            | Effect::FollowingError => path_effects.push(ev.clone()),
             Effect::Cyclic(a) => {
                 let ax: &mut AxisErrors = &mut m.axes[a.index()];
                 ax.pitch_mm = pitch(a.index())?;

@@ -118,6 +118,9 @@ pub fn cause(effect: Effect, value: f64) -> String {
         Effect::Drift => {
             "the ball distance drifts during the test — the machine or the instrument is warming up".into()
         }
+        Effect::FollowingError => {
+            "the position loops draw each circle smaller the faster it runs (following error: radius loss q·v²/R) — position-loop gain (Kv) and velocity feed-forward: servo tuning, not geometry".into()
+        }
     }
 }
 

@@ -117,12 +117,13 @@ pub fn write_program(plan: &Plan, dialect: Dialect) -> String {
     } else {
         "each ccw then cw".to_string()
     };
+    let feeds: Vec<String> = plan.feeds_mm_min().into_iter().map(number).collect();
     o.comment(&format!(
         "jdbb plan, {}: {} circles in plane {}, {arc}, feed {} mm/min",
         plan.purpose.name(),
         plan.circles.len(),
         plan.plane.name(),
-        number(plan.feed_mm_min)
+        feeds.join(", ")
     ));
     o.comment(&format!(
         "table ball centre {} mm in these coordinates",
