@@ -1260,6 +1260,59 @@ mod tests {
     }
 
     #[test]
+    fn following_error_draws_a_circle_smaller_by_q_v2_over_r() {
+        // δ = q·a with a = −ω²·p on a circle: D = R·(1 − q·ω²), the radius loss q·v²/R.
+        let (r, omega, q_ms2) = (40.0, 0.5, 500.0);
+        let path = circle(r, 1300);
+        let set = EffectSet::new(vec![Effect::FollowingError]);
+        let loss_um = 1e-3 * q_ms2 * (omega * r) * (omega * r) / r;
+        for i in [5usize, 640, 1294] {
+            let d_um = 1e3 * set.distance_mm(&path, i, &[q_ms2]);
+            assert!(
+                (1e3 * r - d_um - loss_um).abs() < 1e-3 * loss_um,
+                "sample {i}: {d_um} µm for R {r} mm less {loss_um} µm"
+            );
+        }
+        // The same through the reporting helpers: Kv 30 s⁻¹ without feed-forward is
+        // q = 1/(2·Kv²) = 555.6 ms², 15.43 µm off R 90 mm at 3000 mm/min.
+        let q = 1e6 / (2.0 * 30.0 * 30.0);
+        assert!((following_error_kv_per_s(q).unwrap() - 30.0).abs() < 1e-9);
+        assert!((radius_loss_um(q, 3000.0, 90.0) - 15.432).abs() < 1e-3);
+        assert_eq!(following_error_kv_per_s(-1.0), None);
+    }
+
+    #[test]
+    fn acceleration_is_not_differenced_across_the_gap_between_two_circles() {
+        // Two circles (R 40 and 30 mm at 0.5 rad/s) 5 s apart: every sample's acceleration is its
+        // own circle's −ω²·p, also next to the gap, or the following error's column is not the
+        // circle's constant −ω²·R there.
+        let (omega, n) = (0.5, 400);
+        let mut t = vec![];
+        let mut p = vec![];
+        for (k, r) in [40.0, 30.0].into_iter().enumerate() {
+            for i in 0..n {
+                let ti = i as f64 * 0.01 + k as f64 * (n as f64 * 0.01 + 5.0);
+                let th = omega * ti;
+                t.push(ti);
+                p.push([r * th.cos(), r * th.sin(), 0.0]);
+            }
+        }
+        let path = Path::new(t, p.clone(), [None; 3]);
+        // Interior samples: central differences; the ends of each circle: one-sided (first
+        // order, within a few per cent of ω²·R at ω·dt = 0.005 rad over three samples).
+        for i in [n - 2, n - 1, n, n + 1] {
+            let a = path.a_mm_s2[i];
+            let r = (p[i][0] * p[i][0] + p[i][1] * p[i][1]).sqrt();
+            let radial = -(a[0] * p[i][0] + a[1] * p[i][1]) / r;
+            assert!(
+                (radial - omega * omega * r).abs() < 0.05 * omega * omega * r,
+                "sample {i}: radial acceleration {radial} for {}",
+                omega * omega * r
+            );
+        }
+    }
+
+    #[test]
     fn spike_and_drift_follow_their_definitions() {
         let path = circle(40.0, 1300);
         let rev = path.reversals[0][0];
