@@ -1554,12 +1554,10 @@ fn weak_on_arc(
     out
 }
 
-/// The set-up's distance |p − c| + e (mm) for `setup_um` = [c_x, c_y, c_z, e] in µm (c: where
-/// the table ball is relative to where it was assumed).
 /// What the test tells of the position loops' following error ([`Effect::FollowingError`]): its
-/// column −q·v²/R per circle against the set-up's length offset (one circle, or every circle at
-/// one angular speed, cannot tell them: not searched) and against the isotropic scale a·R (radii
-/// at one feed: the three columns are collinear on circles of two radii). Where the scale cannot
+/// column −q·v²/R per circle against the set-up's length offset (one circle at one feed cannot
+/// tell them: not searched) and against the isotropic scale a·R (on circles of two radii at one
+/// feed, or of any radii at one angular speed, the three are collinear). Where the scale cannot
 /// be told from it, the following error is searched and the scale is not (a loop is always
 /// there at feed, a scale error may not be; the pair is named as confounded), so identical loops
 /// on two radii are not read as a scale. A feed sweep separates them.
@@ -1624,7 +1622,7 @@ fn following_error_confounding(
 
 /// How much of the following error the runs of the test tell from the length offset and from
 /// the isotropic scale: per run (one circle, one direction, one speed) the mean of the following
-/// error's column (u·a, −v²/R on a circle) and of the isotropic scale's (Σ u_k·p_k over
+/// error's column (−u·a = v²/R on a circle, taken from the speed) and of the isotropic scale's (Σ u_k·p_k over
 /// `scale_axes`, R on a circle), weighted by the run's samples; returns the fraction of the
 /// following error's sum of squares left once a constant is fitted, and once a constant and the
 /// scale are. Run means, not samples: within a run both are constants of the circle, and what
@@ -1644,8 +1642,11 @@ fn following_free_by_runs(path: &Path, runs: &[Run], scale_axes: &[usize]) -> (f
             if r <= 0.0 {
                 continue;
             }
-            let a = path.a_mm_s2[i];
-            fe += (p[0] * a[0] + p[1] * a[1] + p[2] * a[2]) / r;
+            // −u·a on a circle, from the speed: v²/D (v²/R in the ball's plane). A hand-made
+            // path that turns from ccw to cw within one sample has an acceleration of v/dt
+            // there, which would move a run's mean u·a by a sixth.
+            let v = path.v_mm_s[i];
+            fe += (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) / r;
             sc += scale_axes.iter().map(|&k| p[k] * p[k]).sum::<f64>() / r;
         }
         rows.push((n as f64, sc / n as f64, fe / n as f64));
@@ -1671,10 +1672,12 @@ fn following_free_by_runs(path: &Path, runs: &[Run], scale_axes: &[usize]) -> (f
 
 /// The following error is taken as confounded where the runs leave less than this fraction of
 /// its sum of squares unexplained ([`following_free_by_runs`]): circles of two radii at one feed
-/// leave 10⁻¹⁰ and below (the feed read per circle), three radii 40/55/70 mm at one feed about
-/// 10⁻³, two feeds a large part.
+/// left 10⁻¹⁵ and below in the tests (only the feed read per circle differs), a feed sweep of
+/// two radii at 1000 and 3000 mm/min 0.33.
 const FOLLOWING_MIN_FREE: f64 = 1e-6;
 
+/// The set-up's distance |p − c| + e (mm) for `setup_um` = [c_x, c_y, c_z, e] in µm (c: where
+/// the table ball is relative to where it was assumed).
 fn setup_distance_mm(p: [f64; 3], setup_um: &[f64]) -> f64 {
     let q = [
         p[0] - 1e-3 * setup_um[0],
@@ -1933,12 +1936,13 @@ mod tests {
 
     #[test]
     fn one_of_the_planes_two_scales_under_the_floor_leaves_the_other_named() {
-        // Two radii separate the isotropic scale, and the search offers the plane's two scales
-        // as one step. Scale y comes out of the refit at nothing (under the floor): it leaves,
-        // scale x stays (taking the whole step out dropped scale x too).
+        // Three radii separate the isotropic scale (two at one feed do not tell it from the
+        // loops' following error), and the search offers the plane's two scales as one step.
+        // Scale y comes out of the refit at nothing (under the floor): it leaves, scale x stays
+        // (taking the whole step out dropped scale x too).
         use super::super::simulate::{distances_mm, nominal_path, PathSpec};
         let spec = PathSpec {
-            radii_mm: vec![40.0, 70.0],
+            radii_mm: vec![40.0, 55.0, 70.0],
             heights_mm: vec![0.0],
             plane: (0, 1, 2),
             feed_mm_min: 1000.0,

@@ -105,54 +105,32 @@ pub fn parse_pitch(s: &str) -> Result<[Option<f64>; 3]> {
     Ok(out)
 }
 
-/// Central differences of `x` against `t`; at the ends and at a gap in time (a step over
-/// [`GAP_STEPS`] median sample periods: the path holds the data arcs of several circles, and a
-/// difference across the jump between two of them is no velocity of either) the derivative of
-/// the parabola through the sample and its next two on its own side, as accurate as the central
-/// difference (a two-point difference there reads a circle's acceleration half, and the
-/// following error's column, q·a, must be the circle's own −ω²·p on every sample); zero where
-/// time stands still or a run has a single sample.
+/// Central differences of `x` against `t`, one-sided at the ends and at a gap in time (a step
+/// over [`GAP_STEPS`] median sample periods: the path holds the data arcs of several circles, and
+/// a difference across the jump between two of them is no velocity of either); zero where time
+/// stands still or a run has a single sample.
 fn derivative(t_s: &[f64], x: &[[f64; 3]]) -> Vec<[f64; 3]> {
     let n = x.len();
     let gap_s = GAP_STEPS * median_interval(t_s);
     let joined = |i: usize| gap_s <= 0.0 || t_s[i + 1] - t_s[i] <= gap_s;
-    let two = |a: usize, b: usize| {
-        let w = 1.0 / (t_s[a] - t_s[b]);
-        [(a, w), (b, -w), (b, 0.0)]
-    };
     let mut d = vec![[0.0; 3]; n];
     for i in 0..n {
         let back = i > 0 && joined(i - 1);
         let ahead = i + 1 < n && joined(i);
-        // The stencil: (index, weight) of the samples whose weighted sum is the derivative.
-        let stencil = match (back, ahead) {
-            (true, true) => two(i + 1, i - 1),
-            (false, true) if i + 2 < n && joined(i + 1) => parabola_slope(t_s, i, i + 1, i + 2),
-            (true, false) if i >= 2 && joined(i - 2) => parabola_slope(t_s, i, i - 1, i - 2),
-            (false, true) => two(i + 1, i),
-            (true, false) => two(i, i - 1),
+        let (a, b) = match (back, ahead) {
+            (true, true) => (i - 1, i + 1),
+            (true, false) => (i - 1, i),
+            (false, true) => (i, i + 1),
             (false, false) => continue,
         };
-        if stencil.iter().all(|(_, w)| w.is_finite()) {
-            for (j, w) in stencil {
-                for k in 0..3 {
-                    d[i][k] += w * x[j][k];
-                }
+        let dt = t_s[b] - t_s[a];
+        if dt > 0.0 {
+            for k in 0..3 {
+                d[i][k] = (x[b][k] - x[a][k]) / dt;
             }
         }
     }
     d
-}
-
-/// The weights of the samples i, j, k in the slope at t_i of the parabola through them (the
-/// derivative of its Lagrange form); not finite where two times coincide.
-fn parabola_slope(t: &[f64], i: usize, j: usize, k: usize) -> [(usize, f64); 3] {
-    let (ti, tj, tk) = (t[i], t[j], t[k]);
-    [
-        (i, 1.0 / (ti - tj) + 1.0 / (ti - tk)),
-        (j, (ti - tk) / ((tj - ti) * (tj - tk))),
-        (k, (ti - tj) / ((tk - ti) * (tk - tj))),
-    ]
 }
 
 /// A step in time of more than this many median sample periods is a gap between runs of samples

@@ -147,6 +147,7 @@ pub fn param_label(key: &str) -> &str {
         "l_um" => "shift",
         "tau_ms" => "decay time",
         "rate_um_per_min" => "rate",
+        "q_ms2" => "radius loss per v²/R",
         other => other,
     }
 }
@@ -154,13 +155,14 @@ pub fn param_label(key: &str) -> &str {
 /// The unit of a parameter for people, from its JSON key's suffix (`tau_ms` → `ms`, `h_um` →
 /// `µm`, `a_um_per_m` → `µm/m`); empty for a key without one.
 pub fn param_unit(key: &str) -> &'static str {
-    const SUFFIXES: [(&str, &str); 6] = [
+    const SUFFIXES: [(&str, &str); 7] = [
         ("_um_per_mm_s", "µm/(mm/s)"),
         ("_um_per_m2", "µm/m²"),
         ("_um_per_min", "µm/min"),
         ("_um_per_m", "µm/m"),
         ("_um", "µm"),
         ("_ms", "ms"),
+        ("_ms2", "ms²"),
     ];
     SUFFIXES
         .iter()
