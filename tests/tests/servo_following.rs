@@ -142,8 +142,10 @@ fn a_feed_sweep_names_a_hidden_scale_beside_the_loops_following_error() {
     assert_eq!(p.circles.len(), 4);
     assert_eq!(p.feeds_mm_min(), vec![1000.0, 3000.0]);
     let l = ServoLoop::new(40.0);
-    let mut errors = MachineErrors::default();
-    errors.scale_um_per_m = [20.0, 20.0, 0.0];
+    let errors = MachineErrors {
+        scale_um_per_m: [20.0, 20.0, 0.0],
+        ..MachineErrors::default()
+    };
     let d = run(&p, l, errors, 11);
     let mut names = machine_names(&d);
     names.sort();

@@ -1968,7 +1968,8 @@ mod tests {
         assert_eq!(named, ["backlash_x", "scale_x"], "{:?}", r.below_floor);
         let f = r.effects.iter().find(|f| f.effect.name() == "scale_x");
         assert!((f.unwrap().value - 30.0).abs() < 1e-3);
-        assert!(r.below_floor.iter().any(|(n, _)| n == "scale_y"));
+        // With three radii scale_y is no longer listed below the floor (on 40 and 70 mm alone it
+        // was): that it is not named is the assertion above.
     }
 
     #[test]
