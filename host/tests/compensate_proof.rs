@@ -589,12 +589,13 @@ fn linuxcnc_backlash_and_matrixkins_squareness() {
 
 #[test]
 fn linuxcnc_comp_file_scale_cyclic_and_backlash() {
-    // Two radii separate the isotropic scale; the cyclic error at a 10 mm pitch needs a table
-    // step of 1/16 pitch over the 140 mm tested; backlash moves into the table.
+    // Three radii separate the isotropic scale (from the bar length and, at one feed, from the
+    // loops' following error, −q·v²/R: two radii do not); the cyclic error at a 10 mm pitch
+    // needs a table step of 1/16 pitch over the 140 mm tested; backlash moves into the table.
     let case = |t| Case {
         name: "LinuxCNC COMP_FILE (scale, cyclic, backlash in the table)",
         controller: Controller::LinuxCnc,
-        radii_mm: vec![40.0, 70.0],
+        radii_mm: vec![40.0, 55.0, 70.0],
         plane: (0, 1, 2),
         pitch_mm: [Some(10.0), None, None],
         machine: vec![
@@ -768,7 +769,7 @@ fn klipper_skew_xy_and_rotation_distance() {
     prove(Case {
         name: "Klipper SET_SKEW XY + rotation_distance (values in force)",
         controller: Controller::Klipper,
-        radii_mm: vec![60.0, 100.0],
+        radii_mm: vec![60.0, 80.0, 100.0],
         plane: (0, 1, 2),
         pitch_mm: [None; 3],
         machine: vec!["squareness_xy=-35", "scale_x=50", "scale_y=20", "backlash_x=5"],

@@ -153,13 +153,24 @@ fn linuxcnc_comp_table_cancels_a_cyclic_error_where_it_is() {
 
 /// A lead that grows along X's screw, δ = b·(x − o)², the lead right 50 mm below the table
 /// ball. A ballbar cannot see a constant (it moves the circle, not its shape), so what the comp
-/// table can cancel is δ(x) − δ(ball); with two radii the diagnosis names the second-order scale
+/// table can cancel is δ(x) − δ(ball); with two radii at two feeds (at one feed the isotropic
+/// part of a scale is not told from the loops' following error) the diagnosis names the
+/// second-order scale
 /// and the first-order scale its slope at the ball gives, and the table LinuxCNC interpolates
 /// over the tested travel must leave under 2 % of the error's range. Entries placed about the
 /// program origin, or the slope's sign flipped, leave tens of µm.
 #[test]
 fn linuxcnc_comp_table_cancels_a_lead_error_about_another_origin() {
-    let p = make_plan(&[95.0, 85.0]);
+    let spec = PlanSpec::machine_test(
+        &[95.0, 85.0],
+        &[0.0],
+        Plane::Xy,
+        1000.0,
+        BALL,
+        PlanDialect::Linuxcnc,
+    )
+    .feed_sweep(&[1000.0, 2000.0]);
+    let p = plan(&spec, &Calibration::DEFAULT).unwrap();
     let (b, origin) = (1500.0, BALL[0] - 50.0);
     let mut errors = MachineErrors::default();
     errors.scale2[0] = Scale2 {

@@ -295,9 +295,20 @@ fn cyclic_error_at_its_pitch() {
     assert_only(&d, "cyclic_y", 2.5);
 }
 
+/// Two radii at two feeds (a feed sweep): at one feed two radii do not tell the isotropic part of
+/// a scale from the loops' following error (issue 26), which a feed sweep does.
 #[test]
 fn two_radii_separate_the_scale() {
-    let p = make_plan(&[95.0, 85.0], PlanDialect::Linuxcnc);
+    let spec = PlanSpec::machine_test(
+        &[95.0, 85.0],
+        &[0.0],
+        Plane::Xy,
+        1000.0,
+        CENTRE,
+        PlanDialect::Linuxcnc,
+    )
+    .feed_sweep(&[1000.0, 2000.0]);
+    let p = plan(&spec, &Calibration::DEFAULT).unwrap();
     let mut errors = MachineErrors::default();
     errors.scale_um_per_m[0] = 40.0;
     let d = diagnose_record(&p, &record(&p, PlanDialect::Linuxcnc, errors, 7), [None; 3]);

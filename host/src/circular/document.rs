@@ -452,6 +452,7 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
         "residual_share",
         "gain",
         "noise_tau_int",
+        "radius_loss",
         "harmonics_um",
         "lsq_setup",
         "circular_deviation_g_um",

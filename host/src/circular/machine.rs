@@ -59,7 +59,7 @@ squareness_xy = 30.0           # example: X and Y out of square, µm/m
 
 /// One family of effects for [`effect_list`]: a representative (axis x, pair xy), and what it is
 /// on the machine in a few words.
-const FAMILIES: [(Effect, &str); 16] = [
+const FAMILIES: [(Effect, &str); 17] = [
     (
         Effect::SetupOffset,
         "the table ball is not where the plan says (set-up)",
@@ -117,6 +117,10 @@ const FAMILIES: [(Effect, &str); 16] = [
     (
         Effect::PositionDrift(Axis::X),
         "k's position drifts in time (a screw growing about its bearing, spindle growth)",
+    ),
+    (
+        Effect::FollowingError,
+        "the position loops draw circles smaller by q·v²/R (following error)",
     ),
 ];
 

@@ -89,6 +89,34 @@ pub enum Effect {
     /// Axis k's position drifts in time: δ_k = g·(t − t₀)/60 s, g in µm/min (a screw growing
     /// about a fixed bearing away from the table ball, a spindle growing towards the table).
     PositionDrift(Axis),
+    /// The position loops' following error beyond their delay (issue 26): every axis is drawn
+    /// δ_k = q·a_k off its command, a_k the command's acceleration, q in ms². A loop of gain Kv
+    /// with velocity feed-forward k_v follows as H(s) = (Kv + k_v·s)/(s + Kv)
+    /// = 1 − (1 − k_v)·s/Kv + (1 − k_v)·s²/Kv² − …: the s term is a delay along the path (the
+    /// servo delay, absorbed by the timeline), the s² term this δ; with the delay's own
+    /// second-order part a circle of radius R at speed v (ω = v/R) is drawn with amplitude
+    /// |H(jω)| ≈ 1 − (1 − k_v²)·ω²/(2Kv²), i.e. smaller by the **radius loss**
+    /// q·v²/R = q·ω²·R with q = (1 − k_v²)/(2Kv²) (no feed-forward: v²/(2R·Kv²)). The
+    /// reported value is q (`q_ms2`); [`following_error_kv_per_s`] turns it into the loop gain
+    /// of a loop without feed-forward that loses as much, and [`radius_loss_um`] into the radius
+    /// lost at a circle's feed and radius. It grows with feed and falls with radius: a scale
+    /// grows with radius and not with feed, so two feeds (or radii and feeds such that a·R,
+    /// −q·v²/R and the length offset are not collinear) tell them apart.
+    FollowingError,
+}
+
+/// The loop gain Kv (s⁻¹) of a position loop without feed-forward whose following error is
+/// `q_ms2` (q = 1/(2Kv²)): the equivalent loop gain a servo engineer compares with the drive's
+/// setting; None where q is not positive (a loop with feed-forward above 1 draws circles larger).
+pub fn following_error_kv_per_s(q_ms2: f64) -> Option<f64> {
+    (q_ms2 > 0.0).then(|| 1.0 / (2.0 * q_ms2 * 1e-6).sqrt())
+}
+
+/// The radius (µm) a following error `q_ms2` takes off a circle of `radius_mm` run at
+/// `feed_mm_min`: q·v²/R ([`Effect::FollowingError`]).
+pub fn radius_loss_um(q_ms2: f64, feed_mm_min: f64, radius_mm: f64) -> f64 {
+    let v_mm_s = feed_mm_min / 60.0;
+    1e-3 * q_ms2 * v_mm_s * v_mm_s / radius_mm
 }
 
 impl fmt::Display for Effect {
@@ -147,6 +175,7 @@ impl Effect {
         v.push(Effect::Drift);
         v.extend(Axis::ALL.map(Effect::ScaleDrift));
         v.extend(Axis::ALL.map(Effect::PositionDrift));
+        v.push(Effect::FollowingError);
         v
     }
 
@@ -169,6 +198,7 @@ impl Effect {
             Effect::Drift => "drift".into(),
             Effect::ScaleDrift(a) => format!("scale_drift_{}", a.letter()),
             Effect::PositionDrift(a) => format!("position_drift_{}", a.letter()),
+            Effect::FollowingError => "following_error".into(),
         }
     }
 
@@ -178,6 +208,7 @@ impl Effect {
             "setup_offset" => return Some(Effect::SetupOffset),
             "length_offset" => return Some(Effect::LengthOffset),
             "drift" => return Some(Effect::Drift),
+            "following_error" => return Some(Effect::FollowingError),
             _ => {}
         }
         for (prefix, make) in [
@@ -237,6 +268,7 @@ impl Effect {
             Effect::ServoMismatch(_) => "ms",
             Effect::Drift | Effect::PositionDrift(_) => "um/min",
             Effect::ScaleDrift(_) => "um/m/min",
+            Effect::FollowingError => "ms^2",
         }
     }
 
@@ -258,6 +290,7 @@ impl Effect {
             Effect::ReversalSpike(_) => &["h_um", "tau_ms"],
             Effect::Drift | Effect::PositionDrift(_) => &["rate_um_per_min"],
             Effect::ScaleDrift(_) => &["rate_um_per_m_per_min"],
+            Effect::FollowingError => &["q_ms2"],
         }
     }
 
@@ -322,6 +355,15 @@ impl Effect {
                 );
                 for (x, t) in dd.iter_mut().zip(&path.t_s[i0..i0 + n]) {
                     *x += r * (t - t0);
+                }
+            }
+            Effect::FollowingError => {
+                // q in ms², a in mm/s²: δ = q·a·1e-6 mm.
+                let q_s2 = 1e-6 * theta[0];
+                for (qj, aj) in q.iter_mut().zip(&path.a_mm_s2[i0..i0 + n]) {
+                    for k in 0..3 {
+                        qj[k] += q_s2 * aj[k];
+                    }
                 }
             }
             Effect::Scale(a) => {
@@ -795,6 +837,14 @@ impl Candidate {
                     out[o] = (t[j] - t0) / 60.0;
                 }
             }
+            Effect::FollowingError => {
+                // Per ms²: δ = a·1e-6 mm = a·1e-3 µm along u.
+                let acc = &path.a_mm_s2[i0..i0 + n];
+                for (j, o) in rows.enumerate() {
+                    out[o] =
+                        1e-3 * (u[j][0] * acc[j][0] + u[j][1] * acc[j][1] + u[j][2] * acc[j][2]);
+                }
+            }
             Effect::Scale(a) => {
                 let k = a.index();
                 for (j, o) in rows.enumerate() {
@@ -1086,7 +1136,7 @@ mod tests {
         );
         assert_eq!(
             Effect::all().len(),
-            2 + 5 * 3 + 2 * 3 + 3 + 6 + 6 + 1 + 2 * 3
+            2 + 5 * 3 + 2 * 3 + 3 + 6 + 6 + 1 + 2 * 3 + 1
         );
     }
 
@@ -1257,6 +1307,59 @@ mod tests {
         let th = p[1].atan2(p[0]);
         let expect = 0.5e-3 * r * omega * (2.0 * th).sin() * 1e3;
         assert!((c[0] - expect).abs() < 1e-4, "{} {expect}", c[0]);
+    }
+
+    #[test]
+    fn following_error_draws_a_circle_smaller_by_q_v2_over_r() {
+        // δ = q·a with a = −ω²·p on a circle: D = R·(1 − q·ω²), the radius loss q·v²/R.
+        let (r, omega, q_ms2) = (40.0, 0.5, 500.0);
+        let path = circle(r, 1300);
+        let set = EffectSet::new(vec![Effect::FollowingError]);
+        let loss_um = 1e-3 * q_ms2 * (omega * r) * (omega * r) / r;
+        for i in [5usize, 640, 1294] {
+            let d_um = 1e3 * set.distance_mm(&path, i, &[q_ms2]);
+            assert!(
+                (1e3 * r - d_um - loss_um).abs() < 1e-3 * loss_um,
+                "sample {i}: {d_um} µm for R {r} mm less {loss_um} µm"
+            );
+        }
+        // The same through the reporting helpers: Kv 30 s⁻¹ without feed-forward is
+        // q = 1/(2·Kv²) = 555.6 ms², 15.43 µm off R 90 mm at 3000 mm/min.
+        let q = 1e6 / (2.0 * 30.0 * 30.0);
+        assert!((following_error_kv_per_s(q).unwrap() - 30.0).abs() < 1e-9);
+        assert!((radius_loss_um(q, 3000.0, 90.0) - 15.432).abs() < 1e-3);
+        assert_eq!(following_error_kv_per_s(-1.0), None);
+    }
+
+    #[test]
+    fn acceleration_is_not_differenced_across_the_gap_between_two_circles() {
+        // Two circles (R 40 and 30 mm at 0.5 rad/s) 5 s apart: every sample's acceleration is its
+        // own circle's −ω²·p near the gap, not a difference across the jump between them.
+        let (omega, n) = (0.5, 400);
+        let mut t = vec![];
+        let mut p = vec![];
+        for (k, r) in [40.0, 30.0].into_iter().enumerate() {
+            for i in 0..n {
+                let ti = i as f64 * 0.01 + k as f64 * (n as f64 * 0.01 + 5.0);
+                let th = omega * ti;
+                t.push(ti);
+                p.push([r * th.cos(), r * th.sin(), 0.0]);
+            }
+        }
+        let path = Path::new(t, p.clone(), [None; 3]);
+        // Next to the gap the differences are one-sided within each circle: the second sample
+        // from each circle's end reads about three quarters of ω²·R (the velocity at the end is
+        // a half step back), where differences across the gap read nothing of the circle.
+        for i in [n - 3, n - 2, n + 1, n + 2] {
+            let a = path.a_mm_s2[i];
+            let r = (p[i][0] * p[i][0] + p[i][1] * p[i][1]).sqrt();
+            let radial = -(a[0] * p[i][0] + a[1] * p[i][1]) / r;
+            assert!(
+                (radial - omega * omega * r).abs() < 0.3 * omega * omega * r,
+                "sample {i}: radial acceleration {radial} for {}",
+                omega * omega * r
+            );
+        }
     }
 
     #[test]

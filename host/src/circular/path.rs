@@ -105,19 +105,23 @@ pub fn parse_pitch(s: &str) -> Result<[Option<f64>; 3]> {
     Ok(out)
 }
 
-/// Central differences of `x` against `t` (one-sided at the ends; zero where time stands still).
+/// Central differences of `x` against `t`, one-sided at the ends and at a gap in time (a step
+/// over [`GAP_STEPS`] median sample periods: the path holds the data arcs of several circles, and
+/// a difference across the jump between two of them is no velocity of either); zero where time
+/// stands still or a run has a single sample.
 fn derivative(t_s: &[f64], x: &[[f64; 3]]) -> Vec<[f64; 3]> {
     let n = x.len();
+    let gap_s = GAP_STEPS * median_interval(t_s);
+    let joined = |i: usize| gap_s <= 0.0 || t_s[i + 1] - t_s[i] <= gap_s;
     let mut d = vec![[0.0; 3]; n];
     for i in 0..n {
-        let (a, b) = if n < 2 {
-            (0, 0)
-        } else if i == 0 {
-            (0, 1)
-        } else if i == n - 1 {
-            (n - 2, n - 1)
-        } else {
-            (i - 1, i + 1)
+        let back = i > 0 && joined(i - 1);
+        let ahead = i + 1 < n && joined(i);
+        let (a, b) = match (back, ahead) {
+            (true, true) => (i - 1, i + 1),
+            (true, false) => (i - 1, i),
+            (false, true) => (i, i + 1),
+            (false, false) => continue,
         };
         let dt = t_s[b] - t_s[a];
         if dt > 0.0 {
@@ -128,6 +132,11 @@ fn derivative(t_s: &[f64], x: &[[f64; 3]]) -> Vec<[f64; 3]> {
     }
     d
 }
+
+/// A step in time of more than this many median sample periods is a gap between runs of samples
+/// ([`derivative`] does not difference across it). Glitches set aside leave gaps of a few
+/// samples, across which the motion is still smooth; between circles there are seconds.
+const GAP_STEPS: f64 = 20.0;
 
 /// Median time between samples (s), the sample period of a record or path; 0 for fewer than
 /// two.

@@ -110,6 +110,9 @@
 //!                          integrated autocorrelation time; 1 = white noise). Above 2 the
 //!                          selection counted samples / noise_tau_int and every σ is
 //!                          √noise_tau_int larger than a white-noise fit's
+//! radius_loss[]            where following_error is named: {radius_mm, feed_mm_min, loss_um,
+//!                          sigma_um} for each circle at each speed it ran (a feed sweep runs
+//!                          one radius at several): the radius the loops take off it, q·v²/R
 //! harmonics_um[]           amplitude of residual harmonics 1..8 against the angle in the plane
 //!                          of the two axes with the largest travel, µm
 //! lsq_setup                {x_um, y_um, z_um, e_um}: the least-squares set-up of all samples,
@@ -237,6 +240,9 @@ pub fn summary(d: &Diagnosis) -> String {
         if f.params.len() > 1 {
             let _ = writeln!(s, "    {}", params_text(f));
         }
+        if f.effect == Effect::FollowingError {
+            let _ = writeln!(s, "    {}", radius_loss_text(d, f.value));
+        }
     }
     let named: Vec<String> = machine
         .iter()
@@ -339,6 +345,9 @@ pub fn details(d: &Diagnosis) -> String {
         );
         if f.params.len() > 1 {
             let _ = writeln!(s, "    {}", params_text(f));
+        }
+        if f.effect == crate::circular::model::Effect::FollowingError {
+            let _ = writeln!(s, "    {}", radius_loss_text(d, f.value));
         }
         if !f.effect.is_setup() && f.g_without_um.is_finite() {
             let _ = writeln!(
@@ -723,6 +732,10 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
         "residual_share": num(d.residual_share),
         "gain": num(d.gain),
         "noise_tau_int": num(d.noise_tau_int),
+        "radius_loss": d.radius_loss.iter().map(|l| json!({
+            "radius_mm": num(l.radius_mm), "feed_mm_min": num(l.feed_mm_min),
+            "loss_um": num(l.loss_um), "sigma_um": l.sigma_um.map(num),
+        })).collect::<Vec<_>>(),
         "harmonics_um": d.harmonics_um,
         "lsq_setup": {
             "x_um": num(d.lsq_setup_um[0]),
@@ -1049,4 +1062,30 @@ pub fn tolerance_verdict(diag: &Diagnosis, tol_um: f64) -> (bool, String) {
         tol_um
     );
     (pass, line)
+}
+
+/// The line under a named following error: the radius it takes off each circle at each feed the
+/// test ran (`Diagnosis::radius_loss`), and the loop gain of a loop without feed-forward that
+/// loses as much (`model::following_error_kv_per_s`).
+fn radius_loss_text(d: &Diagnosis, q_ms2: f64) -> String {
+    let losses: Vec<String> = d
+        .radius_loss
+        .iter()
+        .map(|l| {
+            format!(
+                "{} µm at R {:.3} mm, {:.0} mm/min",
+                format_estimate(l.loss_um, l.sigma_um),
+                l.radius_mm,
+                l.feed_mm_min
+            )
+        })
+        .collect();
+    let kv = match crate::circular::model::following_error_kv_per_s(q_ms2) {
+        Some(kv) => format!("as a loop without feed-forward: Kv {kv:.1} 1/s"),
+        None => "not positive: circles drawn larger, feed-forward above 100 %".into(),
+    };
+    if losses.is_empty() {
+        return kv;
+    }
+    format!("radius loss q·v²/R: {}; {kv}", losses.join(", "))
 }

@@ -237,7 +237,8 @@ pub fn distances_mm(path: &Path, effects: &[EffectValue]) -> Result<Vec<f64>> {
             | Effect::Straightness(..)
             | Effect::LateralPlay(..)
             | Effect::ScaleDrift(_)
-            | Effect::PositionDrift(_) => path_effects.push(ev.clone()),
+            | Effect::PositionDrift(_)
+            | Effect::FollowingError => path_effects.push(ev.clone()),
             Effect::Cyclic(a) => {
                 let ax: &mut AxisErrors = &mut m.axes[a.index()];
                 ax.pitch_mm = pitch(a.index())?;

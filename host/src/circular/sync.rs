@@ -125,13 +125,13 @@ pub fn least_feed_percent(plan: &Plan, sync: &Sync) -> Option<f64> {
             }
         }
         let moving_s = c.feed_out.profile.t0_s - c.feed_in.profile.end_s() - dwell;
-        if moving_s > 0.0 && length > 0.0 {
-            v.push(length / moving_s);
+        // Each circle against its own feed (a feed sweep runs circles at several).
+        let feed_mm_s = plan.circles[c.circle].feed_mm_min / 60.0;
+        if moving_s > 0.0 && length > 0.0 && feed_mm_s > 0.0 {
+            v.push(length / moving_s / feed_mm_s);
         }
     }
-    (!v.is_empty()).then(|| {
-        100.0 * v.iter().sum::<f64>() / v.len() as f64 / (sync.programmed_feed_mm_min / 60.0)
-    })
+    (!v.is_empty()).then(|| 100.0 * v.iter().sum::<f64>() / v.len() as f64)
 }
 
 /// Refuse a record whose arcs ran faster than [`MAX_OVERRIDE_PERCENT`] of the plan's feed, by

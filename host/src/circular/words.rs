@@ -126,6 +126,9 @@ pub fn cause(effect: Effect, value: f64) -> String {
             "{}: its position drifts during the test — a screw growing about its fixed bearing, or the spindle growing; warm the machine up, or check its thermal compensation",
             up(a)
         ),
+        Effect::FollowingError => {
+            "the position loops draw each circle smaller the faster it runs (following error: radius loss q·v²/R) — position-loop gain (Kv) and velocity feed-forward: servo tuning, not geometry".into()
+        }
     }
 }
 
@@ -152,6 +155,7 @@ pub fn param_label(key: &str) -> &str {
         "l_um" => "shift",
         "tau_ms" => "decay time",
         "rate_um_per_min" | "rate_um_per_m_per_min" => "rate",
+        "q_ms2" => "radius loss per v²/R",
         other => other,
     }
 }
@@ -167,6 +171,7 @@ pub fn param_unit(key: &str) -> &'static str {
         ("_um_per_m", "µm/m"),
         ("_um", "µm"),
         ("_ms", "ms"),
+        ("_ms2", "ms²"),
     ];
     SUFFIXES
         .iter()

@@ -33,9 +33,10 @@ pub struct PlanArgs {
     /// Plane of the circles: xy, yz or zx.
     #[arg(long, default_value = "xy", value_parser = parse_plane)]
     pub plane: Plane,
-    /// Feed along the path, mm/min.
-    #[arg(long, value_name = "MM_PER_MIN", value_parser = super::args::positive)]
-    pub feed: f64,
+    /// Feed along the path, mm/min. Repeat for a feed sweep: the same circles again at each feed,
+    /// in the order given, in one program (servo effects grow with feed, mechanical ones do not).
+    #[arg(long = "feed", value_name = "MM_PER_MIN", required = true, value_parser = super::args::positive)]
+    pub feeds_mm_min: Vec<f64>,
     /// Where the table ball's centre is, in the program's coordinates: X,Y,Z in mm.
     #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_centre)]
     pub centre: [f64; 3],
@@ -171,7 +172,7 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         purpose,
         circles,
         plane: args.plane,
-        feed_mm_min: args.feed,
+        feed_mm_min: args.feeds_mm_min[0],
         centre_mm: args.centre,
         dialect: args.dialect,
         start_deg: args.start_deg,
@@ -183,7 +184,8 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         reversal_dwell_s: args.reversal_dwell_s.unwrap_or(args.dwell_s),
         corner_dwell_s: args.corner_dwell_s,
         close: args.close,
-    };
+    }
+    .feed_sweep(&args.feeds_mm_min);
     let plan = if args.volumetric {
         let distances_mm = if args.distances_mm.is_empty() {
             vec![volumetric::default_distance_mm(&inst)]
@@ -316,7 +318,11 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
         },
         plan.plane.name(),
         plan.circles.len(),
-        gcode::number(plan.feed_mm_min),
+        plan.feeds_mm_min()
+            .into_iter()
+            .map(gcode::number)
+            .collect::<Vec<_>>()
+            .join(", "),
         plan.dialect.name()
     );
     let arc = &plan.arc;
@@ -377,7 +383,12 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
     if arc.is_partial() {
         // The synchronisation takes a partial arc's feed from the feed-in's cruise
         // (`circular::sync`): the feed-in must be long enough to reach the feed.
-        let v = plan.feed_mm_min / 60.0;
+        let fastest_mm_min = plan
+            .circles
+            .iter()
+            .map(|c| c.feed_mm_min)
+            .fold(plan.feed_mm_min, f64::max);
+        let v = fastest_mm_min / 60.0;
         let need = v * v / SLOW_ACCEL_MM_S2 / (1.0 - MIN_CRUISE_FRACTION);
         let feed_in = plan
             .segments
@@ -395,7 +406,7 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
         if feed_in < need {
             t += &format!(
                 "note: on a partial arc the feed is measured on the feed-in, which must reach it: at {} mm/min a machine accelerating at {SLOW_ACCEL_MM_S2} mm/s² needs a feed-in of {:.1} mm or more (--feed-in-mm), this one is {feed_in:.1} mm\n",
-                gcode::number(plan.feed_mm_min),
+                gcode::number(fastest_mm_min),
                 (need * 10.0).ceil() / 10.0
             );
         }

@@ -313,7 +313,8 @@ impl MachineErrors {
                 | Effect::Interference(_)
                 | Effect::Drift
                 | Effect::ScaleDrift(_)
-                | Effect::PositionDrift(_) => m.tuning.push(measured),
+                | Effect::PositionDrift(_)
+                | Effect::FollowingError => m.tuning.push(measured),
                 Effect::SetupOffset | Effect::LengthOffset => {}
             }
         }
@@ -552,6 +553,15 @@ fn tuning_advice(t: &Measured, c: Controller) -> Cannot {
             effect: t.text(),
             why: "D drifted during the test: the machine (or the instrument) was warming up; it is a state, not an error of an axis".into(),
             instead: "warm the machine up (run the spindle and axes for 15–30 min) and the instrument mounted for a few minutes, then test again; if it persists, the machine's thermal compensation is the place for it".into(),
+        },
+        Effect::FollowingError => Cannot {
+            effect: t.text(),
+            why: format!(
+                "the position loops draw circles smaller the faster they run (following error, q = {:.1} ms²): servo tuning, not a compensation setting of {}",
+                t.value,
+                c.name()
+            ),
+            instead: "raise the position-loop gain (Kv) or the velocity feed-forward towards 100 % in the drive, as far as the axes stay stable; a scale compensation would be wrong at every other feed".into(),
         },
         _ => Cannot {
             effect: t.text(),

@@ -39,11 +39,13 @@ pub const MAX_DWELL_S: f64 = 600.0;
 /// Most lines a move between two circles is split into to keep D in range.
 const MAX_MOVE_PIECES: usize = 64;
 
-/// One circle to run: radius and height along the plane's normal (mm).
+/// One circle to run: radius and height along the plane's normal (mm), and its own feed in a
+/// feed sweep ([`PlanSpec::feed_sweep`]; None: the plan's feed).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CircleSpec {
     pub radius_mm: f64,
     pub height_mm: f64,
+    pub feed_mm_min: Option<f64>,
 }
 
 /// What `jdbb plan` is asked for (see the module docs for each number's role).
@@ -118,6 +120,41 @@ impl PlanSpec {
         }
     }
 
+    /// The same circles run once at each of `feeds_mm_min` in turn (all circles at the first
+    /// feed, then all at the second, …): a feed sweep, which tells the servo's effects, growing
+    /// with feed (the following error, q·v²/R), from mechanical ones, which do not (a scale, a·R).
+    /// The plan's own feed becomes the first. One feed leaves the spec as it is.
+    pub fn feed_sweep(self, feeds_mm_min: &[f64]) -> PlanSpec {
+        let Some(&first) = feeds_mm_min.first() else {
+            return self;
+        };
+        if feeds_mm_min.len() == 1 {
+            return PlanSpec {
+                feed_mm_min: first,
+                ..self
+            };
+        }
+        let circles = feeds_mm_min
+            .iter()
+            .flat_map(|&f| {
+                self.circles.iter().map(move |c| CircleSpec {
+                    feed_mm_min: Some(f),
+                    ..*c
+                })
+            })
+            .collect();
+        PlanSpec {
+            circles,
+            feed_mm_min: first,
+            ..self
+        }
+    }
+
+    /// The feed of each circle (mm/min): its own in a feed sweep, else the plan's.
+    pub fn circle_feed_mm_min(&self, c: &CircleSpec) -> f64 {
+        c.feed_mm_min.unwrap_or(self.feed_mm_min)
+    }
+
     /// Whether each circle runs a partial arc (below 360°).
     pub fn is_partial(&self) -> bool {
         self.arc_deg < 360.0
@@ -132,11 +169,13 @@ impl PlanSpec {
         if self.circles.is_empty() {
             return usage("give at least one --radius (or --calibration-test)".into());
         }
-        if !(0.1..=MAX_FEED_MM_MIN).contains(&self.feed_mm_min) {
-            return usage(format!(
-                "--feed {}: the feed is 0.1 to {MAX_FEED_MM_MIN} mm/min",
-                self.feed_mm_min
-            ));
+        let feeds = self.circles.iter().map(|c| self.circle_feed_mm_min(c));
+        for feed in std::iter::once(self.feed_mm_min).chain(feeds) {
+            if !(0.1..=MAX_FEED_MM_MIN).contains(&feed) {
+                return usage(format!(
+                    "--feed {feed}: the feed is 0.1 to {MAX_FEED_MM_MIN} mm/min"
+                ));
+            }
         }
         if !(-360.0..=360.0).contains(&self.start_deg) {
             return usage(format!(
@@ -225,6 +264,7 @@ pub fn machine_test_circles(radii_mm: &[f64], heights_mm: &[f64]) -> Vec<CircleS
             radii_mm.iter().map(move |&radius_mm| CircleSpec {
                 radius_mm,
                 height_mm,
+                feed_mm_min: None,
             })
         })
         .collect()
@@ -256,6 +296,7 @@ pub fn calibration_circles(distances_mm: &[f64]) -> Vec<CircleSpec> {
             out.push(CircleSpec {
                 radius_mm: d * c,
                 height_mm: d * s,
+                feed_mm_min: None,
             });
         }
     }
@@ -285,7 +326,8 @@ pub fn plan(spec: &PlanSpec, cal: &Calibration) -> Result<Plan> {
     let inst = instrument(cal)?;
     let (i, j, n) = spec.plane.axes();
     let centre = q3(spec.centre_mm);
-    let feed = (spec.feed_mm_min * 1000.0).round() / 1000.0;
+    let round_feed = |f: f64| (f * 1000.0).round() / 1000.0;
+    let plan_feed = round_feed(spec.feed_mm_min);
     let f = spec.feed_in_mm;
     let dwell = (spec.dwell_s * 1000.0).round() / 1000.0;
     let reversal_dwell = (spec.reversal_dwell_s * 1000.0).round() / 1000.0;
@@ -298,6 +340,7 @@ pub fn plan(spec: &PlanSpec, cal: &Calibration) -> Result<Plan> {
     let mut previous_in: Option<[f64; 3]> = None;
     for (k, cs) in spec.close.order(&spec.circles).iter().enumerate() {
         let (r, h) = (q(cs.radius_mm), q(cs.height_mm));
+        let feed = round_feed(spec.circle_feed_mm_min(cs));
         check_circle(&inst, k, r, h, f + TAKE_UP_MM)?;
         let mut c = centre;
         c[n] = q(c[n] + h);
@@ -440,7 +483,7 @@ pub fn plan(spec: &PlanSpec, cal: &Calibration) -> Result<Plan> {
         units: "mm".into(),
         plane: spec.plane,
         centre_mm: centre,
-        feed_mm_min: feed,
+        feed_mm_min: plan_feed,
         instrument: inst,
         start_mm,
         arc: circle_arc(spec),

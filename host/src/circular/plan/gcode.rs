@@ -129,10 +129,11 @@ pub fn write_program(plan: &Plan, dialect: Dialect) -> String {
             plan.plane.name()
         )
     };
+    let feeds: Vec<String> = plan.feeds_mm_min().into_iter().map(number).collect();
     o.comment(&format!(
         "jdbb plan, {}: {what}, feed {} mm/min",
         plan.purpose.name(),
-        number(plan.feed_mm_min)
+        feeds.join(", ")
     ));
     o.comment(&format!(
         "table ball centre {} mm in these coordinates",

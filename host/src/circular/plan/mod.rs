@@ -666,6 +666,21 @@ pub struct Plan {
 }
 
 impl Plan {
+    /// The feeds the circles run at (mm/min), each once in the order first run: one, or the
+    /// feeds of a feed sweep; the plan's feed for a plan without circles.
+    pub fn feeds_mm_min(&self) -> Vec<f64> {
+        let mut feeds: Vec<f64> = vec![];
+        for c in &self.circles {
+            if !feeds.contains(&c.feed_mm_min) {
+                feeds.push(c.feed_mm_min);
+            }
+        }
+        if feeds.is_empty() {
+            feeds.push(self.feed_mm_min);
+        }
+        feeds
+    }
+
     /// Read a plan.json. Malformed JSON, another format or version, or segments that do not
     /// chain are bad input (exit 2) naming `file:line:col` where known.
     pub fn read(path: &Path) -> Result<Plan> {
