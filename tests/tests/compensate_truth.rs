@@ -792,7 +792,10 @@ fn steps_setting(controller: Controller, lines: &[String], k: usize) -> f64 {
             .position(|l| *l == format!("[stepper_{}]", letter.to_ascii_lowercase()))
             .and_then(|i| lines.get(i + 1))
             .and_then(|l| l.strip_prefix("rotation_distance:")),
-        Controller::LinuxCnc => None,
+        Controller::LinuxCnc
+        | Controller::Fanuc
+        | Controller::Sinumerik
+        | Controller::Heidenhain => None,
     };
     found
         .unwrap_or_else(|| panic!("{controller:?}: no setting for axis {letter} in {lines:?}"))
@@ -881,6 +884,7 @@ fn the_steps_settings_cancel_the_screws_lead_errors() {
 /// The values in force as the lines [`steps_setting`] reads (Marlin's `M92` as given).
 fn in_force_lines(text: &str) -> Vec<String> {
     text.lines().map(str::to_string).collect()
+}
 
 /// `compensate` for `controller` with the values in force `current` (the text of the file a
 /// service engineer has at hand) and the table ball's machine coordinates.

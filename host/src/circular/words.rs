@@ -163,7 +163,7 @@ pub fn param_label(key: &str) -> &str {
 /// The unit of a parameter for people, from its JSON key's suffix (`tau_ms` → `ms`, `h_um` →
 /// `µm`, `a_um_per_m` → `µm/m`); empty for a key without one.
 pub fn param_unit(key: &str) -> &'static str {
-    const SUFFIXES: [(&str, &str); 7] = [
+    const SUFFIXES: [(&str, &str); 8] = [
         ("_um_per_m_per_min", "µm/m per min"),
         ("_um_per_mm_s", "µm/(mm/s)"),
         ("_um_per_m2", "µm/m²"),

@@ -70,6 +70,7 @@ fn elements(spec: &VolumetricSpec) -> Vec<PlanSpec> {
         cones.extend(heights.into_iter().map(|h| CircleSpec {
             radius_mm: (d * d - h * h).max(0.0).sqrt(),
             height_mm: h,
+            feed_mm_min: None,
         }));
     }
     let arcs: Vec<CircleSpec> = spec
@@ -78,6 +79,7 @@ fn elements(spec: &VolumetricSpec) -> Vec<PlanSpec> {
         .map(|&d| CircleSpec {
             radius_mm: d,
             height_mm: 0.0,
+            feed_mm_min: None,
         })
         .collect();
     let base = PlanSpec {
@@ -420,6 +422,7 @@ mod tests {
             .map(|&h| CircleSpec {
                 radius_mm: (90.0f64 * 90.0 - h * h).sqrt(),
                 height_mm: h,
+                feed_mm_min: None,
             })
             .collect();
         let p = build::plan(&s, &Calibration::DEFAULT).unwrap();
