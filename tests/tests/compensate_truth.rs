@@ -39,6 +39,21 @@ fn make_plan(radii: &[f64]) -> Plan {
     plan(&spec, &Calibration::DEFAULT).unwrap()
 }
 
+/// [`make_plan`]'s circles at 1000 and then 2000 mm/min: a feed sweep, which tells the
+/// isotropic scale from the position loops' following error (two radii at one feed cannot).
+fn make_sweep_plan(radii: &[f64]) -> Plan {
+    let spec = PlanSpec::machine_test(
+        radii,
+        &[0.0],
+        Plane::Xy,
+        1000.0,
+        BALL,
+        PlanDialect::Linuxcnc,
+    )
+    .feed_sweep(&[1000.0, 2000.0]);
+    plan(&spec, &Calibration::DEFAULT).unwrap()
+}
+
 /// Run `plan` on the G-code machine with `errors` (250 Hz, 0.2 µm noise, feed override, a clock
 /// off by tens of ppm), synchronise from D and diagnose with `pitch`; the diagnosis as
 /// `compensate` reads it from its file.
@@ -161,16 +176,7 @@ fn linuxcnc_comp_table_cancels_a_cyclic_error_where_it_is() {
 /// program origin, or the slope's sign flipped, leave tens of µm.
 #[test]
 fn linuxcnc_comp_table_cancels_a_lead_error_about_another_origin() {
-    let spec = PlanSpec::machine_test(
-        &[95.0, 85.0],
-        &[0.0],
-        Plane::Xy,
-        1000.0,
-        BALL,
-        PlanDialect::Linuxcnc,
-    )
-    .feed_sweep(&[1000.0, 2000.0]);
-    let p = plan(&spec, &Calibration::DEFAULT).unwrap();
+    let p = make_sweep_plan(&[95.0, 85.0]);
     let (b, origin) = (1500.0, BALL[0] - 50.0);
     let mut errors = MachineErrors::default();
     errors.scale2[0] = Scale2 {
@@ -827,7 +833,7 @@ fn scale_left_um_per_m(controller: Controller, a_um_per_m: f64, old: f64, new: f
 /// 2 % of each scale, and the same change with its sign flipped about twice the scale.
 #[test]
 fn the_steps_settings_cancel_the_screws_lead_errors() {
-    let p = make_plan(&[95.0, 85.0]);
+    let p = make_sweep_plan(&[95.0, 85.0]);
     let a = [70.0, -45.0];
     let errors = MachineErrors {
         scale_um_per_m: [a[0], a[1], 0.0],
@@ -1004,7 +1010,7 @@ fn industrial_backlash_settings_take_up_the_play_in_the_controls_units() {
 /// for Fanuc's integers), and about twice it with the table's sign flipped.
 #[test]
 fn industrial_position_tables_cancel_a_lead_error_from_the_reference_point() {
-    let p = make_plan(&[95.0, 85.0]);
+    let p = make_sweep_plan(&[95.0, 85.0]);
     let (b, origin) = (1500.0, BALL[0] - 50.0);
     let mut errors = MachineErrors::default();
     errors.scale2[0] = Scale2 {
