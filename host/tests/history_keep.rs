@@ -144,6 +144,17 @@ fn recorded_test(dir: &Path) {
     std::fs::write(dir.join("diag.json"), json).unwrap();
 }
 
+/// `history add` of [`recorded_test`]'s diagnosis, keeping its record and plan.
+const KEEP: &[&str] = &[
+    "add",
+    "--diagnosis",
+    "diag.json",
+    "--keep-record",
+    "rec.csv",
+    "--plan",
+    "plan/plan.json",
+];
+
 /// The rows of `history rerun`'s table (after its heading): (effect, difference).
 fn differences(out: &str) -> Vec<(String, String)> {
     out.lines()
@@ -163,19 +174,7 @@ fn keep_rerun_damage_remove(b: &Backend) {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     recorded_test(d);
-    let added = ok(
-        d,
-        b,
-        &[
-            "add",
-            "--diagnosis",
-            "diag.json",
-            "--keep-record",
-            "rec.csv",
-            "--plan",
-            "plan/plan.json",
-        ],
-    );
+    let added = ok(d, b, KEEP);
     assert!(added.contains("kept with run 1: rec.csv ("), "{added}");
     assert_eq!(
         b.count("SELECT COUNT(*) FROM kept_files WHERE run_id = 1"),
@@ -245,19 +244,7 @@ fn old_history_gains_the_table(dir: &Path, b: &Backend) {
         "{}",
         stderr(&o)
     );
-    let added = ok(
-        dir,
-        b,
-        &[
-            "add",
-            "--diagnosis",
-            "diag.json",
-            "--keep-record",
-            "rec.csv",
-            "--plan",
-            "plan/plan.json",
-        ],
-    );
+    let added = ok(dir, b, KEEP);
     assert!(added.contains("nothing added"), "{added}");
     assert!(added.contains("kept with run 1"), "{added}");
     let out = ok(dir, b, &["rerun", "--run", "1"]);
@@ -303,4 +290,35 @@ fn an_old_history_without_kept_records_opens_and_gains_them() {
     }
     old_history_gains_the_table(d, &server);
     assert_eq!(server.count("SELECT version FROM jdbb_schema"), 5);
+}
+
+#[test]
+fn a_station_migrated_to_the_server_brings_its_kept_records() {
+    let Some(cluster) = pg::cluster() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    recorded_test(d);
+    let file = Backend::File(d.join("station.sqlite"));
+    ok(d, &file, KEEP);
+    let (name, url) = cluster.database();
+    let server = Backend::Server { cluster, name, url };
+    let o = jdbb_in(
+        d,
+        &[
+            "history",
+            "migrate",
+            "--from",
+            "station.sqlite",
+            "--to",
+            &server.db(),
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(server.count("SELECT COUNT(*) FROM kept_files"), 2);
+    let out = ok(d, &server, &["rerun", "--run", "1"]);
+    let rows = differences(&out);
+    assert!(
+        !rows.is_empty() && rows.iter().all(|(_, d)| d == "+0.00 σ"),
+        "{out}"
+    );
 }

@@ -12,7 +12,8 @@
 //!   flip too, but the kept record is the evidence behind a run's results, and SHA-256 also
 //!   shows that nobody changed it on purpose.
 //! - A kept file goes in the same transaction as its run; it leaves with the run
-//!   (`history remove`).
+//!   (`history remove`) and moves with it (`history migrate`, its SHA-256 part of the run's
+//!   checksum there).
 //!
 //! May use: flate2, sha2.
 use std::io::{Read, Write};

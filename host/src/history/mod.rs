@@ -422,30 +422,10 @@ impl Store for History {
                 |r| r.get(0),
             )
             .map_err(self.db())?;
-        let mut st = self
-            .conn
-            .prepare(
-                "SELECT role, name, size_bytes, sha256, gzip FROM kept_files WHERE run_id = ?1
-                 ORDER BY role = 'plan', role",
-            )
-            .map_err(self.db())?;
-        let files = st
-            .query_map(params![run_id], |r| {
-                Ok(keep::KeptFile {
-                    role: r.get(0)?,
-                    name: r.get(1)?,
-                    size_bytes: r.get(2)?,
-                    sha256: r.get(3)?,
-                    gzip: r.get(4)?,
-                })
-            })
-            .map_err(self.db())?
-            .collect::<rusqlite::Result<Vec<_>>>()
-            .map_err(self.db())?;
         Ok(keep::Kept {
             run,
             diagnosis,
-            files,
+            files: self.kept_files(run_id)?,
         })
     }
     fn export(&mut self) -> Result<Export> {
@@ -497,6 +477,7 @@ impl Store for History {
                     .find(|r| r.id == run_id)
                     .map(|r| r.effects.clone())
                     .unwrap_or_default();
+                run.kept = self.kept_files(run_id)?;
                 filed.push((run_id, run));
             }
             for c in History::compensations(self, &machine)? {
@@ -1019,6 +1000,31 @@ impl History {
             )
             .map_err(self.db())?;
         Ok(run.date_utc)
+    }
+
+    /// The files run `run_id` keeps, the record first.
+    fn kept_files(&self, run_id: i64) -> Result<Vec<keep::KeptFile>> {
+        let mut st = self
+            .conn
+            .prepare(
+                "SELECT role, name, size_bytes, sha256, gzip FROM kept_files WHERE run_id = ?1
+                 ORDER BY role = 'plan', role",
+            )
+            .map_err(self.db())?;
+        let files = st
+            .query_map(params![run_id], |r| {
+                Ok(keep::KeptFile {
+                    role: r.get(0)?,
+                    name: r.get(1)?,
+                    size_bytes: r.get(2)?,
+                    sha256: r.get(3)?,
+                    gzip: r.get(4)?,
+                })
+            })
+            .map_err(self.db())?
+            .collect::<rusqlite::Result<Vec<_>>>()
+            .map_err(self.db())?;
+        Ok(files)
     }
 
     /// Run `run_id` of `machine`; a run of another machine or none is a usage error.

@@ -254,6 +254,27 @@ impl PgHistory {
         tx.commit().map_err(err)
     }
 
+    /// The files run `run_id` keeps, the record first.
+    fn kept_files(&mut self, run_id: i64) -> Result<Vec<super::keep::KeptFile>> {
+        Ok(self
+            .client
+            .query(
+                "SELECT role, name, size_bytes, sha256, gzip FROM kept_files WHERE run_id = $1
+                 ORDER BY role = 'plan', role",
+                &[&run_id],
+            )
+            .map_err(self.err())?
+            .iter()
+            .map(|r| super::keep::KeptFile {
+                role: r.get(0),
+                name: r.get(1),
+                size_bytes: r.get(2),
+                sha256: r.get(3),
+                gzip: r.get(4),
+            })
+            .collect())
+    }
+
     /// The id of `machine`; an unknown machine is a usage error naming the known ones.
     fn machine_id(&mut self, machine: &str) -> Result<i64> {
         let row = self
@@ -570,27 +591,10 @@ impl Store for PgHistory {
             .query_one("SELECT diagnosis FROM runs WHERE id = $1", &[&run_id])
             .map_err(self.err())?
             .get(0);
-        let files = self
-            .client
-            .query(
-                "SELECT role, name, size_bytes, sha256, gzip FROM kept_files WHERE run_id = $1
-                 ORDER BY role = 'plan', role",
-                &[&run_id],
-            )
-            .map_err(self.err())?
-            .iter()
-            .map(|r| super::keep::KeptFile {
-                role: r.get(0),
-                name: r.get(1),
-                size_bytes: r.get(2),
-                sha256: r.get(3),
-                gzip: r.get(4),
-            })
-            .collect();
         Ok(super::keep::Kept {
             run,
             diagnosis,
-            files,
+            files: self.kept_files(run_id)?,
         })
     }
 
@@ -612,6 +616,7 @@ impl Store for PgHistory {
             let runs = self.runs(&machine)?;
             for r in rows {
                 let run_id: i64 = r.get(0);
+                let kept = self.kept_files(run_id)?;
                 filed.push((
                     run_id,
                     NewRun {
@@ -635,7 +640,7 @@ impl Store for PgHistory {
                             .find(|run| run.id == run_id)
                             .map(|run| run.effects.clone())
                             .unwrap_or_default(),
-                        kept: vec![],
+                        kept,
                     },
                 ));
             }
