@@ -162,7 +162,8 @@ fn differences(out: &str) -> Vec<(String, String)> {
         .skip(1)
         .map(|l| {
             let name = l.split_whitespace().next().unwrap().to_string();
-            let diff = l.rsplit("  ").next().unwrap().trim().to_string();
+            let words: Vec<&str> = l.split_whitespace().collect();
+            let diff = words[words.len().saturating_sub(2)..].join(" ");
             (name, diff)
         })
         .collect()
@@ -321,4 +322,58 @@ fn a_station_migrated_to_the_server_brings_its_kept_records() {
         !rows.is_empty() && rows.iter().all(|(_, d)| d == "+0.00 σ"),
         "{out}"
     );
+}
+
+#[test]
+fn a_kept_samples_file_without_a_plan_reruns_as_diagnose_samples() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let simulated = [
+        "simulate",
+        "--radius",
+        "60",
+        "--rate",
+        "100",
+        "--seed",
+        "5",
+        "--pitch",
+        "x=10",
+        "--effect",
+        "backlash_x=6",
+        "--effect",
+        "cyclic_x=1.5,0",
+        "-o",
+        "s.csv",
+    ];
+    ok_in(d, &simulated);
+    let json = ok_in(
+        d,
+        &[
+            "diagnose",
+            "--samples",
+            "s.csv",
+            "--pitch",
+            "x=10",
+            "--machine",
+            "lathe",
+            "--json",
+        ],
+    );
+    std::fs::write(d.join("s.json"), json).unwrap();
+    let file = Backend::File(d.join("h.sqlite"));
+    let added = ok(
+        d,
+        &file,
+        &["add", "--diagnosis", "s.json", "--keep-record", "s.csv"],
+    );
+    assert!(added.contains("kept with run 1: s.csv ("), "{added}");
+    let out = ok(d, &file, &["rerun", "--run", "1"]);
+    assert!(
+        out.contains("from its kept s.csv (SHA-256 checked)"),
+        "{out}"
+    );
+    let rows = differences(&out);
+    // The pitch the run was diagnosed with is the re-run's: the cyclic error is named again.
+    assert!(rows.iter().any(|(n, _)| n == "cyclic_x"), "{out}");
+    assert!(rows.iter().all(|(_, d)| d == "+0.00 σ"), "{out}");
 }
