@@ -294,6 +294,30 @@ fn profile_pitch(
     Ok((!moving.is_empty()).then(|| moving.join(",")))
 }
 
+/// The diagnosis of a `--samples` file: the one path of `diagnose --samples` and `history rerun`.
+pub fn diagnose_samples(
+    samples: &std::path::Path,
+    pitch: [Option<f64>; 3],
+) -> Result<crate::circular::diagnose::Diagnosis> {
+    let (path, d) = read_samples(samples, pitch)?;
+    diagnose(&path, &d, &Options::default())
+}
+
+/// The diagnosis of a `--record` file synchronised with its `--plan`: the one path of
+/// `diagnose --record --plan` and `history rerun`.
+pub fn diagnose_planned(
+    record: &std::path::Path,
+    plan_file: &std::path::Path,
+    pitch: [Option<f64>; 3],
+) -> Result<(Plan, Record, crate::circular::planned::Planned)> {
+    let plan = Plan::read(plan_file)?;
+    crate::volumetric::refuse_diagnosis(&plan, plan_file)?;
+    let rec = Record::read(record)?;
+    check_plan_id(&rec, &plan, plan_file)?;
+    let done = diagnose_record(&plan, &rec, pitch, &Options::default())?;
+    Ok((plan, rec, done))
+}
+
 /// Run `jdbb diagnose`.
 pub fn run(args: &DiagnoseArgs) -> Result<()> {
     let filled;
@@ -331,16 +355,9 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     // What `--record --path` set aside (glitches), said before the diagnosis.
     let mut path_note: Option<String> = None;
     let diag = match (&args.samples, &args.record, &args.path, &args.plan) {
-        (Some(samples), _, _, _) => {
-            let (path, d) = read_samples(samples, pitch)?;
-            diagnose(&path, &d, &Options::default())?
-        }
+        (Some(samples), _, _, _) => diagnose_samples(samples, pitch)?,
         (None, Some(record), None, Some(plan_file)) => {
-            let plan = Plan::read(plan_file)?;
-            crate::volumetric::refuse_diagnosis(&plan, plan_file)?;
-            let rec = Record::read(record)?;
-            check_plan_id(&rec, &plan, plan_file)?;
-            let done = diagnose_record(&plan, &rec, pitch, &Options::default())?;
+            let (plan, rec, done) = diagnose_planned(record, plan_file, pitch)?;
             let set_aside = (rec.set_aside_note(Some(&done.sync)), set_aside_json(&rec));
             synced = Some((plan_file, plan, done.sync, set_aside));
             done.diagnosis

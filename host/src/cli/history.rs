@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use super::output::print;
 use crate::circular::document::DiagnosisDoc;
+use crate::history::keep::{self, Kept, KeptFile};
 use crate::history::{effect_order, printable, trend};
 use crate::units::{format_to, human};
 use crate::Result;
@@ -36,6 +37,26 @@ pub enum HistoryCommand {
         /// Date of the test (YYYY-MM-DD or RFC 3339), if not the one in the file.
         #[arg(long, value_parser = crate::dates::parse_date)]
         date: Option<String>,
+        /// Keep the raw record the diagnosis was made from with the run (compressed,
+        /// checksummed), so that `history rerun` can diagnose it again with a newer jdbb: the
+        /// `jdbb record` file (with --plan), or the `--samples` CSV.
+        #[arg(long, value_name = "REC.csv")]
+        keep_record: Option<PathBuf>,
+        /// With --keep-record: the plan.json the record was diagnosed with (`diagnose --record
+        /// --plan`), kept too.
+        #[arg(long, value_name = "PLAN.json", requires = "keep_record")]
+        plan: Option<PathBuf>,
+    },
+    /// Diagnose a run's kept record (`add --keep-record`) again with this jdbb, its checksum
+    /// checked first, and print each effect's stored value beside the new one (value, σ,
+    /// difference in σ).
+    Rerun {
+        /// The run's machine (default: the one holding run --run).
+        #[arg(long)]
+        machine: Option<String>,
+        /// The run's number, as `history list --machine NAME` shows it.
+        #[arg(long)]
+        run: i64,
     },
     /// The runs of a machine (or, without --machine, the machines).
     List {
@@ -129,6 +150,86 @@ pub enum HistoryCommand {
     },
 }
 
+/// The machine holding run `run_id` of the history `h`; none is a usage error.
+fn machine_of_run(h: &mut dyn crate::history::Store, run_id: i64) -> Result<String> {
+    for (machine, _) in h.machines()? {
+        if h.runs(&machine)?.iter().any(|r| r.id == run_id) {
+            return Ok(machine);
+        }
+    }
+    Err(crate::Error::Usage(format!(
+        "no run {run_id} in the history {}: see `jdbb history list --machine NAME`",
+        h.location()
+    )))
+}
+
+/// Restore the kept files of `kept` (run of `machine` in the history at `location`) to a
+/// temporary directory, checked; diagnose them again as `jdbb diagnose` would (`--record
+/// --plan`, or `--samples`) with the pitches the run was diagnosed with; and say each effect's
+/// stored value beside the new one.
+fn rerun(kept: &Kept, machine: &str, location: &str) -> Result<String> {
+    let id = kept.run.id;
+    let Some(record) = kept.files.iter().find(|f| f.role == keep::RECORD) else {
+        return Err(crate::Error::Usage(format!(
+            "run {id} of {} kept no record: nothing to diagnose again (`jdbb history add --keep-record REC.csv` keeps one)",
+            printable(machine)
+        )));
+    };
+    let plan = kept.files.iter().find(|f| f.role == keep::PLAN);
+    let dir = tempfile::Builder::new()
+        .prefix("jdbb-rerun-")
+        .tempdir()
+        .map_err(|source| crate::Error::File {
+            action: "cannot create a temporary directory for",
+            path: std::env::temp_dir(),
+            source,
+        })?;
+    let restore = |f: &KeptFile, sub: &str| -> Result<PathBuf> {
+        let bytes = f.unpack(id, location)?;
+        let sub = dir.path().join(sub);
+        std::fs::create_dir_all(&sub).map_err(|source| crate::Error::File {
+            action: "cannot create",
+            path: sub.clone(),
+            source,
+        })?;
+        let path = sub.join(f.base_name());
+        crate::fsio::write_file(&path, &bytes, false)?;
+        Ok(path)
+    };
+    let record_path = restore(record, "record")?;
+    let plan_path = plan.map(|p| restore(p, "plan")).transpose()?;
+    let stored = DiagnosisDoc::parse(std::path::Path::new(location), &kept.diagnosis)?;
+    let pitch = crate::circular::model::Axis::ALL.map(|a| stored.pitch_mm(a));
+    let diag = match &plan_path {
+        Some(p) => {
+            super::diagnose::diagnose_planned(&record_path, p, pitch)?
+                .2
+                .diagnosis
+        }
+        None => super::diagnose::diagnose_samples(&record_path, pitch)?,
+    };
+    let now: DiagnosisDoc = serde_json::from_value(crate::circular::report::to_json(&diag))
+        .map_err(|e| {
+            crate::Error::Numerics(format!(
+                "the new diagnosis does not read back as a document ({e}); this is a bug, please report it"
+            ))
+        })?;
+    let mut s = format!(
+        "run {id} of {} ({}) diagnosed again with jdbb {} from its kept {}{} (SHA-256 checked)\n",
+        printable(machine),
+        kept.run.date_utc,
+        env!("CARGO_PKG_VERSION"),
+        printable(&record.name),
+        plan.map(|p| format!(" and {}", printable(&p.name)))
+            .unwrap_or_default()
+    );
+    s.push_str(&keep::compare(
+        &kept.run.effects,
+        &crate::history::effect_rows(&now),
+    ));
+    Ok(s)
+}
+
 /// Run `jdbb history`.
 pub fn run(args: &HistoryArgs) -> Result<()> {
     if let Some(f) = &args.machine_profile {
@@ -143,8 +244,19 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             machine,
             diagnosis,
             date,
+            keep_record,
+            plan,
         } => {
             let (doc, text) = DiagnosisDoc::read(diagnosis)?;
+            // Read (and packed) before anything is filed: a record that cannot be read files
+            // nothing.
+            let mut kept = vec![];
+            if let Some(f) = keep_record {
+                kept.push(KeptFile::read(keep::RECORD, f)?);
+            }
+            if let Some(f) = plan {
+                kept.push(KeptFile::read(keep::PLAN, f)?);
+            }
             let machine = match (machine, doc.machine.as_deref()) {
                 (Some(m), _) => m.clone(),
                 (None, Some(named)) => named.to_string(),
@@ -163,14 +275,16 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
                 )));
             }
             let mut h = crate::history::open(&db, false)?;
-            let added = h.add(
+            let mut run = crate::history::NewRun::of(
                 machine,
                 &doc,
                 &text,
                 &diagnosis.display().to_string(),
                 date.clone(),
             )?;
-            let text = if added.new {
+            run.kept = kept;
+            let added = h.store_run(&run)?;
+            let mut text = if added.new {
                 format!(
                     "added run {} of {machine} ({}{}) to {}\n",
                     added.run_id,
@@ -193,7 +307,43 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
                     added.date_utc
                 )
             };
+            if !run.kept.is_empty() {
+                let files: Vec<String> = run
+                    .kept
+                    .iter()
+                    .map(|f| {
+                        format!(
+                            "{} ({} bytes, {} gzip)",
+                            printable(&f.name),
+                            f.size_bytes,
+                            f.gzip.len()
+                        )
+                    })
+                    .collect();
+                let _ = writeln!(
+                    text,
+                    "{} with run {}: {}",
+                    if added.kept == run.kept.len() {
+                        "kept"
+                    } else if added.kept == 0 {
+                        "already kept (the files it has stay; nothing kept)"
+                    } else {
+                        "kept what it lacked"
+                    },
+                    added.run_id,
+                    files.join(", ")
+                );
+            }
             print(&text)
+        }
+        HistoryCommand::Rerun { machine, run } => {
+            let mut h = crate::history::open(&db, true)?;
+            let machine = match machine {
+                Some(m) => m.clone(),
+                None => machine_of_run(h.as_mut(), *run)?,
+            };
+            let kept = h.kept(&machine, *run)?;
+            print(&rerun(&kept, &machine, &h.location())?)
         }
         HistoryCommand::List { machine: None } => {
             let mut h = crate::history::open(&db, true)?;

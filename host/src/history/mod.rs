@@ -25,6 +25,8 @@
 //!   --compensation`, column `runs.compensation`), and `jdbb history comp` files a change on its
 //!   own (table `compensations`: date, text, source; migration 4). The trend marks both
 //!   ([`trend::compensation_marks`]) and fits its slope only after the last mark.
+//! - Raw records kept with their runs (`history add --keep-record`, table `kept_files`, migration
+//!   5): gzip-compressed and checksummed ([`keep`]), restored and re-diagnosed by `history rerun`.
 //!
 //! May use: [`crate::circular::document`] (the diagnosis file), rusqlite, plotters.
 use std::path::{Path, PathBuf};
@@ -37,6 +39,7 @@ use crate::circular::document::{upgraded_text, DiagnosisDoc};
 use crate::{Error, Result};
 
 pub mod fleet;
+pub mod keep;
 pub mod pg;
 pub mod schema;
 pub mod trend;
@@ -194,6 +197,9 @@ pub struct Added {
     pub date_utc: String,
     /// Whether that date came from the file (false: the time of adding, or `--date`).
     pub date_from_file: bool,
+    /// How many of the run's [`NewRun::kept`] files were kept now (a run already filed keeps
+    /// the files it has).
+    pub kept: usize,
 }
 
 /// A history back end (a SQLite file, a PostgreSQL server): what each `jdbb history` command
@@ -220,10 +226,14 @@ pub trait Store {
         text: &str,
         source: Option<&str>,
     ) -> Result<i64>;
-    /// Take run `run_id` of `machine` out of the history; returns it as it was.
+    /// Take run `run_id` of `machine` out of the history, with its kept files; returns it as
+    /// it was.
     fn remove_run(&mut self, machine: &str, run_id: i64) -> Result<Run>;
     /// File run `run_id` of `machine` under `date_utc` instead; returns the date it had.
     fn set_date(&mut self, machine: &str, run_id: i64, date_utc: &str) -> Result<String>;
+    /// Run `run_id` of `machine` with its diagnosis file and kept files (none: it kept no
+    /// record), for `history rerun`.
+    fn kept(&mut self, machine: &str, run_id: i64) -> Result<keep::Kept>;
 
     /// Every run as filed (its digest, date and diagnosis as they are) and every compensation
     /// change with its machine's name: what `history migrate` copies and checks.
@@ -402,6 +412,22 @@ impl Store for History {
     fn set_date(&mut self, machine: &str, run_id: i64, date_utc: &str) -> Result<String> {
         History::set_date(self, machine, run_id, date_utc)
     }
+    fn kept(&mut self, machine: &str, run_id: i64) -> Result<keep::Kept> {
+        let run = self.run_of(machine, run_id)?;
+        let diagnosis: String = self
+            .conn
+            .query_row(
+                "SELECT diagnosis FROM runs WHERE id = ?1",
+                params![run_id],
+                |r| r.get(0),
+            )
+            .map_err(self.db())?;
+        Ok(keep::Kept {
+            run,
+            diagnosis,
+            files: self.kept_files(run_id)?,
+        })
+    }
     fn export(&mut self) -> Result<Export> {
         let mut out = Export::default();
         // Runs in the order they were filed (by id), so that a new history numbers them alike.
@@ -437,6 +463,7 @@ impl Store for History {
                             jdbb_version: r.get(12)?,
                             compensation: r.get(13)?,
                             effects: vec![],
+                            kept: vec![],
                         },
                     ))
                 })
@@ -450,6 +477,7 @@ impl Store for History {
                     .find(|r| r.id == run_id)
                     .map(|r| r.effects.clone())
                     .unwrap_or_default();
+                run.kept = self.kept_files(run_id)?;
                 filed.push((run_id, run));
             }
             for c in History::compensations(self, &machine)? {
@@ -576,6 +604,8 @@ pub struct NewRun {
     pub jdbb_version: Option<String>,
     pub compensation: Option<String>,
     pub effects: Vec<EffectRow>,
+    /// Files kept with the run (`history add --keep-record`): the record, and its plan.
+    pub kept: Vec<keep::KeptFile>,
 }
 
 impl NewRun {
@@ -628,17 +658,22 @@ impl NewRun {
             diagnosis: upgraded_text(text).unwrap_or_else(|| text.to_string()),
             jdbb_version: Some(env!("CARGO_PKG_VERSION").to_string()),
             compensation: doc.compensation.as_ref().map(|c| c.text.clone()),
-            effects: doc
-                .machine_effects()
-                .map(|(e, _)| EffectRow {
-                    name: e.name.clone(),
-                    value: e.value,
-                    sigma: e.sigma,
-                    unit: e.unit.clone(),
-                })
-                .collect(),
+            effects: effect_rows(doc),
+            kept: vec![],
         })
     }
+}
+
+/// The machine effects of `doc` as the history files them, in the diagnosis' order.
+pub fn effect_rows(doc: &DiagnosisDoc) -> Vec<EffectRow> {
+    doc.machine_effects()
+        .map(|(e, _)| EffectRow {
+            name: e.name.clone(),
+            value: e.value,
+            sigma: e.sigma,
+            unit: e.unit.clone(),
+        })
+        .collect()
 }
 
 /// The error for a machine the history at `location` does not hold, naming the `known` ones.
@@ -860,11 +895,15 @@ impl History {
             .optional()
             .map_err(&db)?
         {
+            // Filed before: it keeps the files it has, and gains those it lacks.
+            let kept = Self::keep_files(&tx, id, &run.kept).map_err(&db)?;
+            tx.commit().map_err(&db)?;
             return Ok(Added {
                 run_id: id,
                 new: false,
                 date_utc: d,
                 date_from_file: run.date_from_file,
+                kept,
             });
         }
         tx.execute(
@@ -898,13 +937,33 @@ impl History {
             )
             .map_err(&db)?;
         }
+        let kept = Self::keep_files(&tx, run_id, &run.kept).map_err(&db)?;
         tx.commit().map_err(&db)?;
         Ok(Added {
             run_id,
             new: true,
             date_utc: run.date_utc.clone(),
             date_from_file: run.date_from_file,
+            kept,
         })
+    }
+
+    /// Keep `files` with run `run_id` in `tx`, but not a role the run already keeps; returns
+    /// how many were kept.
+    fn keep_files(
+        tx: &rusqlite::Transaction,
+        run_id: i64,
+        files: &[keep::KeptFile],
+    ) -> rusqlite::Result<usize> {
+        let mut n = 0;
+        for f in files {
+            n += tx.execute(
+                "INSERT OR IGNORE INTO kept_files (run_id, role, name, size_bytes, sha256, gzip)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+                params![run_id, f.role, f.name, f.size_bytes, f.sha256, f.gzip],
+            )?;
+        }
+        Ok(n)
     }
 
     /// Take run `run_id` of `machine` out of the history (with its effects); returns it as it
@@ -921,6 +980,8 @@ impl History {
             .transaction_with_behavior(TransactionBehavior::Immediate)
             .map_err(&db)?;
         tx.execute("DELETE FROM effects WHERE run_id = ?1", params![run_id])
+            .map_err(&db)?;
+        tx.execute("DELETE FROM kept_files WHERE run_id = ?1", params![run_id])
             .map_err(&db)?;
         tx.execute("DELETE FROM runs WHERE id = ?1", params![run_id])
             .map_err(&db)?;
@@ -939,6 +1000,31 @@ impl History {
             )
             .map_err(self.db())?;
         Ok(run.date_utc)
+    }
+
+    /// The files run `run_id` keeps, the record first.
+    fn kept_files(&self, run_id: i64) -> Result<Vec<keep::KeptFile>> {
+        let mut st = self
+            .conn
+            .prepare(
+                "SELECT role, name, size_bytes, sha256, gzip FROM kept_files WHERE run_id = ?1
+                 ORDER BY role = 'plan', role",
+            )
+            .map_err(self.db())?;
+        let files = st
+            .query_map(params![run_id], |r| {
+                Ok(keep::KeptFile {
+                    role: r.get(0)?,
+                    name: r.get(1)?,
+                    size_bytes: r.get(2)?,
+                    sha256: r.get(3)?,
+                    gzip: r.get(4)?,
+                })
+            })
+            .map_err(self.db())?
+            .collect::<rusqlite::Result<Vec<_>>>()
+            .map_err(self.db())?;
+        Ok(files)
     }
 
     /// Run `run_id` of `machine`; a run of another machine or none is a usage error.

@@ -65,7 +65,8 @@ pub fn redact(url: &str) -> String {
     out
 }
 
-/// The tables of a jdbb history on a server, created at once (schema version [`schema::latest`]).
+/// The tables of a new jdbb history on a server (schema version 4, the first on a server),
+/// brought up to date by [`MIGRATIONS`].
 const SCHEMA: &str = "
 CREATE TABLE jdbb_schema (application_id BIGINT NOT NULL, version BIGINT NOT NULL);
 CREATE TABLE machines (
@@ -112,6 +113,36 @@ CREATE TABLE compensations (
 );
 CREATE INDEX compensations_by_machine_date ON compensations (machine_id, date_utc);
 ";
+
+/// The schema version [`SCHEMA`] creates.
+const SCHEMA_VERSION: i64 = 4;
+
+/// The server's migrations after [`SCHEMA_VERSION`]: `(k, sql)` takes the version from k − 1 to
+/// k, as migration k of [`schema::MIGRATIONS`] does on a file. Never edit a released one: add one.
+const MIGRATIONS: &[(i64, &str)] = &[(
+    5,
+    "CREATE TABLE kept_files (
+        run_id BIGINT NOT NULL REFERENCES runs(id) ON DELETE CASCADE,
+        role TEXT NOT NULL,
+        name TEXT NOT NULL,
+        size_bytes BIGINT NOT NULL,
+        sha256 TEXT NOT NULL,
+        gzip BYTEA NOT NULL,
+        PRIMARY KEY (run_id, role)
+    );",
+)];
+
+/// Bring the history of `tx` (the advisory lock held) from `version` to [`schema::latest`].
+fn upgrade(
+    tx: &mut postgres::Transaction,
+    version: i64,
+) -> std::result::Result<(), postgres::Error> {
+    for (k, sql) in MIGRATIONS.iter().filter(|(k, _)| *k > version) {
+        tx.batch_execute(sql)?;
+        tx.execute("UPDATE jdbb_schema SET version = $1", &[k])?;
+    }
+    Ok(())
+}
 
 /// A history on a PostgreSQL server.
 pub struct PgHistory {
@@ -187,6 +218,7 @@ impl PgHistory {
                     schema::latest()
                 )));
             }
+            upgrade(&mut tx, version).map_err(err)?;
             return tx.commit().map_err(err);
         }
         let tables: Vec<String> = tx
@@ -215,10 +247,32 @@ impl PgHistory {
         tx.batch_execute(SCHEMA).map_err(err)?;
         tx.execute(
             "INSERT INTO jdbb_schema (application_id, version) VALUES ($1, $2)",
-            &[&schema::APPLICATION_ID, &schema::latest()],
+            &[&schema::APPLICATION_ID, &SCHEMA_VERSION],
         )
         .map_err(err)?;
+        upgrade(&mut tx, SCHEMA_VERSION).map_err(err)?;
         tx.commit().map_err(err)
+    }
+
+    /// The files run `run_id` keeps, the record first.
+    fn kept_files(&mut self, run_id: i64) -> Result<Vec<super::keep::KeptFile>> {
+        Ok(self
+            .client
+            .query(
+                "SELECT role, name, size_bytes, sha256, gzip FROM kept_files WHERE run_id = $1
+                 ORDER BY role = 'plan', role",
+                &[&run_id],
+            )
+            .map_err(self.err())?
+            .iter()
+            .map(|r| super::keep::KeptFile {
+                role: r.get(0),
+                name: r.get(1),
+                size_bytes: r.get(2),
+                sha256: r.get(3),
+                gzip: r.get(4),
+            })
+            .collect())
     }
 
     /// The id of `machine`; an unknown machine is a usage error naming the known ones.
@@ -251,6 +305,24 @@ fn connection_lost(e: &postgres::Error) -> bool {
     e.is_closed()
         || e.as_db_error()
             .is_none_or(|d| matches!(d.severity(), "FATAL" | "PANIC"))
+}
+
+/// Keep `files` with run `run_id` in `tx`, but not a role the run already keeps; returns how
+/// many were kept.
+fn keep_files(
+    tx: &mut postgres::Transaction,
+    run_id: i64,
+    files: &[super::keep::KeptFile],
+) -> std::result::Result<usize, postgres::Error> {
+    let mut n = 0;
+    for f in files {
+        n += tx.execute(
+            "INSERT INTO kept_files (run_id, role, name, size_bytes, sha256, gzip)
+             VALUES ($1, $2, $3, $4, $5, $6) ON CONFLICT (run_id, role) DO NOTHING",
+            &[&run_id, &f.role, &f.name, &f.size_bytes, &f.sha256, &f.gzip],
+        )? as usize;
+    }
+    Ok(n)
 }
 
 /// A run as the columns of `runs` give it (without its effects).
@@ -353,12 +425,15 @@ impl Store for PgHistory {
                 message: "a run of the same digest was filed and removed at once; add it again"
                     .into(),
             })?;
+            // Filed before: it keeps the files it has, and gains those it lacks.
+            let kept = keep_files(&mut tx, r.get(0), &run.kept).map_err(|e| lost(e, false))?;
             tx.commit().map_err(|e| lost(e, false))?;
             return Ok(Added {
                 run_id: r.get(0),
                 new: false,
                 date_utc: r.get(1),
                 date_from_file: run.date_from_file,
+                kept,
             });
         };
         let run_id: i64 = row.get(0);
@@ -370,12 +445,14 @@ impl Store for PgHistory {
             )
             .map_err(|e| lost(e, false))?;
         }
+        let kept = keep_files(&mut tx, run_id, &run.kept).map_err(|e| lost(e, false))?;
         tx.commit().map_err(|e| lost(e, true))?;
         Ok(Added {
             run_id,
             new: true,
             date_utc: run.date_utc.clone(),
             date_from_file: run.date_from_file,
+            kept,
         })
     }
 
@@ -486,6 +563,8 @@ impl Store for PgHistory {
         let mut tx = self.client.transaction().map_err(err)?;
         tx.execute("DELETE FROM effects WHERE run_id = $1", &[&run_id])
             .map_err(err)?;
+        tx.execute("DELETE FROM kept_files WHERE run_id = $1", &[&run_id])
+            .map_err(err)?;
         tx.execute("DELETE FROM runs WHERE id = $1", &[&run_id])
             .map_err(err)?;
         tx.commit().map_err(err)?;
@@ -502,6 +581,21 @@ impl Store for PgHistory {
             )
             .map_err(self.err())?;
         Ok(run.date_utc)
+    }
+
+    fn kept(&mut self, machine: &str, run_id: i64) -> Result<super::keep::Kept> {
+        let runs = self.runs(machine)?;
+        let run = find_run(runs, machine, run_id, &self.location)?;
+        let diagnosis: String = self
+            .client
+            .query_one("SELECT diagnosis FROM runs WHERE id = $1", &[&run_id])
+            .map_err(self.err())?
+            .get(0);
+        Ok(super::keep::Kept {
+            run,
+            diagnosis,
+            files: self.kept_files(run_id)?,
+        })
     }
 
     fn export(&mut self) -> Result<Export> {
@@ -522,6 +616,7 @@ impl Store for PgHistory {
             let runs = self.runs(&machine)?;
             for r in rows {
                 let run_id: i64 = r.get(0);
+                let kept = self.kept_files(run_id)?;
                 filed.push((
                     run_id,
                     NewRun {
@@ -545,6 +640,7 @@ impl Store for PgHistory {
                             .find(|run| run.id == run_id)
                             .map(|run| run.effects.clone())
                             .unwrap_or_default(),
+                        kept,
                     },
                 ));
             }

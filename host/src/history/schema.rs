@@ -31,7 +31,9 @@ pub enum Owner {
 
 /// The tables (without SQLite's own) of a history file of schema version `version`.
 fn tables_of(version: i64) -> &'static [&'static str] {
-    if version >= 4 {
+    if version >= 5 {
+        &["compensations", "effects", "kept_files", "machines", "runs"]
+    } else if version >= 4 {
         &["compensations", "effects", "machines", "runs"]
     } else {
         &["effects", "machines", "runs"]
@@ -153,6 +155,19 @@ pub const MIGRATIONS: &[Migration] = &[
         source TEXT
     );
     CREATE INDEX compensations_by_machine_date ON compensations (machine_id, date_utc);",
+    ),
+    // 5: files kept with a run (`history add --keep-record`: the record and its plan),
+    // gzip-compressed with their size and SHA-256 ([`crate::history::keep`]).
+    Migration::Sql(
+        "CREATE TABLE kept_files (
+        run_id INTEGER NOT NULL REFERENCES runs(id) ON DELETE CASCADE,
+        role TEXT NOT NULL,
+        name TEXT NOT NULL,
+        size_bytes INTEGER NOT NULL,
+        sha256 TEXT NOT NULL,
+        gzip BLOB NOT NULL,
+        PRIMARY KEY (run_id, role)
+    );",
     ),
 ];
 
