@@ -297,9 +297,16 @@ fn profile_pitch(
 /// Run `jdbb diagnose`.
 pub fn run(args: &DiagnoseArgs) -> Result<()> {
     let filled;
+    // The profile's controller: which settings the what-if G assumes entered.
+    let mut opts = Options::default();
     let args = match &args.machine_profile {
         Some(f) => {
             let p = crate::profile::MachineProfile::read(f)?;
+            opts.controller = p
+                .controller
+                .as_deref()
+                .map(crate::compensate::Controller::parse)
+                .transpose()?;
             let mut a = args.clone();
             a.machine = a.machine.or(p.machine.clone());
             if a.pitch.is_none() {
@@ -333,14 +340,14 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     let diag = match (&args.samples, &args.record, &args.path, &args.plan) {
         (Some(samples), _, _, _) => {
             let (path, d) = read_samples(samples, pitch)?;
-            diagnose(&path, &d, &Options::default())?
+            diagnose(&path, &d, &opts)?
         }
         (None, Some(record), None, Some(plan_file)) => {
             let plan = Plan::read(plan_file)?;
             crate::volumetric::refuse_diagnosis(&plan, plan_file)?;
             let rec = Record::read(record)?;
             check_plan_id(&rec, &plan, plan_file)?;
-            let done = diagnose_record(&plan, &rec, pitch, &Options::default())?;
+            let done = diagnose_record(&plan, &rec, pitch, &opts)?;
             let set_aside = (rec.set_aside_note(Some(&done.sync)), set_aside_json(&rec));
             synced = Some((plan_file, plan, done.sync, set_aside));
             done.diagnosis
@@ -351,7 +358,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             if let Some(n) = crate::circular::glitch::describe(&glitches, &|_| None) {
                 path_note = Some(n);
             }
-            diagnose(&path, &d, &Options::default())?
+            diagnose(&path, &d, &opts)?
         }
         _ => {
             return Err(Error::Usage(
