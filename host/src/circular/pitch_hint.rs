@@ -16,6 +16,9 @@ pub const MAX_PITCH_MM: f64 = 40.0;
 pub const BIN_MM: f64 = 0.1;
 /// How much the strongest pitch must exceed the strongest elsewhere to be named.
 pub const CLEAR_RATIO: f64 = 2.0;
+/// Relative distance in frequency within which the strongest pitch's own side lobes lie, not
+/// counted as the rest it must stand out from.
+pub const SIDE_LOBES: f64 = 0.3;
 /// The residual is above its noise when its RMS exceeds this multiple of the sample-to-sample
 /// noise (the RMS of successive differences over √2).
 pub const ABOVE_NOISE: f64 = 1.3;
@@ -109,10 +112,12 @@ fn axis_peak(path: &Path, resid_um: &[f64], a: Axis) -> Option<PitchHint> {
             (f, amplitude_um(&bins, f))
         })
         .max_by(|x, y| x.1.total_cmp(&y.1))?;
-    // Away from the peak: beyond its main lobe (two resolutions of the span).
+    // Away from the peak: beyond its side lobes, which the direction cosine's weighting (D sees
+    // an axis' error most at the ends of its travel on the circle) makes strong within some
+    // 25 % of its frequency.
     let rest = scan
         .iter()
-        .filter(|(f, _)| (f - f_best).abs() > 2.0 / span_mm)
+        .filter(|(f, _)| (f / f_best - 1.0).abs() > SIDE_LOBES)
         .map(|s| s.1)
         .fold(0.0, f64::max);
     Some(PitchHint {
