@@ -71,7 +71,7 @@ fn axis_peak(path: &Path, resid_um: &[f64], a: Axis) -> Option<PitchHint> {
             (lo.min(p[k]), hi.max(p[k]))
         });
     let span_mm = hi - lo;
-    if !(span_mm > 2.0 * MIN_PITCH_MM) {
+    if span_mm.is_nan() || span_mm <= 2.0 * MIN_PITCH_MM {
         return None;
     }
     let n = (span_mm / BIN_MM).ceil() as usize + 1;
