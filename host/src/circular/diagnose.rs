@@ -73,6 +73,10 @@ pub struct Options {
     /// Account for correlated noise (the residual's integrated autocorrelation time, see
     /// [`Diagnosis::noise_tau_int`]); off, every sample counts as independent, as before.
     pub correlated_noise: bool,
+    /// The controller whose settings [`Diagnosis::g_if_compensated_um`] assumes entered (a
+    /// reversal spike is compensable where it compensates it); None: the settings every
+    /// control has ([`crate::compensate::is_setting`]).
+    pub controller: Option<crate::compensate::Controller>,
 }
 
 impl Default for Options {
@@ -85,6 +89,7 @@ impl Default for Options {
             },
             harmonics: 8,
             correlated_noise: true,
+            controller: None,
         }
     }
 }
@@ -209,8 +214,18 @@ pub struct Diagnosis {
     /// of the minimum zone (ISO 230-4, minimum-zone centre) of one circle in one direction
     /// ([`Diagnosis::circle_zones`]). The one G every output shows.
     pub circular_deviation_g_um: f64,
+    /// What-if: the test's G (µm, as `circular_deviation_g_um`) with the deviation of every
+    /// named effect a controller setting removes taken out of the measured traces — backlash,
+    /// scale, squareness, cyclic error ([`crate::compensate::is_setting`] with
+    /// [`Options::controller`]) at least [`crate::compensate::SIGNIFICANT_SIGMAS`] σ from zero,
+    /// as `jdbb compensate` acts on them: the G the machine would have with those settings
+    /// entered. Equal to the measured G where no such effect is named.
+    pub g_if_compensated_um: f64,
     /// The test's hysteresis H (µm): the largest of the circles' H.
     pub hysteresis_h_um: f64,
+    /// Without a pitch for any moving axis: the pitch the residual suggests trying
+    /// (`--pitch`), where it is above its noise and one pitch stands out ([`super::pitch_hint`]).
+    pub pitch_hint: Option<super::pitch_hint::PitchHint>,
     /// Per circle: conditions (radius, height, feed) and ISO 230-4 G and H with the
     /// minimum-zone centre ([`super::zone`]).
     pub circle_zones: Vec<CircleZone>,
@@ -1427,6 +1442,7 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
     } else {
         harmonics(&angle, &resid, opts.harmonics)
     };
+    let pitch_hint = super::pitch_hint::pitch_hint(path, &resid);
     let zones = circle_zones(path, &angle, &meas, &circles, &runs)?;
     let filtered_g_um = filtered_g_um(&angle, &meas, &runs, circles.len(), FILTER_UPR)?;
     // Blocks up to the longest the estimate allows: the effects live at the circle's low
@@ -1486,6 +1502,28 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
         group.extend(explained.iter().filter(|e| e.1 == k).map(|e| e.0));
         found[k].g_without_um = traces.g_without_um(&found, &group)?;
     }
+    // What G would be with the compensable effects entered as settings (each with the
+    // interference named as part of it).
+    let mut compensable: Vec<usize> = (2..found.len())
+        .filter(|&k| {
+            let f = &found[k];
+            crate::compensate::is_setting(f.effect, opts.controller)
+                && f.sigma
+                    .is_some_and(|s| f.value.abs() >= crate::compensate::SIGNIFICANT_SIGMAS * s)
+                && !explained.iter().any(|e| e.0 == k)
+        })
+        .collect();
+    let parts: Vec<usize> = explained
+        .iter()
+        .filter(|e| compensable.contains(&e.1))
+        .map(|e| e.0)
+        .collect();
+    compensable.extend(parts);
+    let g_if_compensated_um = if compensable.is_empty() {
+        g
+    } else {
+        traces.g_without_um(&found, &compensable)?
+    };
     for &(ii, ci, _) in &explained {
         let (rms, sh) = (found[ii].contribution_rms_um, found[ii].share);
         found[ci].contribution_rms_um = found[ci].contribution_rms_um.hypot(rms);
@@ -1525,7 +1563,9 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
         circles,
         runs,
         circular_deviation_g_um: g,
+        g_if_compensated_um,
         hysteresis_h_um: h,
+        pitch_hint,
         circle_zones: zones,
         filtered_g_um,
         filter_upr: FILTER_UPR,
@@ -2033,6 +2073,32 @@ mod tests {
 
     fn ev(effect: Effect, params: Vec<f64>) -> super::super::simulate::EffectValue {
         super::super::simulate::EffectValue { effect, params }
+    }
+
+    /// What-if G: play in X and an out-of-square XY (settings) with a servo mismatch (tuning):
+    /// entering the settings leaves the servo mismatch's G, well below the measured G.
+    #[test]
+    fn what_if_g_is_the_g_of_what_no_setting_removes() {
+        let servo = ev(Effect::ServoMismatch(Pair::Xy), vec![0.2, 2.0]);
+        let (path, d) = simulated(&[
+            ev(Effect::Backlash(Axis::X), vec![8.0]),
+            ev(Effect::Squareness(Pair::Xy), vec![60.0]),
+            servo.clone(),
+        ]);
+        let all = diagnose(&path, &d, &Options::default()).unwrap();
+        let (path, d) = simulated(&[servo]);
+        let servo_only = diagnose(&path, &d, &Options::default()).unwrap();
+        let (g, w, s) = (
+            all.circular_deviation_g_um,
+            all.g_if_compensated_um,
+            servo_only.circular_deviation_g_um,
+        );
+        eprintln!("measured G {g:.2} µm, what-if {w:.2} µm, servo only {s:.2} µm");
+        assert!(
+            (w - s).abs() < 0.1 * s + 0.3,
+            "what-if {w:.2} vs servo-only {s:.2}"
+        );
+        assert!(w < 0.5 * g, "what-if {w:.2} vs measured {g:.2}");
     }
 
     /// AR(1) noise of ρ 0.8 (τ_int = 9) on a circle with 5 µm of X play: counting every sample as

@@ -237,6 +237,10 @@ pub struct DiagnosisDoc {
     pub gain: Option<f64>,
     pub circular_deviation_g_um: Option<f64>,
     pub hysteresis_h_um: Option<f64>,
+    /// What-if: the test's G with the compensable settings entered (absent in files before
+    /// it), µm ([`super::diagnose::Diagnosis::g_if_compensated_um`]).
+    #[serde(default)]
+    pub g_if_compensated_um: Option<f64>,
     /// The test's G of the traces low-passed at `filter_upr` (absent in files before it), µm.
     #[serde(default)]
     pub circular_deviation_g_filtered_um: Option<f64>,
@@ -457,6 +461,8 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
         "lsq_setup",
         "circular_deviation_g_um",
         "hysteresis_h_um",
+        "g_if_compensated_um",
+        "pitch_hint",
         "minimum_zone",
         "plane",
         "pitch_mm",

@@ -496,6 +496,17 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         }
     }
 
+    if let (Some(w), Some(g)) = (doc.g_if_compensated_um, g_max) {
+        if w != g {
+            let _ = writeln!(
+                h,
+                "<p class=\"what-if\">G with the compensable settings entered (<code>jdbb compensate</code>: backlash, scale, squareness, cyclic error): <b>{} µm</b> (measured {} µm)</p>",
+                format_to(w, noise),
+                format_to(g, noise)
+            );
+        }
+    }
+
     // Page one (also printed, `--pdf`): the test in a line, the polar plot of all circles, then
     // the effects ranked by share.
     let _ = writeln!(

@@ -34,6 +34,7 @@ pub mod machine;
 pub mod model;
 pub mod path;
 pub mod pdf;
+pub mod pitch_hint;
 pub mod plan;
 pub mod planned;
 pub mod plot;

@@ -122,6 +122,14 @@
 //! circular_deviation_g_um  the test's G: the largest minimum-zone G of a circle in one
 //!                          direction (= minimum_zone.g_um), µm
 //! hysteresis_h_um          the test's H: the largest H of a circle (= minimum_zone.h_um), µm
+//! g_if_compensated_um      what-if: the test's G with the named effects a controller setting
+//!                          removes (backlash, scale, squareness, cyclic error; a reversal spike
+//!                          with a machine profile's Heidenhain; each ≥ 3σ, as `jdbb compensate`
+//!                          acts on them) taken out of the measured traces, µm
+//! pitch_hint               null, or without --pitch where the residual is above its noise
+//!                          and one pitch stands out in it against an axis' position
+//!                          (`circular::pitch_hint`): {axis, pitch_mm, amplitude_um}, the pitch
+//!                          to try with --pitch (a cyclic error may be unmodelled)
 //! lsq_circular_deviation_g_um  only in files upgraded from format 1: their G about the
 //!                          least-squares centre, kept (not written by this version)
 //! candidates[]             the candidate effects that were tried
@@ -285,6 +293,20 @@ pub fn summary(d: &Diagnosis) -> String {
             s,
             "G: circular deviation (ISO 230-4, minimum zone) of the raw trace, the test's; H: hysteresis; filtered: the trace low-passed at {:.0} undulations per revolution, which takes out the instrument's noise",
             d.filter_upr
+        );
+    }
+    if d.g_if_compensated_um != d.circular_deviation_g_um {
+        let _ = writeln!(s, "{}", what_if_text(d));
+    }
+    if let Some(h) = &d.pitch_hint {
+        let _ = writeln!(
+            s,
+            "the residual is above its noise and repeats every {:.1} mm of {} travel ({} µm): a cyclic (screw pitch) error may be unmodelled — diagnose again with --pitch {}={:.1}",
+            h.pitch_mm,
+            h.axis.letter().to_ascii_uppercase(),
+            um(h.amplitude_um),
+            h.axis.letter(),
+            h.pitch_mm
         );
     }
     let partial = partial_arcs(d);
@@ -745,6 +767,12 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
         },
         "circular_deviation_g_um": num(d.circular_deviation_g_um),
         "hysteresis_h_um": num(d.hysteresis_h_um),
+        "g_if_compensated_um": num(d.g_if_compensated_um),
+        "pitch_hint": d.pitch_hint.as_ref().map(|h| json!({
+            "axis": h.axis.letter().to_string(),
+            "pitch_mm": num(h.pitch_mm),
+            "amplitude_um": num(h.amplitude_um),
+        })),
         "candidates": d.candidates,
         "arcs": d.arcs.iter().map(|a| json!({
             "start_deg": num(a.start_deg), "sweep_deg": num(a.sweep_deg), "partial": a.is_partial(),
@@ -755,6 +783,16 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
     });
     add_zones_and_shares(&mut v, d);
     v
+}
+
+/// The what-if line: the G with the compensable settings entered, beside the measured G.
+fn what_if_text(d: &Diagnosis) -> String {
+    let um = |x: f64| format_to(x, d.final_rms_um);
+    format!(
+        "G with the compensable settings entered (jdbb compensate): {} µm (measured {} µm)",
+        um(d.g_if_compensated_um),
+        um(d.circular_deviation_g_um)
+    )
 }
 
 /// The plane's name (`xy`, `yz`, `zx`) for the axis pair `plane`.

@@ -298,9 +298,10 @@ fn profile_pitch(
 pub fn diagnose_samples(
     samples: &std::path::Path,
     pitch: [Option<f64>; 3],
+    opts: &Options,
 ) -> Result<crate::circular::diagnose::Diagnosis> {
     let (path, d) = read_samples(samples, pitch)?;
-    diagnose(&path, &d, &Options::default())
+    diagnose(&path, &d, opts)
 }
 
 /// The diagnosis of a `--record` file synchronised with its `--plan`: the one path of
@@ -309,21 +310,29 @@ pub fn diagnose_planned(
     record: &std::path::Path,
     plan_file: &std::path::Path,
     pitch: [Option<f64>; 3],
+    opts: &Options,
 ) -> Result<(Plan, Record, crate::circular::planned::Planned)> {
     let plan = Plan::read(plan_file)?;
     crate::volumetric::refuse_diagnosis(&plan, plan_file)?;
     let rec = Record::read(record)?;
     check_plan_id(&rec, &plan, plan_file)?;
-    let done = diagnose_record(&plan, &rec, pitch, &Options::default())?;
+    let done = diagnose_record(&plan, &rec, pitch, opts)?;
     Ok((plan, rec, done))
 }
 
 /// Run `jdbb diagnose`.
 pub fn run(args: &DiagnoseArgs) -> Result<()> {
     let filled;
+    // The profile's controller: which settings the what-if G assumes entered.
+    let mut opts = Options::default();
     let args = match &args.machine_profile {
         Some(f) => {
             let p = crate::profile::MachineProfile::read(f)?;
+            opts.controller = p
+                .controller
+                .as_deref()
+                .map(crate::compensate::Controller::parse)
+                .transpose()?;
             let mut a = args.clone();
             a.machine = a.machine.or(p.machine.clone());
             if a.pitch.is_none() {
@@ -355,9 +364,9 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     // What `--record --path` set aside (glitches), said before the diagnosis.
     let mut path_note: Option<String> = None;
     let diag = match (&args.samples, &args.record, &args.path, &args.plan) {
-        (Some(samples), _, _, _) => diagnose_samples(samples, pitch)?,
+        (Some(samples), _, _, _) => diagnose_samples(samples, pitch, &opts)?,
         (None, Some(record), None, Some(plan_file)) => {
-            let (plan, rec, done) = diagnose_planned(record, plan_file, pitch)?;
+            let (plan, rec, done) = diagnose_planned(record, plan_file, pitch, &opts)?;
             let set_aside = (rec.set_aside_note(Some(&done.sync)), set_aside_json(&rec));
             synced = Some((plan_file, plan, done.sync, set_aside));
             done.diagnosis
@@ -368,7 +377,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             if let Some(n) = crate::circular::glitch::describe(&glitches, &|_| None) {
                 path_note = Some(n);
             }
-            diagnose(&path, &d, &Options::default())?
+            diagnose(&path, &d, &opts)?
         }
         _ => {
             return Err(Error::Usage(

@@ -202,11 +202,11 @@ fn rerun(kept: &Kept, machine: &str, location: &str) -> Result<String> {
     let pitch = crate::circular::model::Axis::ALL.map(|a| stored.pitch_mm(a));
     let diag = match &plan_path {
         Some(p) => {
-            super::diagnose::diagnose_planned(&record_path, p, pitch)?
+            super::diagnose::diagnose_planned(&record_path, p, pitch, &Default::default())?
                 .2
                 .diagnosis
         }
-        None => super::diagnose::diagnose_samples(&record_path, pitch)?,
+        None => super::diagnose::diagnose_samples(&record_path, pitch, &Default::default())?,
     };
     let now: DiagnosisDoc = serde_json::from_value(crate::circular::report::to_json(&diag))
         .map_err(|e| {

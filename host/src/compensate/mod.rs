@@ -167,6 +167,35 @@ fn has_content(text: &str) -> bool {
 /// The standard-error multiple below which an effect is left alone.
 pub const SIGNIFICANT_SIGMAS: f64 = 3.0;
 
+/// Whether a controller setting removes `effect` (backlash, scale, squareness, cyclic/pitch
+/// error: what [`MachineErrors`] maps to settings), as opposed to tuning, repair or warm-up
+/// (`MachineErrors::tuning`). A reversal spike is a setting only of a controller that
+/// compensates it (`controller` Heidenhain); None stands for the settings every control has.
+/// The one definition of "compensable": the compensation plans and the diagnosis' what-if G
+/// ([`crate::circular::diagnose::Diagnosis::g_if_compensated_um`]) both use it.
+pub fn is_setting(effect: Effect, controller: Option<Controller>) -> bool {
+    match effect {
+        Effect::Backlash(_)
+        | Effect::BacklashEnds(_)
+        | Effect::Scale(_)
+        | Effect::ScaleMismatch(_)
+        | Effect::Scale2(_)
+        | Effect::Cyclic(_)
+        | Effect::Squareness(_) => true,
+        Effect::ReversalSpike(_) => controller == Some(Controller::Heidenhain),
+        Effect::Straightness(..)
+        | Effect::LateralPlay(..)
+        | Effect::ServoMismatch(_)
+        | Effect::Interference(_)
+        | Effect::Drift
+        | Effect::ScaleDrift(_)
+        | Effect::PositionDrift(_)
+        | Effect::FollowingError
+        | Effect::SetupOffset
+        | Effect::LengthOffset => false,
+    }
+}
+
 /// One diagnosed effect as the source of a change: its name and value ± σ for people.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Measured {
@@ -261,6 +290,13 @@ impl MachineErrors {
             }
             let p = e.param_values(effect);
             match effect {
+                Effect::SetupOffset | Effect::LengthOffset => {}
+                _ if !is_setting(effect, None) => {
+                    if let (Effect::ReversalSpike(a), [h_um, tau_ms]) = (effect, &p[..]) {
+                        m.reversal_spike[a.index()] = Some((*h_um, *tau_ms));
+                    }
+                    m.tuning.push(measured)
+                }
                 Effect::Backlash(a) | Effect::BacklashEnds(a) => {
                     if let [pos, neg] = p[..] {
                         m.notes.push(format!(
@@ -270,7 +306,6 @@ impl MachineErrors {
                     }
                     m.backlash_um[a.index()] = Some(measured)
                 }
-                Effect::Straightness(..) | Effect::LateralPlay(..) => m.tuning.push(measured),
                 Effect::Scale(a) => m.scale_um_per_m[a.index()] = Some((p[0], measured)),
                 Effect::ScaleMismatch(pair) => {
                     let (i, j) = pair.axes();
@@ -303,19 +338,8 @@ impl MachineErrors {
                 Effect::Squareness(pair) => {
                     m.squareness_um_per_m[pair_index(pair)] = Some(measured)
                 }
-                Effect::ReversalSpike(a) => {
-                    if let [h_um, tau_ms] = p[..] {
-                        m.reversal_spike[a.index()] = Some((h_um, tau_ms));
-                    }
-                    m.tuning.push(measured)
-                }
-                Effect::ServoMismatch(_)
-                | Effect::Interference(_)
-                | Effect::Drift
-                | Effect::ScaleDrift(_)
-                | Effect::PositionDrift(_)
-                | Effect::FollowingError => m.tuning.push(measured),
-                Effect::SetupOffset | Effect::LengthOffset => {}
+                // Not a setting of every control (is_setting): tuning, repair or warm-up.
+                _ => m.tuning.push(measured),
             }
         }
         Ok(m)
