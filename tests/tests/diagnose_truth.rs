@@ -343,7 +343,18 @@ fn interference_is_named_with_its_phase_from_the_table_ball() {
 /// with it. A flipped sign of b, or of the slope's lever (ball − o), fails.
 #[test]
 fn a_lead_growing_along_the_screw_is_second_order_scale() {
-    let p = make_plan(&[95.0, 85.0], &[0.0], Plane::Xy);
+    // Two feeds: two radii at one feed do not tell the isotropic scale from the loops' following
+    // error.
+    let spec = PlanSpec::machine_test(
+        &[95.0, 85.0],
+        &[0.0],
+        Plane::Xy,
+        1000.0,
+        BALL,
+        PlanDialect::Linuxcnc,
+    )
+    .feed_sweep(&[1000.0, 2000.0]);
+    let p = plan(&spec, &Calibration::DEFAULT).unwrap();
     let b = 1500.0;
     let with_origin = |origin_mm| {
         let mut e = MachineErrors::default();
