@@ -24,7 +24,7 @@ use jdbb::circular::planned::diagnose_planned;
 use jdbb::circular::sync::synchronise;
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
-    ColouredNoise, Dialect, MachineErrors, ServoLoop, SimConfig, Simulation,
+    ColouredNoise, Dialect, MachineErrors, Realistic, ServoLoop, SimConfig, Simulation, Tuning,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -53,42 +53,17 @@ fn draw(seed: u64) -> Draw {
     };
     let feed_mm_min = [500.0, 1000.0, 2000.0, 3000.0][r.gen_range(0..4)];
     let rate_hz = [1000.0, 2000.0, 5000.0][r.gen_range(0..3)];
-    let modern = r.gen_bool(0.6);
-    let kv = r.gen_range(30.0..60.0);
-    let bandwidth = r.gen_range(50.0..200.0);
-    let (ffv, ffa) = if modern {
-        (r.gen_range(0.9..1.0), r.gen_range(0.0..1.0))
-    } else {
-        (0.0, 0.0)
-    };
-    let count_um = [0.1, 0.5, 1.0][r.gen_range(0..3)];
-    // Axes tuned alike (unequal gains are a servo mismatch, a real effect to name).
-    let l = ServoLoop {
-        kv_per_s: kv,
-        velocity_bandwidth_hz: bandwidth,
-        ff_velocity: ffv,
-        ff_acceleration: ffa,
-        count_um,
-    };
-    let loops = [l; 3];
-    // AR(1) with ρ up to 0.8 between samples, 1/f wander and a vibration.
-    let rho: f64 = r.gen_range(0.3..0.8);
-    let noise = ColouredNoise {
-        ar1_um: r.gen_range(0.05..0.3),
-        ar1_tau_ms: -1e3 / (rate_hz * rho.ln()),
-        wander_um: r.gen_range(0.0..0.2),
-        vibration_um: r.gen_range(0.0..0.1),
-        vibration_hz: r.gen_range(15.0..120.0),
-        vibration_bandwidth_hz: 2.0,
-    };
+    // Axes tuned alike (unequal gains are a servo mismatch, a real effect to name); AR(1) with
+    // ρ up to 0.8 between samples, 1/f wander and a vibration.
+    let real = Realistic::draw_from(&mut r, rate_hz, Tuning::Either);
     Draw {
         plane,
         radii,
         feed_mm_min,
         rate_hz,
-        loops,
-        noise,
-        white_um: r.gen_range(0.05..0.2),
+        loops: [real.servo; 3],
+        noise: real.noise,
+        white_um: real.white_um,
     }
 }
 

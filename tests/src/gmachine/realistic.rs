@@ -42,7 +42,15 @@ impl Realistic {
     /// The draw of `seed` for a record sampled at `rate_hz` (the AR(1)'s correlation is per
     /// sample, so its time constant follows the rate).
     pub fn draw(seed: u64, rate_hz: f64, tuning: Tuning) -> Self {
-        let mut r = ChaCha8Rng::seed_from_u64(0x7265_616c ^ seed);
+        Self::draw_from(
+            &mut ChaCha8Rng::seed_from_u64(0x7265_616c ^ seed),
+            rate_hz,
+            tuning,
+        )
+    }
+
+    /// [`Self::draw`] from a stream a test already draws its case from.
+    pub fn draw_from(r: &mut impl Rng, rate_hz: f64, tuning: Tuning) -> Self {
         let modern = match tuning {
             Tuning::Modern => true,
             Tuning::NoFeedForward => false,
