@@ -1032,3 +1032,122 @@ fn explore_seeds() {
     let seeds: Vec<u64> = (first..first + var("JDBB_COUNT", 20)).collect();
     run_cases(&seeds);
 }
+
+/// What case `seed` names beyond its hidden effects when its record carries the noise of
+/// `noise_seed`: with the record's own timeline (as `diagnose --record --plan` runs), with the
+/// timeline of the same machine recorded without noise (the true one, feed within a few ppm),
+/// and the noiseless record read with the noisy timeline (the timeline's error alone, no noise).
+/// Each diagnosis is one pass (`data_path` then `diagnose`), so the timeline is the one given.
+struct TimelineTrial {
+    /// The feed's error of the record's own timeline and of the noiseless one (ppm), and the
+    /// former's σ (ppm).
+    feed_ppm: f64,
+    feed_sigma_ppm: f64,
+    true_feed_ppm: f64,
+    /// Effects named that are not hidden: own timeline, true timeline, noiseless data on the
+    /// noisy timeline.
+    own: Vec<String>,
+    true_timeline: Vec<String>,
+    noiseless_own_timeline: Vec<String>,
+}
+
+impl TimelineTrial {
+    /// One line: the feeds and what each reading named falsely.
+    fn describe(&self) -> String {
+        format!(
+            "feed {:+.0} ± {:.0} ppm (noiseless {:+.0}); false names: own timeline {:?}, true \
+             timeline {:?}, noiseless data on the own timeline {:?}",
+            self.feed_ppm,
+            self.feed_sigma_ppm,
+            self.true_feed_ppm,
+            self.own,
+            self.true_timeline,
+            self.noiseless_own_timeline
+        )
+    }
+}
+
+fn timeline_trial(seed: u64, noise_seed: u64) -> TimelineTrial {
+    let c = draw(seed);
+    let program = write_program(&c.plan, PlanDialect::Linuxcnc);
+    let record = |noise: bool| {
+        let mut cfg = c.config.clone();
+        cfg.instrument.seed = noise_seed;
+        if !noise {
+            cfg.instrument.noise_um = 0.0;
+        }
+        let rec = Simulation::new(&program, cfg).unwrap().run().unwrap();
+        let truth = true_factor(&rec);
+        (read_back(&rec), truth)
+    };
+    let ((noisy, truth), (clean, _)) = (record(true), record(false));
+    let s_noisy = synchronise(&c.plan, &noisy).unwrap();
+    let s_clean = synchronise(&c.plan, &clean).unwrap();
+    let hidden: Vec<&str> = c.expect.iter().map(|x| x.name.as_str()).collect();
+    let false_names = |rec, s: &Sync| {
+        let (path, d_mm) = data_path(&c.plan, rec, s, c.pitch).unwrap();
+        let d = diagnose(&path, &d_mm, &Options::default()).unwrap();
+        machine_names(&d)
+            .into_iter()
+            .filter(|n| !hidden.contains(&n.as_str()))
+            .collect::<Vec<_>>()
+    };
+    let ppm_of = |s: &Sync| 1e6 * (s.feed_percent / 100.0 / truth - 1.0);
+    TimelineTrial {
+        feed_ppm: ppm_of(&s_noisy),
+        feed_sigma_ppm: 1e6 * s_noisy.feed_sigma_percent / 100.0 / truth,
+        true_feed_ppm: ppm_of(&s_clean),
+        own: false_names(&noisy, &s_noisy),
+        true_timeline: false_names(&noisy, &s_clean),
+        noiseless_own_timeline: false_names(&clean, &s_noisy),
+    }
+}
+
+/// Seed 3074's false lateral play and drift (issue 27, [`KNOWN_FAILING`]) need both the
+/// timeline's error and the noise: on its own timeline (feed +270 ± 242 ppm) the record names
+/// them; the same noisy record read on the machine's true timeline (the noiseless twin's, feed
+/// +31 ppm) names nothing false, and neither does the noiseless record read on the noisy
+/// timeline. So the feed's error, within its σ, is what lets this noise draw through the
+/// selection; alone it moves D too little to be named (docs/synchronisation.md).
+#[test]
+fn seed_3074_false_pair_needs_the_timeline_error_and_the_noise() {
+    let t = timeline_trial(3074, 3074);
+    let said = t.describe();
+    let pair = ["drift".to_string(), "lateral_play_z_y".to_string()];
+    assert!(
+        pair.iter().all(|p| t.own.contains(p)),
+        "the false pair is gone: {said}"
+    );
+    assert!(t.true_timeline.is_empty(), "{said}");
+    assert!(t.noiseless_own_timeline.is_empty(), "{said}");
+}
+
+/// The same over other noise seeds of seed 3074's machine (`JDBB_NOISE_SEEDS=A..B`, default
+/// 0..30): how often each reading names something false, against the feed's error.
+#[test]
+#[ignore = "a measurement: docs/synchronisation.md"]
+fn seed_3074_timeline_sweep() {
+    let range = std::env::var("JDBB_NOISE_SEEDS")
+        .ok()
+        .and_then(|s| {
+            let (a, b) = s.split_once("..")?;
+            Some(a.parse::<u64>().ok()?..b.parse().ok()?)
+        })
+        .unwrap_or(0..30);
+    let mut counts = [0; 3];
+    let n = range.end - range.start;
+    for noise in range {
+        let t = timeline_trial(3074, noise);
+        for (k, v) in [&t.own, &t.true_timeline, &t.noiseless_own_timeline]
+            .iter()
+            .enumerate()
+        {
+            counts[k] += usize::from(!v.is_empty());
+        }
+        println!("noise {noise}: {}", t.describe());
+    }
+    println!(
+        "of {n}: something false named on the own timeline {}, on the true timeline {}, noiseless data on the own timeline {}",
+        counts[0], counts[1], counts[2]
+    );
+}
