@@ -104,11 +104,11 @@ const FIXED_SEEDS: [u64; 14] = [
 ///   µm/min): about 7 % of draws, against the 0.6 % per run `docs/tests.md` bounds the
 ///   selection's false alarms by. Both times the feed was off by more than +150 ppm (+260, +152;
 ///   its σ 242), as in 2 of the 4 draws that far off and none of the 26 nearer the truth, and
-///   in this draw the play's ends came out 3–4σ off (+0.10, −0.18 µm). The likely mechanism,
-///   supported by that correlation but not proven (the feed was not held at the truth to
-///   confirm it): a feed error within its σ mistimes the take-up of the larger dead band near
-///   the data arcs' ends, and the fit explains what that leaves by a play of Z across Y (a
-///   ccw/cw difference ∝ |cos θ|, largest at those ends) and a drift. Not fixed.
+///   in this draw the play's ends came out 3–4σ off (+0.10, −0.18 µm). The cause, proved by
+///   [`seed_3074_false_pair_needs_the_timeline_error_and_the_noise`]: both the feed's error
+///   (+270 ± 242 ppm) and this noise draw; on the true timeline the noisy record names nothing
+///   false, and the noiseless record on the noisy timeline names nothing false. Not fixed (the
+///   feed as a refit parameter would be).
 ///
 /// Four of [`SEEDS`] fail since the draws gained an interference (issue 27), each with it on X,
 /// the axis the plan's feed-ins run along; the quarters leave them out:
