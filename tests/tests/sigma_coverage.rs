@@ -9,9 +9,9 @@
 //! The full sweep is a measurement, run by hand (`JDBB_COVERAGE_SEEDS=A..B`, default 0..100;
 //! `JDBB_COVERAGE_FAMILY=name` for one family):
 //! `cargo test --profile sweep -p jdbb-tests --test sigma_coverage -- --ignored --nocapture`;
-//! its figures are in `docs/mechanisms.md`. CI runs the first seeds of every family but
-//! [`CI_SKIP`] ([`CI_SEEDS`]): every effect named, and a spread of z under [`CI_RMS_Z`] (a σ two
-//! and a half times too small fails it).
+//! its figures are in `docs/tests.md` (σ coverage per effect family) and `docs/mechanisms.md`.
+//! CI runs the first seeds of every family but [`CI_SKIP`] ([`CI_SEEDS`]): every effect named,
+//! and a spread of z under [`CI_RMS_Z`] (a σ two and a half times too small fails it).
 mod planned;
 
 use planned::read_back;
