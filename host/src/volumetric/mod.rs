@@ -6,6 +6,8 @@
 //! - [`ident`]: what such a test can identify of a linear error field — the design matrix of the
 //!   three scales, three squarenesses, the set-up offset and the instrument's scale, its rank,
 //!   condition number and confounded combinations;
+//! - [`elements`]: how long the machine stays on each element of a plan (a record cut into its
+//!   elements);
 //! - [`fit`]: the linear model's nine terms fitted to changes of D at known positions, with σ
 //!   and the undetermined groups (the core of the joint diagnosis);
 //! - [`plan`]: the plan of a volumetric test (`jdbb plan --volumetric`), one plan.json
@@ -20,6 +22,7 @@
 //! May use: [`crate::numerics`] and nalgebra, the instrument model (`jdbb_core`), and
 //! [`crate::circular`]'s plan and path types by import only (the plane test's plan builder makes
 //! each element). Nothing in `circular` uses this module.
+pub mod elements;
 pub mod fit;
 pub mod ident;
 pub mod plan;
