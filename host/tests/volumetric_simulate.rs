@@ -12,7 +12,7 @@
 use std::fs;
 use std::path::Path;
 
-use jdbb::circular::plan::{Plan, Plane};
+use jdbb::plan::{Plan, Plane};
 use jdbb::volumetric::elements::on_circle_s;
 mod common;
 use common::ok_in;
@@ -20,7 +20,8 @@ use common::ok_in;
 /// Programmed feed of the plan (mm/min).
 const FEED_MM_MIN: f64 = 3000.0;
 /// The machine's acceleration (mm/s²) and the instrument, in every machine file here.
-const MACHINE: &str = "accel_mm_s2 = 2000\n[instrument]\nsample_rate_hz = 200\nstart_delay_s = 2\ntail_s = 1\n";
+const MACHINE: &str =
+    "accel_mm_s2 = 2000\n[instrument]\nsample_rate_hz = 200\nstart_delay_s = 2\ntail_s = 1\n";
 
 /// `jdbb plan --volumetric --distance 90` in `dir/plan`, read back.
 fn volumetric_plan(dir: &Path) -> Plan {
@@ -152,7 +153,12 @@ fn a_hidden_yz_squareness_shows_in_the_yz_arc_as_the_physics_says() {
     let d = dir.path();
     let plan = volumetric_plan(d);
     let perfect = simulated(d, "perfect", 0.0, "");
-    let leaning = simulated(d, "leaning", 0.0, &format!("squareness_yz = {S_UM_PER_M}\n"));
+    let leaning = simulated(
+        d,
+        "leaning",
+        0.0,
+        &format!("squareness_yz = {S_UM_PER_M}\n"),
+    );
     assert_eq!(perfect.len(), leaning.len());
     let d_mm = plan.circles[0].d_mm;
     let runs = stretches_at(&perfect, d_mm, 0.002, 1.0);

@@ -1,6 +1,6 @@
 //! Where a plan's elements are in time: how long the machine stays on each circle (an xy cone, a
 //! zx or yz arc), so that a record can be cut into its elements and checked against the plan.
-use crate::circular::plan::{Plan, Segment};
+use crate::plan::{Plan, Segment};
 
 /// The time the machine spends on circle `k` of `plan` at the programmed feed, as (moving s,
 /// standing s): its arcs, and the dwells from the corner at its feed-in to the corner before its
@@ -30,8 +30,8 @@ pub fn on_circle_s(plan: &Plan, k: usize) -> Option<(f64, f64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::circular::plan::build::{plan as make_plan, PlanSpec};
-    use crate::circular::plan::{Dialect, Plane};
+    use crate::plan::build::{plan as make_plan, PlanSpec};
+    use crate::plan::{Dialect, Plane};
     use jdbb_core::calib::Calibration;
 
     #[test]
