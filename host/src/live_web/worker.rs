@@ -17,14 +17,14 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use crate::circular::diagnose::{diagnose, Diagnosis, Options};
-use crate::circular::input::check_holes;
-use crate::circular::plan::{LineRole, Plan, Segment};
-use crate::circular::report::{
+use crate::diagnose::input::check_holes;
+use crate::diagnose::{diagnose, Diagnosis, Options};
+use crate::model::words::cause;
+use crate::plan::{LineRole, Plan, Segment};
+use crate::report::{
     g_share_percentages, ranked, share_percentages, summary, sync_summary, tolerance_verdict,
 };
-use crate::circular::sync::{data_path, synchronise, synchronise_running, Record, Running, Sync};
-use crate::circular::words::cause;
+use crate::sync::{data_path, synchronise, synchronise_running, Record, Running, Sync};
 use crate::units::{format_estimate, format_to, human};
 
 /// Seconds of samples after a circle's feed-out is seen back at D_in before its diagnosis runs:
@@ -372,8 +372,8 @@ impl Work<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::circular::plan::build::{plan, PlanSpec};
-    use crate::circular::plan::{Dialect, Plane};
+    use crate::plan::build::{plan, PlanSpec};
+    use crate::plan::{Dialect, Plane};
 
     fn two_circles() -> Plan {
         let spec = PlanSpec::machine_test(
@@ -429,9 +429,9 @@ mod tests {
 
     #[test]
     fn the_page_lists_the_effects_as_the_text_does_by_share_of_g() {
-        use crate::circular::diagnose::{diagnose, Options};
-        use crate::circular::path::Path;
-        use crate::circular::simulate::{distances_mm, nominal_path, parse_effect, PathSpec};
+        use crate::diagnose::{diagnose, Options};
+        use crate::model::path::Path;
+        use crate::simulate::{distances_mm, nominal_path, parse_effect, PathSpec};
         let spec = PathSpec {
             radii_mm: vec![80.0],
             heights_mm: vec![0.0],
