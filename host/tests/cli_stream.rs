@@ -1118,12 +1118,10 @@ fn state_where(url_line: &str, pick: impl Fn(&serde_json::Value) -> bool) -> ser
     let t0 = Instant::now();
     let mut last = serde_json::Value::Null;
     while t0.elapsed() < WAIT {
+        // HTTP/1.0: the body as it is, never chunked.
         let mut s = std::net::TcpStream::connect(&host).unwrap();
-        write!(
-            s,
-            "GET /state HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n"
-        )
-        .unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+        write!(s, "GET /state HTTP/1.0\r\nHost: {host}\r\n\r\n").unwrap();
         let mut answer = String::new();
         let _ = s.read_to_string(&mut answer);
         if let Some((_, body)) = answer.split_once("\r\n\r\n") {
