@@ -1076,3 +1076,123 @@ fn record_with_a_plan_says_when_cycle_start_was_missed() {
         "{err}"
     );
 }
+
+/// The lines a child writes to `stream`, as they come.
+fn lines_as_they_come(stream: impl Read + Send + 'static) -> std::sync::mpsc::Receiver<String> {
+    use std::io::BufRead;
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stream)
+            .lines()
+            .map_while(|l| l.ok())
+        {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    rx
+}
+
+/// The first line from `rx` that `pick` takes (panics after [`WAIT`]: a hang).
+fn line_where(rx: &std::sync::mpsc::Receiver<String>, pick: impl Fn(&str) -> bool) -> String {
+    let t0 = Instant::now();
+    while t0.elapsed() < WAIT {
+        match rx.recv_timeout(Duration::from_millis(100)) {
+            Ok(l) if pick(&l) => return l,
+            _ => {}
+        }
+    }
+    panic!("no such line within {WAIT:?}");
+}
+
+/// The live page's `/state` at the `host:port` of the URL `jdbb` printed, once `pick` takes it
+/// (panics after [`WAIT`]).
+fn state_where(url_line: &str, pick: impl Fn(&serde_json::Value) -> bool) -> serde_json::Value {
+    let host = url_line
+        .split("http://")
+        .nth(1)
+        .and_then(|u| u.split('/').next())
+        .unwrap_or_else(|| panic!("no URL in {url_line}"))
+        .to_string();
+    let t0 = Instant::now();
+    let mut last = serde_json::Value::Null;
+    while t0.elapsed() < WAIT {
+        // HTTP/1.0: the body as it is, never chunked.
+        let mut s = std::net::TcpStream::connect(&host).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+        write!(s, "GET /state HTTP/1.0\r\nHost: {host}\r\n\r\n").unwrap();
+        let mut answer = String::new();
+        let _ = s.read_to_string(&mut answer);
+        if let Some((_, body)) = answer.split_once("\r\n\r\n") {
+            last = serde_json::from_str(body).unwrap_or(serde_json::Value::Null);
+            if pick(&last) {
+                return last;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    panic!("/state never showed it: {last}");
+}
+
+#[test]
+fn record_web_shows_the_missed_cycle_start_warning_the_terminal_shows() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rec.csv");
+    let (plan, samples, start, _) = planned_run(dir.path(), "[instrument]\nsample_rate_hz = 100\n");
+    let late: Vec<Sample> = samples
+        .iter()
+        .skip(((start + 10.0) * 100.0) as usize)
+        .take(300)
+        .copied()
+        .collect();
+    let mut pty = Pty::new();
+    let mut child = spawn(&[
+        "record",
+        "--port",
+        &pty.slave_path,
+        "--out",
+        out.to_str().unwrap(),
+        "--plan",
+        &plan,
+        "--seconds",
+        "3",
+        "--web",
+        "127.0.0.1:0",
+    ]);
+    let err = lines_as_they_come(child.stderr.take().unwrap());
+    let url = line_where(&err, |l| l.starts_with("live page: "));
+    pty.expect_command(Command::Start, WAIT);
+    pty.send(&frames_of(&late));
+    let warning = line_where(&err, |l| l.contains("cycle start was missed"));
+    assert!(warning.starts_with("warning: "), "{warning}");
+    let st = state_where(&url, |s| {
+        s["warnings"].as_array().is_some_and(|w| !w.is_empty())
+    });
+    // Word for word what the terminal said, and nothing else.
+    assert_eq!(st["warnings"], serde_json::json!([warning]), "{st}");
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
+    child.wait().unwrap();
+}
+
+#[test]
+fn live_web_shows_the_restart_warning_the_terminal_shows() {
+    let mut pty = Pty::new();
+    let mut child = spawn(&["live", "--port", &pty.slave_path, "--web", "127.0.0.1:0"]);
+    let err = lines_as_they_come(child.stderr.take().unwrap());
+    let out = lines_as_they_come(child.stdout.take().unwrap());
+    let url = line_where(&err, |l| l.starts_with("live page: "));
+    pty.expect_command(Command::Start, WAIT);
+    let mut bytes: Vec<u8> = (0..4).flat_map(|k| batch_frame(16 * k)).collect();
+    bytes.extend(batch_frame(0));
+    pty.send(&bytes);
+    let warning = line_where(&out, |l| l.contains("the device restarted"));
+    let warning = warning.trim_start_matches("\r\x1b[2K").to_string();
+    assert!(warning.starts_with("warning: "), "{warning}");
+    let st = state_where(&url, |s| {
+        s["warnings"].as_array().is_some_and(|w| !w.is_empty())
+    });
+    assert_eq!(st["warnings"], serde_json::json!([warning]), "{st}");
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
+    child.wait().unwrap();
+}

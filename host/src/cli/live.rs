@@ -7,7 +7,7 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use super::output::emit;
-use super::stream_args::StreamArgs;
+use super::stream_args::{warn, StreamArgs};
 use crate::link::live::{status_line, RateMeter, REDRAW};
 use crate::link::record::{port_lost, summary, End};
 use crate::link::stream::{describe_info, interrupt_flag, Poll, Stream};
@@ -33,7 +33,9 @@ pub fn run(args: &LiveArgs) -> Result<()> {
     let mut feed = server.as_ref().map(|_| LiveFeed::new(board, None, None));
     let mut stream = Stream::open(&a.port)?;
     let interrupted = interrupt_flag();
-    a.start(&mut stream)?;
+    a.start(&mut stream, &mut |w| {
+        warn(&mut std::io::stderr(), feed.as_mut(), w)
+    })?;
     let tty = std::io::stdout().is_terminal();
     let t0 = Instant::now();
     let deadline = a.deadline(t0);
@@ -64,10 +66,7 @@ pub fn run(args: &LiveArgs) -> Result<()> {
             if let Some(r) = stream.last_restart() {
                 let text = format!("warning: {r}; the counts go on with its new run");
                 let _ = write!(out, "{}", if tty { "\r\x1b[2K" } else { "" });
-                let _ = writeln!(out, "{text}");
-                if let Some(f) = feed.as_mut() {
-                    f.warn(&text);
-                }
+                warn(&mut out, feed.as_mut(), &text);
             }
         }
         if let Err(e) = stream.check_start() {

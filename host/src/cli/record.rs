@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use super::output::{emit, note, print};
-use super::stream_args::StreamArgs;
+use super::stream_args::{warn, StreamArgs};
 use crate::link::record::{
     check_output, create_partial, finish_output, header, partial_path, record_watched, summary,
     CsvOut, End,
@@ -71,8 +71,8 @@ impl Watch {
         }
     }
 
-    /// Take the samples of one read: whether the program has ended, and the warning said now (for
-    /// the live page too).
+    /// Take the samples of one read: whether the program has ended, and the warning to say now
+    /// (on the terminal and the live page: [`warn`]).
     fn see(&mut self, samples: &[SeqSample], stats: &Stats) -> (bool, Option<String>) {
         for s in samples {
             self.tracker
@@ -81,11 +81,9 @@ impl Watch {
         let mut warning = None;
         if let (Some(m), false) = (&self.tracker.missed_start, self.missed_told) {
             self.missed_told = true;
-            let text = format!(
+            warning = Some(format!(
                 "warning: {m}. This record cannot be synchronised with the plan: stop (Ctrl-C), run the machine back to the plan's start point, start `jdbb record --plan` first, then press cycle start"
-            );
-            note(&text);
-            warning = Some(text);
+            ));
         }
         let now = Instant::now();
         if self.last_line.is_none_or(|t| now - t >= PROGRESS_EVERY) {
@@ -129,7 +127,9 @@ pub fn run(args: &RecordArgs) -> Result<()> {
     let partial = partial_path(&args.out);
     let file = create_partial(&partial, &head)?;
     let interrupted = interrupt_flag();
-    if let Err(e) = args.stream.start(&mut stream) {
+    if let Err(e) = args.stream.start(&mut stream, &mut |w| {
+        warn(&mut std::io::stderr(), feed.as_mut(), w)
+    }) {
         // Nothing recorded: remove the work file this run created (it holds the header only).
         drop(file);
         let _ = std::fs::remove_file(&partial);
@@ -162,11 +162,11 @@ pub fn run(args: &RecordArgs) -> Result<()> {
             let (ended, warning) = watch
                 .as_mut()
                 .map_or((false, None), |w| w.see(samples, stats));
+            if let Some(w) = &warning {
+                warn(&mut std::io::stderr(), feed.as_mut(), w);
+            }
             if let Some(f) = feed.as_mut() {
                 f.samples(samples);
-                if let Some(w) = &warning {
-                    f.warn(w);
-                }
                 f.publish_if_due(stats, Instant::now());
             }
             ended

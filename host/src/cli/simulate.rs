@@ -7,12 +7,12 @@ use std::path::PathBuf;
 
 use super::output::{note, print, stdout_result};
 use crate::fsio::{check_destination, Staged};
-use crate::link::record::{header, write_csv_lines};
+use crate::link::record::{header, write_csv_line};
 use crate::link::stream::SeqSample;
 use crate::model::{parse_pitch, Path};
 use crate::plan::{Plan, PLAN_ID_KEY};
 use crate::simulate::machine::{example, Machine};
-use crate::simulate::record_sim::record;
+use crate::simulate::record_sim::{record_each, Truth, WINDOW};
 use crate::simulate::{
     distances_mm, measure, nominal_path, parse_effect, parse_plane, write_csv, EffectValue,
     PathSpec,
@@ -94,35 +94,41 @@ fn run_plan(
             c.name()
         ));
     }
-    let (samples, truth) = record(&plan, &machine)?;
-    let mut text = header(&[(PLAN_ID_KEY, plan.id())]).into_bytes();
-    // As `jdbb record` writes it: the serial the device reported, before the samples.
-    text.extend_from_slice(
-        format!(
-            "# {}: {}\n",
-            crate::table::INSTRUMENT_SERIAL,
-            machine.instrument.serial
-        )
-        .as_bytes(),
+    // As `jdbb record` writes it: the plan's id, the serial the device reported, then the
+    // samples, each written as it is made (a record of millions of samples is never held).
+    let head = format!(
+        "{}# {}: {}\n",
+        header(&[(PLAN_ID_KEY, plan.id())]),
+        crate::table::INSTRUMENT_SERIAL,
+        machine.instrument.serial
     );
-    let seq: Vec<SeqSample> = samples
-        .iter()
-        .enumerate()
-        .map(|(k, s)| SeqSample {
-            seq: k as u64,
-            sample: *s,
+    let mut count = 0u64;
+    let mut write = |out: &mut dyn Write| -> Result<Truth> {
+        let failed = |source| Error::File {
+            action: "cannot write",
+            path: args.out.clone().unwrap_or_else(|| "standard output".into()),
+            source,
+        };
+        out.write_all(head.as_bytes()).map_err(failed)?;
+        record_each(&plan, &machine, WINDOW, &mut |sample| {
+            let seq = SeqSample {
+                seq: count,
+                sample: *sample,
+            };
+            count += 1;
+            write_csv_line(out, &seq).map_err(failed)
         })
-        .collect();
-    write_csv_lines(&mut text, &seq);
+    };
     match &args.out {
         Some(file) => {
-            crate::fsio::write_file(file, &text, args.force)?;
+            let mut w = Staged::create(file, args.force)?;
+            let truth = write(&mut w)?;
+            w.commit()?;
             let rate = machine.instrument.sample_rate_hz;
             note(&format!(
-                "wrote {}: {} samples at {rate} Hz ({:.1} s) of plan {} on {}; truth: cycle start at t_us {:.0}, program {:.1} s, feed factor {:.6}",
+                "wrote {}: {count} samples at {rate} Hz ({:.1} s) of plan {} on {}; truth: cycle start at t_us {:.0}, program {:.1} s, feed factor {:.6}",
                 file.display(),
-                samples.len(),
-                samples.len() as f64 / rate,
+                count as f64 / rate,
                 plan.id(),
                 machine.name.as_deref().unwrap_or("the machine"),
                 truth.cycle_start_t_us,
@@ -131,7 +137,17 @@ fn run_plan(
             ));
             Ok(())
         }
-        None => super::output::write_stdout(&text),
+        None => {
+            let mut w = std::io::BufWriter::new(std::io::stdout().lock());
+            let written = write(&mut w);
+            let flushed = w.flush();
+            match written {
+                // A closed pipe is how a reader says it has enough.
+                Err(Error::File { source, .. }) => stdout_result(Err(source)),
+                Err(e) => Err(e),
+                Ok(_) => stdout_result(flushed),
+            }
+        }
     }
 }
 

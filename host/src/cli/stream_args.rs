@@ -6,10 +6,24 @@ use std::time::{Duration, Instant};
 use jdbb_core::protocol::{self, Command};
 
 use crate::link::stream::Stream;
+use crate::live_web::feed::LiveFeed;
 use crate::{Error, Result};
 
 /// How long a session waits for the device to answer before it starts anyway.
 const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// Say a warning of a streaming session (`live`, `record`): on a line of its own on the
+/// terminal (`terminal`: standard error, or `live`'s standard output between its status lines)
+/// and, with `--web`, on the live page with its next publication, which is due at once. Every
+/// warning these commands show goes through here, so the page shows what the terminal shows.
+pub fn warn(terminal: &mut dyn Write, page: Option<&mut LiveFeed>, text: &str) {
+    // A failing terminal (a closed pipe) must not end the session.
+    let _ = writeln!(terminal, "{text}");
+    let _ = terminal.flush();
+    if let Some(f) = page {
+        f.warn(text);
+    }
+}
 
 /// Options shared by the commands that stream from a device (`live`, `record`).
 #[derive(Debug, Clone, clap::Args)]
@@ -95,14 +109,18 @@ impl StreamArgs {
     }
 
     /// Ask the device to describe itself, then configure and start it as asked (`--rate`,
-    /// unless `--no-start`).
-    pub fn start<P: Read + Write>(&self, stream: &mut Stream<P>) -> Result<()> {
+    /// unless `--no-start`); a warning (the device did not answer) goes to `warn` ([`warn`]).
+    pub fn start<P: Read + Write>(
+        &self,
+        stream: &mut Stream<P>,
+        warn: &mut dyn FnMut(&str),
+    ) -> Result<()> {
         if self.no_start {
             // Listen only: every sample counts from the first byte, so no handshake.
             return stream.send(&Command::GetInfo);
         }
         if !stream.handshake(HANDSHAKE_TIMEOUT)? {
-            super::output::note(&format!(
+            warn(&format!(
                 "warning: {} did not answer a ping within {} s; starting anyway",
                 stream.name(),
                 HANDSHAKE_TIMEOUT.as_secs()
@@ -121,5 +139,63 @@ impl StreamArgs {
         if !self.no_start {
             let _ = stream.send(&Command::Stop);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::link::stream::Stats;
+    use crate::live_web::feed::new_board;
+
+    /// A device that says nothing: its port reads as closed and takes every write.
+    struct Silent;
+
+    impl Read for Silent {
+        fn read(&mut self, _: &mut [u8]) -> std::io::Result<usize> {
+            Ok(0)
+        }
+    }
+
+    impl Write for Silent {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn the_handshake_warning_is_on_the_page_as_on_the_terminal() {
+        let args = StreamArgs {
+            port: "/dev/ttyFAKE".into(),
+            seconds: None,
+            rate: None,
+            unsustained_rate: false,
+            no_start: false,
+            web: None,
+        };
+        let board = new_board();
+        let mut feed = Some(LiveFeed::new(board.clone(), None, None));
+        let mut terminal = vec![];
+        let mut stream = Stream::new(Silent, "/dev/ttyFAKE");
+        args.start(&mut stream, &mut |w| warn(&mut terminal, feed.as_mut(), w))
+            .unwrap();
+        let said = String::from_utf8(terminal).unwrap();
+        assert!(
+            said.starts_with("warning: /dev/ttyFAKE did not answer a ping"),
+            "{said}"
+        );
+        feed.as_mut()
+            .unwrap()
+            .publish_if_due(&Stats::default(), Instant::now());
+        let json = board.lock().unwrap().json.clone();
+        let state: serde_json::Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(
+            state["warnings"],
+            serde_json::json!([said.trim_end()]),
+            "{state}"
+        );
     }
 }

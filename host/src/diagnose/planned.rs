@@ -106,10 +106,17 @@ pub fn diagnose_planned(
         if (next.feed_percent / out.sync.feed_percent - 1.0).abs() < 1e-6 {
             break;
         }
-        let Ok((path, d_mm)) = data_path(plan, rec, &next, pitch_mm) else {
-            break;
-        };
-        let Ok(diagnosis) = diagnose(&path, &d_mm, opts) else {
+        // One pass's data held at a time (a long record's path is most of the memory): the last
+        // good data are let go, and made again from their synchronisation (the same samples) if
+        // this reading fails.
+        out.path = Path::default();
+        out.d_mm = vec![];
+        let attempt = data_path(plan, rec, &next, pitch_mm).and_then(|(path, d_mm)| {
+            let diagnosis = diagnose(&path, &d_mm, opts)?;
+            Ok((path, d_mm, diagnosis))
+        });
+        let Ok((path, d_mm, diagnosis)) = attempt else {
+            (out.path, out.d_mm) = data_path(plan, rec, &out.sync, pitch_mm)?;
             break;
         };
         out = Planned {

@@ -57,14 +57,19 @@ pub fn header(comments: &[(&str, String)]) -> String {
 /// (0.1 nm; the on-chip D is good to ~10 nm).
 pub fn write_csv_lines(out: &mut Vec<u8>, samples: &[SeqSample]) {
     for s in samples {
-        let x = &s.sample;
         // Writing to a Vec cannot fail.
-        let _ = writeln!(
-            out,
-            "{},{},{},{},{:.7}",
-            s.seq, x.t_us, x.enc1, x.enc2, x.d_mm
-        );
+        let _ = write_csv_line(out, s);
     }
+}
+
+/// Write one sample's CSV line (`seq,t_us,enc1,enc2,d_mm`, as [`write_csv_lines`]) to `out`.
+pub fn write_csv_line(out: &mut dyn Write, s: &SeqSample) -> std::io::Result<()> {
+    let x = &s.sample;
+    writeln!(
+        out,
+        "{},{},{},{},{:.7}",
+        s.seq, x.t_us, x.enc1, x.enc2, x.d_mm
+    )
 }
 
 /// Samples the recorder set aside, by reason ([`SampleCheck`]).

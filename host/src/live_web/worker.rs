@@ -21,7 +21,9 @@ use crate::diagnose::input::check_holes;
 use crate::diagnose::{diagnose, Diagnosis, Options};
 use crate::model::words::cause;
 use crate::plan::{LineRole, Plan, Segment};
-use crate::report::{share_percentages, summary, sync_summary, tolerance_verdict};
+use crate::report::{
+    g_share_percentages, ranked, share_percentages, summary, sync_summary, tolerance_verdict,
+};
 use crate::sync::{data_path, synchronise, synchronise_running, Record, Running, Sync};
 use crate::units::{format_estimate, format_to, human};
 
@@ -51,14 +53,18 @@ pub struct CircleDiagnosis {
 /// One ranked effect of a circle's diagnosis.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct EffectRow {
-    /// `set-up` or `step k`, as `jdbb diagnose` prints it.
+    /// `set-up`, or the effect's rank as `jdbb diagnose` prints it (`1.`, `2.`, ...: by share
+    /// of G, [`ranked`]).
     pub step: String,
     pub name: String,
     /// Value ± σ with the digits σ supports.
     pub value: String,
     pub unit: String,
-    /// Whole percent of the error (the shares and the residual's add up to 100); None for the
-    /// set-up.
+    /// Share of G in whole percent: how much of the circular deviation G this effect makes
+    /// ((G − G without it) / G, as the text's "% of G"); None for the set-up.
+    pub g_share_percent: Option<u32>,
+    /// Share of the mean square in whole percent (these and the residual's add up to 100, the
+    /// text's "% of the mean square"); None for the set-up.
     pub share_percent: Option<u32>,
     /// The cause in words.
     pub cause: String,
@@ -73,24 +79,31 @@ pub struct ZoneRow {
     pub g_um: String,
 }
 
-/// The rows of `diag` for the page.
+/// The rows of `diag` for the page: the set-up, then the machine effects in the order the text
+/// and `report.html` list them ([`ranked`]: by share of G), numbered as the text numbers them.
 fn rows(diag: &Diagnosis) -> (Vec<EffectRow>, Vec<ZoneRow>, Option<String>) {
     let shares = share_percentages(diag);
-    let effects = diag
-        .effects
-        .iter()
+    let g_shares = g_share_percentages(diag);
+    let setup = (0..diag.effects.len())
+        .filter(|&i| diag.effects[i].effect.is_setup())
+        .map(|i| (i, "set-up".to_string()));
+    let machine = ranked(diag)
+        .into_iter()
         .enumerate()
-        .map(|(i, f)| EffectRow {
-            step: if i < 2 {
-                "set-up".into()
-            } else {
-                format!("step {}", i - 1)
-            },
-            name: f.effect.name(),
-            value: format_estimate(f.value, f.sigma),
-            unit: human(f.effect.unit()),
-            share_percent: shares.effects.get(i).copied().flatten(),
-            cause: cause(f.effect, f.value),
+        .map(|(rank, i)| (i, format!("{}.", rank + 1)));
+    let effects = setup
+        .chain(machine)
+        .map(|(i, step)| {
+            let f = &diag.effects[i];
+            EffectRow {
+                step,
+                name: f.effect.name(),
+                value: format_estimate(f.value, f.sigma),
+                unit: human(f.effect.unit()),
+                g_share_percent: g_shares.get(i).copied().flatten(),
+                share_percent: shares.effects.get(i).copied().flatten(),
+                cause: cause(f.effect, f.value),
+            }
         })
         .collect();
     let noise = diag.final_rms_um;
@@ -412,6 +425,68 @@ mod tests {
             }
         ));
         assert_eq!(plan_up_to(&p, 2).segments, p.segments);
+    }
+
+    #[test]
+    fn the_page_lists_the_effects_as_the_text_does_by_share_of_g() {
+        use crate::diagnose::{diagnose, Options};
+        use crate::model::path::Path;
+        use crate::simulate::{distances_mm, nominal_path, parse_effect, PathSpec};
+        let spec = PathSpec {
+            radii_mm: vec![80.0],
+            heights_mm: vec![0.0],
+            plane: (0, 1, 2),
+            feed_mm_min: 1000.0,
+            rate_hz: 100.0,
+        };
+        let (t, p) = nominal_path(&spec);
+        let path = Path::new(t, p, [None; 3]);
+        let effects: Vec<_> = ["backlash_x=6", "squareness_xy=25", "scale_y=15"]
+            .iter()
+            .map(|e| parse_effect(e).unwrap())
+            .collect();
+        let d = distances_mm(&path, &effects).unwrap();
+        let mut diag = diagnose(&path, &d, &Options::default()).unwrap();
+        // The page's order must not be the selection's: list the machine effects in the
+        // opposite order from the one they rank in.
+        let order = ranked(&diag);
+        assert!(order.len() >= 3, "{}", summary(&diag));
+        let setup: Vec<_> = diag
+            .effects
+            .iter()
+            .filter(|f| f.effect.is_setup())
+            .cloned()
+            .collect();
+        let machine: Vec<_> = order
+            .iter()
+            .rev()
+            .map(|&i| diag.effects[i].clone())
+            .collect();
+        diag.effects = setup.into_iter().chain(machine).collect();
+        let text = summary(&diag);
+        let (rows, _, _) = rows(&diag);
+        let listed: Vec<String> = rows
+            .iter()
+            .filter(|r| r.step != "set-up")
+            .map(|r| format!("{} {}", r.step, r.name))
+            .collect();
+        let in_text: Vec<String> = text
+            .lines()
+            .filter_map(|l| {
+                let (rank, rest) = l.split_once(' ')?;
+                (rank.ends_with('.') && rank[..rank.len() - 1].parse::<u32>().is_ok())
+                    .then(|| format!("{rank} {}", rest.split(' ').next().unwrap_or("")))
+            })
+            .collect();
+        assert_eq!(listed, in_text, "{text}");
+        // Largest share of G first, each shown as the text shows it.
+        let g: Vec<u32> = rows.iter().filter_map(|r| r.g_share_percent).collect();
+        assert!(g.windows(2).all(|w| w[0] >= w[1]), "{g:?}\n{text}");
+        for r in rows.iter().filter(|r| r.step != "set-up") {
+            let want = format!("{} % of G", r.g_share_percent.unwrap());
+            let line = text.lines().find(|l| l.starts_with(&r.step)).unwrap();
+            assert!(line.contains(&want), "{line}");
+        }
     }
 
     #[test]

@@ -108,7 +108,7 @@ impl Candidate {
                 }
             }
             Effect::Drift => {
-                let t0 = path.t_s.first().copied().unwrap_or(0.0);
+                let t0 = path.t0_s;
                 let t = &path.t_s[i0..i0 + n];
                 for (j, o) in rows.enumerate() {
                     out[o] = (t[j] - t0) / 60.0;

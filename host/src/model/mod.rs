@@ -362,10 +362,7 @@ impl Effect {
                 }
             }
             Effect::Drift => {
-                let (t0, r) = (
-                    path.t_s.first().copied().unwrap_or(0.0),
-                    1e-3 * theta[0] / 60.0,
-                );
+                let (t0, r) = (path.t0_s, 1e-3 * theta[0] / 60.0);
                 for (x, t) in dd.iter_mut().zip(&path.t_s[i0..i0 + n]) {
                     *x += r * (t - t0);
                 }
@@ -602,7 +599,7 @@ impl Effect {
 
 /// Minutes from the path's first sample to sample i: the time of a drift in time.
 fn elapsed_min(path: &Path, i: usize) -> f64 {
-    (path.t_s[i] - path.t_s.first().copied().unwrap_or(0.0)) / 60.0
+    (path.t_s[i] - path.t0_s) / 60.0
 }
 
 /// Beyond this many decay times a spike is taken as gone: e^(−37) ≈ 8.5·10⁻¹⁷ is under half an

@@ -167,7 +167,7 @@ pub struct Reversal {
 
 /// The nominal path with the derived motion: velocity, acceleration, held direction and the
 /// reversals per axis.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct Path {
     pub t_s: Vec<f64>,
     pub p_mm: Vec<[f64; 3]>,
@@ -190,13 +190,96 @@ pub struct Path {
     /// (`model::travel_ends_mm`).
     pub lo_mm: [f64; 3],
     pub hi_mm: [f64; 3],
-    /// See [`Path::pitch_phase`].
+    /// See [`Path::pitch_phase`]; empty when no axis has a pitch.
     pub(crate) phase: Vec<[(f64, f64); 3]>,
+    /// Time of the whole path's first sample (s): the origin of the drifts (a window of a longer
+    /// path keeps the path's).
+    pub t0_s: f64,
     /// Standard error of the samples' times against the machine's motion (s): 0 where the path
     /// comes with its times (a nominal path file, a simulation); the synchronisation's where the
     /// times were found from D ([`crate::sync`]). What depends on the time of a reversal (a
     /// reversal spike's height) carries it into its standard error.
     pub timing_sigma_s: f64,
+}
+
+/// What only the whole of a path decides, for a path made window by window because it is too
+/// long to hold ([`Path::window`]: `jdbb simulate --plan` of millions of samples): the speed
+/// below which an axis stands still, the travel, the reversals, and the direction each axis
+/// holds before it first moves.
+#[derive(Debug, Clone, Default)]
+pub struct Whole {
+    /// An axis moving slower than this (mm/s) stands still: 1e-9 of the fastest axis speed.
+    pub standstill_mm_s: f64,
+    /// Lowest and highest position per axis (mm, relative to the table ball).
+    pub lo_mm: [f64; 3],
+    pub hi_mm: [f64; 3],
+    /// Reversals per axis in time order.
+    pub reversals: [Vec<Reversal>; 3],
+    /// The direction each axis holds at the path's first sample (that of its first motion).
+    pub first_dir: [i8; 3],
+    /// Time of the path's first sample (s): the origin of the drifts.
+    pub t0_s: f64,
+}
+
+/// The speed below which an axis of a path whose fastest axis speed is `vmax_mm_s` stands still.
+pub fn standstill_mm_s(vmax_mm_s: f64) -> f64 {
+    vmax_mm_s * 1e-9
+}
+
+/// The direction an axis holds after a sample of velocity `v_mm_s`, having held `held` (+1/−1,
+/// 0 before it first moves): a standstill keeps it.
+pub fn held_dir(held: i8, v_mm_s: f64, standstill_mm_s: f64) -> i8 {
+    if v_mm_s > standstill_mm_s {
+        1
+    } else if v_mm_s < -standstill_mm_s {
+        -1
+    } else {
+        held
+    }
+}
+
+/// The reversal of axis `k` between two consecutive samples `(t_s, p_mm, v_mm_s, dir)`, if its
+/// held direction changed there: at the zero crossing of the velocity (at the first sample if it
+/// stood still there), where the axis turned (the extreme of the two positions).
+pub fn reversal_between(
+    k: usize,
+    a: (f64, &[f64; 3], &[f64; 3], i8),
+    b: (f64, &[f64; 3], &[f64; 3], i8),
+    standstill_mm_s: f64,
+) -> Option<Reversal> {
+    let (d0, d1) = (a.3, b.3);
+    if d0 == 0 || d1 == 0 || d0 == d1 {
+        return None;
+    }
+    let eps = standstill_mm_s;
+    let (v0, v1) = (a.2[k], b.2[k]);
+    let f = if (v0 > eps && v1 < -eps) || (v0 < -eps && v1 > eps) {
+        v0 / (v0 - v1)
+    } else {
+        0.0
+    };
+    let ext = if d0 > 0 {
+        a.1[k].max(b.1[k])
+    } else {
+        a.1[k].min(b.1[k])
+    };
+    Some(Reversal {
+        t_s: a.0 + f * (b.0 - a.0),
+        new_dir: d1,
+        p_mm: ext,
+    })
+}
+
+/// The held direction per axis along `v` (see [`held_dir`]), starting from `held`.
+fn directions(v: &[[f64; 3]], standstill_mm_s: f64, mut held: [i8; 3]) -> Vec<[i8; 3]> {
+    v.iter()
+        .map(|v| {
+            for k in 0..3 {
+                held[k] = held_dir(held[k], v[k], standstill_mm_s);
+            }
+            held
+        })
+        .collect()
 }
 
 impl Path {
@@ -206,7 +289,6 @@ impl Path {
         let n = p_mm.len();
         let v = derivative(&t_s, &p_mm);
         let a = derivative(&t_s, &v);
-        let mut range = [0.0; 3];
         let mut lo_mm = [0.0; 3];
         let mut hi_mm = [0.0; 3];
         for k in 0..3 {
@@ -215,7 +297,6 @@ impl Path {
                 .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
                     (lo.min(p[k]), hi.max(p[k]))
                 });
-            range[k] = if n > 0 { hi - lo } else { 0.0 };
             if n > 0 {
                 (lo_mm[k], hi_mm[k]) = (lo, hi);
             }
@@ -225,52 +306,74 @@ impl Path {
             .iter()
             .flat_map(|x| x.iter())
             .fold(0.0f64, |m, &x| m.max(x.abs()));
-        let eps = vmax * 1e-9;
-        let mut dir = vec![[0i8; 3]; n];
-        for k in 0..3 {
-            let first = v.iter().map(|x| x[k]).find(|x| x.abs() > eps);
-            let mut held: i8 = match first {
-                Some(x) if x > 0.0 => 1,
-                Some(_) => -1,
-                None => 0,
-            };
-            for i in 0..n {
-                if v[i][k] > eps {
-                    held = 1;
-                } else if v[i][k] < -eps {
-                    held = -1;
-                }
-                dir[i][k] = held;
-            }
-        }
+        let eps = standstill_mm_s(vmax);
+        let first_dir: [i8; 3] = std::array::from_fn(|k| {
+            v.iter()
+                .map(|x| x[k])
+                .find(|x| x.abs() > eps)
+                .map_or(0, |x| if x > 0.0 { 1 } else { -1 })
+        });
+        let dir = directions(&v, eps, first_dir);
         let mut reversals: [Vec<Reversal>; 3] = Default::default();
         for k in 0..3 {
             for i in 1..n {
-                let (d0, d1) = (dir[i - 1][k], dir[i][k]);
-                if d0 != 0 && d1 != 0 && d0 != d1 {
-                    // Zero crossing of v between i−1 and i (at i−1 if it stood still there).
-                    let (v0, v1) = (v[i - 1][k], v[i][k]);
-                    let f = if (v0 > eps && v1 < -eps) || (v0 < -eps && v1 > eps) {
-                        v0 / (v0 - v1)
-                    } else {
-                        0.0
-                    };
-                    // The turning point: the extreme of the samples around the crossing.
-                    let ext = if d0 > 0 {
-                        p_mm[i - 1][k].max(p_mm[i][k])
-                    } else {
-                        p_mm[i - 1][k].min(p_mm[i][k])
-                    };
-                    reversals[k].push(Reversal {
-                        t_s: t_s[i - 1] + f * (t_s[i] - t_s[i - 1]),
-                        new_dir: d1,
-                        p_mm: ext,
-                    });
-                }
+                reversals[k].extend(reversal_between(
+                    k,
+                    (t_s[i - 1], &p_mm[i - 1], &v[i - 1], dir[i - 1][k]),
+                    (t_s[i], &p_mm[i], &v[i], dir[i][k]),
+                    eps,
+                ));
             }
         }
+        let whole = Whole {
+            standstill_mm_s: eps,
+            lo_mm,
+            hi_mm,
+            reversals,
+            first_dir,
+            t0_s: t_s.first().copied().unwrap_or(0.0),
+        };
+        Path::assemble(t_s, p_mm, v, a, dir, pitch_mm, whole)
+    }
+
+    /// A window of a longer path (samples `t_s`, `p_mm`) with what only the whole path decides
+    /// (`whole`) and the direction each axis held at the window's first sample (`held`). Its
+    /// velocity and acceleration are the whole path's except within two samples of a window
+    /// edge that is not the path's: the caller keeps a margin there.
+    pub fn window(
+        t_s: Vec<f64>,
+        p_mm: Vec<[f64; 3]>,
+        pitch_mm: [Option<f64>; 3],
+        whole: Whole,
+        held: [i8; 3],
+    ) -> Path {
+        let v = derivative(&t_s, &p_mm);
+        let a = derivative(&t_s, &v);
+        let mut dir = Vec::with_capacity(v.len());
+        if !v.is_empty() {
+            dir.push(held);
+            dir.extend(directions(&v[1..], whole.standstill_mm_s, held));
+        }
+        Path::assemble(t_s, p_mm, v, a, dir, pitch_mm, whole)
+    }
+
+    /// A path from its samples, their derived motion and what the whole path decides.
+    fn assemble(
+        t_s: Vec<f64>,
+        p_mm: Vec<[f64; 3]>,
+        v: Vec<[f64; 3]>,
+        a: Vec<[f64; 3]>,
+        dir: Vec<[i8; 3]>,
+        pitch_mm: [Option<f64>; 3],
+        whole: Whole,
+    ) -> Path {
+        let range: [f64; 3] = std::array::from_fn(|k| whole.hi_mm[k] - whole.lo_mm[k]);
+        // No pitch, no phase: 48 bytes a sample that nothing reads (the periodic effects need a
+        // pitch), a third of a long record's path.
+        let pitched = pitch_mm.iter().any(Option::is_some);
         let phase = p_mm
             .iter()
+            .take(if pitched { usize::MAX } else { 0 })
             .map(|p| {
                 let mut out = [(0.0, 0.0); 3];
                 for (k, o) in out.iter_mut().enumerate() {
@@ -286,13 +389,14 @@ impl Path {
             p_mm,
             v_mm_s: v,
             a_mm_s2: a,
-            reversals,
+            reversals: whole.reversals,
             dir,
             pitch_mm,
             range_mm: range,
-            lo_mm,
-            hi_mm,
+            lo_mm: whole.lo_mm,
+            hi_mm: whole.hi_mm,
             phase,
+            t0_s: whole.t0_s,
             timing_sigma_s: 0.0,
         }
     }
@@ -321,7 +425,7 @@ impl Path {
     /// (sin, cos) of 2π·k/pitch_k per axis at sample i; (0, 0) for an axis without a pitch.
     /// Computed once in [`Path::new`]: every periodic column needs it on every pass.
     pub fn pitch_phase(&self, i: usize) -> [(f64, f64); 3] {
-        self.phase[i]
+        self.phase.get(i).copied().unwrap_or([(0.0, 0.0); 3])
     }
 
     /// Whether axis k moves at all.

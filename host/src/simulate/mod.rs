@@ -284,7 +284,7 @@ pub fn distances_mm(path: &Path, effects: &[EffectValue]) -> Result<Vec<f64>> {
             }
         }
     }
-    let t0 = path.t_s.first().copied().unwrap_or(0.0);
+    let t0 = path.t0_s;
     let along_path = EffectSet::new(path_effects.iter().map(|e| e.effect).collect());
     let along_theta: Vec<f64> = path_effects.iter().flat_map(|e| e.params.clone()).collect();
     Ok((0..path.len())

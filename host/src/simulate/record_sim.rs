@@ -20,12 +20,14 @@
 //!
 //! The host's own models are used here (not the tests' G-code machine, which is the independent
 //! check of all this).
+// Index loops over the axes (k in 0..3) and a window's samples mirror those of `path`; keep them.
+#![allow(clippy::needless_range_loop)]
 use jdbb_core::geometry::{self, Kernel};
 use jdbb_core::protocol::{Sample, Status};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
-use crate::model::path::Path;
+use crate::model::path::{held_dir, reversal_between, standstill_mm_s, Path, Whole};
 use crate::model::Effect;
 use crate::plan::{Dialect, Plan, Segment};
 use crate::simulate::machine::Machine;
@@ -220,8 +222,36 @@ pub struct Truth {
     pub feed_factor: f64,
 }
 
-/// The device's samples of `plan` run on `machine` (module docs), with the truth.
+/// The device's samples of `plan` run on `machine` (module docs), with the truth: all of them
+/// in memory (tests, short records; `jdbb simulate` streams them with [`record_each`]).
 pub fn record(plan: &Plan, machine: &Machine) -> Result<(Vec<Sample>, Truth)> {
+    let mut samples = vec![];
+    let truth = record_each(plan, machine, WINDOW, &mut |s| {
+        samples.push(*s);
+        Ok(())
+    })?;
+    Ok((samples, truth))
+}
+
+/// Samples a window of the path holds in [`record_each`] (about 8 MB of derived motion).
+pub const WINDOW: usize = 1 << 16;
+
+/// Samples on each side of a window beyond the ones it yields: the velocity and acceleration
+/// (central differences of central differences, two samples) and a servo delay's interpolation
+/// (three samples) are then those of the whole path.
+const MARGIN: usize = 8;
+
+/// The device's samples of `plan` run on `machine` (module docs), each given to `sink` in order
+/// as it is made, with the truth. Memory is bounded whatever the record's length: the path is
+/// made `window` samples at a time (after two passes that find what only the whole path decides:
+/// its fastest speed, travel and reversals), and every sample is bit for bit the one a path held
+/// whole gives.
+pub fn record_each(
+    plan: &Plan,
+    machine: &Machine,
+    window: usize,
+    sink: &mut dyn FnMut(&Sample) -> Result<()>,
+) -> Result<Truth> {
     let timeline = Timeline::new(plan, machine)?;
     let ins = &machine.instrument;
     let scale = 1.0 + ins.clock_ppm * 1e-6;
@@ -233,15 +263,93 @@ pub fn record(plan: &Plan, machine: &Machine) -> Result<(Vec<Sample>, Truth)> {
         )));
     }
     let n = n_f as usize;
-    let mut t_s = Vec::with_capacity(n);
-    let mut p_mm = Vec::with_capacity(n);
-    for k in 0..n {
-        let t = k as f64 / ins.sample_rate_hz / scale; // true s since the recording started
-        let q = timeline.position_at(plan, t - ins.start_delay_s);
-        t_s.push(t);
-        p_mm.push(std::array::from_fn(|a| q[a] - plan.centre_mm[a]));
+    // A window longer than the margin: each window after the first starts inside the chunk before.
+    let window = window.max(MARGIN + 1);
+    // Samples k0..k1 with MARGIN on each side (within the record): their true times (s since the
+    // recording started) and commanded positions relative to the table ball.
+    let samples_of = |k0: usize, k1: usize| {
+        let (w0, w1) = (k0.saturating_sub(MARGIN), (k1 + MARGIN).min(n));
+        let t_s: Vec<f64> = (w0..w1)
+            .map(|k| k as f64 / ins.sample_rate_hz / scale)
+            .collect();
+        let p_mm: Vec<[f64; 3]> = t_s
+            .iter()
+            .map(|&t| {
+                let q = timeline.position_at(plan, t - ins.start_delay_s);
+                std::array::from_fn(|a| q[a] - plan.centre_mm[a])
+            })
+            .collect();
+        (w0, t_s, p_mm)
+    };
+    let chunks = move || {
+        (0..n)
+            .step_by(window)
+            .map(move |k0| (k0, (k0 + window).min(n)))
+    };
+    // Pass 1: the fastest axis speed and the travel.
+    let mut whole = Whole {
+        lo_mm: [f64::INFINITY; 3],
+        hi_mm: [f64::NEG_INFINITY; 3],
+        ..Whole::default()
+    };
+    let mut vmax = 0.0f64;
+    for (k0, k1) in chunks() {
+        let (w0, t_s, p_mm) = samples_of(k0, k1);
+        let path = Path::window(t_s, p_mm, [None; 3], Whole::default(), [0; 3]);
+        for i in k0 - w0..k1 - w0 {
+            for k in 0..3 {
+                vmax = vmax.max(path.v_mm_s[i][k].abs());
+                whole.lo_mm[k] = whole.lo_mm[k].min(path.p_mm[i][k]);
+                whole.hi_mm[k] = whole.hi_mm[k].max(path.p_mm[i][k]);
+            }
+        }
     }
-    let path = Path::new(t_s, p_mm, machine.pitch_mm);
+    let eps = standstill_mm_s(vmax);
+    whole.standstill_mm_s = eps;
+    // Pass 2: each axis' first direction, its reversals, and the direction held where each
+    // window of pass 3 starts.
+    let mut held = [0i8; 3];
+    let mut held_at_window = vec![];
+    // The sample before: time, position, velocity, held direction.
+    type Motion = (f64, [f64; 3], [f64; 3], [i8; 3]);
+    let mut last: Option<Motion> = None;
+    for (k0, k1) in chunks() {
+        let (w0, t_s, p_mm) = samples_of(k0, k1);
+        let path = Path::window(t_s, p_mm, [None; 3], Whole::default(), [0; 3]);
+        for i in k0 - w0..k1 - w0 {
+            let (t, p, v) = (path.t_s[i], path.p_mm[i], path.v_mm_s[i]);
+            for k in 0..3 {
+                let h = held_dir(held[k], v[k], eps);
+                if held[k] == 0 && h != 0 {
+                    whole.first_dir[k] = h;
+                }
+                held[k] = h;
+                if let Some((t0, p0, v0, d0)) = &last {
+                    whole.reversals[k].extend(reversal_between(
+                        k,
+                        (*t0, p0, v0, d0[k]),
+                        (t, &p, &v, held[k]),
+                        eps,
+                    ));
+                }
+            }
+            last = Some((t, p, v, held));
+            // The next window starts MARGIN samples before the next chunk.
+            if k1 < n && w0 + i + MARGIN == k1 {
+                held_at_window.push(held);
+            }
+        }
+    }
+    // Before its first motion an axis holds the direction of that motion.
+    held_at_window.insert(0, whole.first_dir);
+    for held in &mut held_at_window {
+        for k in 0..3 {
+            if held[k] == 0 {
+                held[k] = whole.first_dir[k];
+            }
+        }
+    }
+    whole.t0_s = 0.0;
     let mut effects = machine.effects.clone();
     if let Some(ball) = machine.table_ball_mm {
         // The table ball at centre + c: a set-up offset c (µm), added to one given.
@@ -256,41 +364,46 @@ pub fn record(plan: &Plan, machine: &Machine) -> Result<(Vec<Sample>, Truth)> {
             }),
         }
     }
-    let d_true = distances_mm(&path, &effects)?;
     let mut rng = rand::rngs::StdRng::seed_from_u64(ins.seed);
     let normal = Normal::new(0.0, ins.noise_um * 1e-3)
         .map_err(|e| Error::Usage(format!("noise_um {}: {e}", ins.noise_um)))?;
     let kernel = Kernel::new(&ins.calibration);
-    let mut samples = Vec::with_capacity(n);
-    for (k, d) in d_true.iter().enumerate() {
-        let d_ins = if ins.noise_um > 0.0 {
-            d + normal.sample(&mut rng)
-        } else {
-            *d
-        };
-        let Some((enc1, enc2)) =
-            geometry::counts_for_distance(&ins.calibration, d_ins, ins.lean_rad)
-        else {
-            return Err(Error::Usage(format!(
-                "at {:.3} s of the recording D is {d_ins:.3} mm, out of the instrument's reach (L1 {} mm, L2 {} mm): the machine's errors or the table ball position are too large for this plan",
-                path.t_s[k], ins.calibration.l1_mm, ins.calibration.l2_mm
-            )));
-        };
-        let t_us = ins.t0_us + (k as f64 * 1e6 / ins.sample_rate_hz).round() as u64;
-        samples.push(Sample {
-            t_us,
-            enc1,
-            enc2,
-            d_mm: kernel.distance_mm(enc1, enc2),
-            status: Status(0),
-        });
+    // Pass 3: each window's true D, through the instrument, to the sink.
+    for ((k0, k1), held) in chunks().zip(held_at_window) {
+        let (w0, t_s, p_mm) = samples_of(k0, k1);
+        let path = Path::window(t_s, p_mm, machine.pitch_mm, whole.clone(), held);
+        let d_true = distances_mm(&path, &effects)?;
+        for i in k0 - w0..k1 - w0 {
+            let k = w0 + i;
+            let d = d_true[i];
+            let d_ins = if ins.noise_um > 0.0 {
+                d + normal.sample(&mut rng)
+            } else {
+                d
+            };
+            let Some((enc1, enc2)) =
+                geometry::counts_for_distance(&ins.calibration, d_ins, ins.lean_rad)
+            else {
+                return Err(Error::Usage(format!(
+                    "at {:.3} s of the recording D is {d_ins:.3} mm, out of the instrument's reach (L1 {} mm, L2 {} mm): the machine's errors or the table ball position are too large for this plan",
+                    path.t_s[i], ins.calibration.l1_mm, ins.calibration.l2_mm
+                )));
+            };
+            let t_us = ins.t0_us + (k as f64 * 1e6 / ins.sample_rate_hz).round() as u64;
+            sink(&Sample {
+                t_us,
+                enc1,
+                enc2,
+                d_mm: kernel.distance_mm(enc1, enc2),
+                status: Status(0),
+            })?;
+        }
     }
-    let truth = Truth {
+    Ok(Truth {
         cycle_start_t_us: ins.t0_us as f64 + ins.start_delay_s * scale * 1e6,
         program_s: timeline.end_s(),
         feed_factor: machine.feed_override_pct / 100.0 / scale,
-    };
-    Ok((samples, truth))
+    })
 }
 
 #[cfg(test)]
@@ -314,6 +427,40 @@ mod tests {
             dialect,
         );
         make_plan(&spec, &Calibration::DEFAULT).unwrap()
+    }
+
+    #[test]
+    fn a_record_made_window_by_window_is_the_record_made_whole() {
+        // Every effect that needs more than its own sample (velocity, acceleration, reversals,
+        // held direction, travel, the drifts' origin, a servo delay), with noise: the record
+        // made in windows of a few hundred samples is bit for bit the one made in one window.
+        let plan = plan(Dialect::Linuxcnc);
+        let m = machine(
+            "table_ball_mm = [100.004, 49.998, -20.0]\npitch_mm = { x = 10.0, y = 10.0 }\n\
+             [instrument]\nsample_rate_hz = 500\nnoise_um = 0.3\nclock_ppm = 20\n\
+             [effects]\nbacklash_x = 8.0\nbacklash_y = [6.0, 4.0]\nsquareness_xy = 30.0\n\
+             servo_mismatch_xy = [1.5, 0.5]\nreversal_spike_y = [5.0, 12.0]\ndrift = 0.4\n\
+             scale_drift_x = 2.0\nposition_drift_y = 0.3\nfollowing_error = 0.05\n\
+             cyclic_x = \"2@30\"\nstraightness_x_y = 3.0\n",
+        );
+        let collect = |window: usize| {
+            let mut out = vec![];
+            let truth = record_each(&plan, &m, window, &mut |s| {
+                out.push(*s);
+                Ok(())
+            })
+            .unwrap();
+            (out, truth)
+        };
+        let (whole, t1) = collect(usize::MAX);
+        assert!(whole.len() > 20_000, "{}", whole.len());
+        for window in [9, 333, 4096] {
+            let (parts, t2) = collect(window);
+            assert_eq!(t1, t2);
+            assert_eq!(parts.len(), whole.len());
+            let first_diff = parts.iter().zip(&whole).position(|(a, b)| a != b);
+            assert_eq!(first_diff, None, "window {window}");
+        }
     }
 
     #[test]

@@ -86,6 +86,10 @@ impl Record {
         rec.marked = t.data_comments();
         let read = rec.t_s.len();
         rec.set_glitches_aside();
+        // The columns grew by doubling: give back what they reserved beyond their samples.
+        rec.t_s.shrink_to_fit();
+        rec.d_mm.shrink_to_fit();
+        rec.lines.shrink_to_fit();
         if rec.glitches.len() > read / MAX_GLITCH_SHARE {
             return Err(Error::input(
                 path,

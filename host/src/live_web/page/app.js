@@ -76,7 +76,7 @@
     if (f.effects.length > 0) {
       const t = h("table", null, { class: "effects" });
       const head = h("tr");
-      for (const c of ["", "effect", "value", "", "share", "cause"]) head.appendChild(h("th", c));
+      for (const c of ["", "effect", "value", "", "of G", "of the mean square", "cause"]) head.appendChild(h("th", c));
       t.appendChild(head);
       for (const e of f.effects) {
         const r = h("tr", null, { "data-effect": e.name });
@@ -84,6 +84,7 @@
         r.appendChild(h("td", e.name));
         r.appendChild(h("td", e.value, { class: "num" }));
         r.appendChild(h("td", e.unit));
+        r.appendChild(h("td", e.g_share_percent === null ? "" : e.g_share_percent + " %", { class: "num" }));
         r.appendChild(h("td", e.share_percent === null ? "" : e.share_percent + " %", { class: "num" }));
         r.appendChild(h("td", e.cause));
         t.appendChild(r);
