@@ -311,6 +311,7 @@ pub fn diagnose_planned(
     opts: &Options,
 ) -> Result<(Plan, Record, crate::diagnose::planned::Planned)> {
     let plan = Plan::read(plan_file)?;
+    crate::volumetric::refuse_diagnosis(&plan, plan_file)?;
     let rec = Record::read(record)?;
     check_plan_id(&rec, &plan, plan_file)?;
     let done = diagnose_record(&plan, &rec, pitch, opts)?;
@@ -360,13 +361,10 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     let mut synced = None;
     // What `--record --path` set aside (glitches), said before the diagnosis.
     let mut path_note: Option<String> = None;
-    // A volumetric plan's record: the views of the one test beside the diagnosis.
-    let mut volumetric = None;
     let diag = match (&args.samples, &args.record, &args.path, &args.plan) {
         (Some(samples), _, _, _) => diagnose_samples(samples, pitch, &opts)?,
         (None, Some(record), None, Some(plan_file)) => {
             let (plan, rec, done) = diagnose_planned(record, plan_file, pitch, &opts)?;
-            volumetric = crate::volumetric::diagnose::of_plan(&plan, &done)?;
             let set_aside = (rec.set_aside_note(Some(&done.sync)), set_aside_json(&rec));
             synced = Some((plan_file, plan, done.sync, set_aside));
             done.diagnosis
@@ -391,9 +389,6 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         json["sync"] = sync_json(plan, sync);
         json["sync"]["set_aside"] = set_aside.clone();
     }
-    if let Some(v) = &volumetric {
-        json["volumetric"] = crate::volumetric::diagnose::to_json(v);
-    }
     let verdict = add_run_facts(&mut json, args, &diag)?;
     if let serde_json::Value::Object(m) = conditions {
         for (k, v) in m {
@@ -416,9 +411,6 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             emit(n)?;
         }
         print(&summary(&diag))?;
-        if let Some(v) = &volumetric {
-            print(&crate::volumetric::diagnose::text(v))?;
-        }
         if args.verbose {
             print(&details(&diag))?;
         }

@@ -10,22 +10,36 @@
 //!   and the undetermined groups (the core of the joint diagnosis);
 //! - [`plan`]: the plan of a volumetric test (`jdbb plan --volumetric`), one plan.json
 //!   (version [`crate::plan::VOLUMETRIC_VERSION`]) and one program for every dialect,
-//!   and the check of a machine's travel.
+//!   and the check of a machine's travel;
+//! - [`elements`]: a volumetric record synchronised across all its elements (each found from D
+//!   alone by the plane test's synchronisation, with its start and feed).
 //!
-//! - [`diagnose`]: a volumetric record synchronised across all its elements and diagnosed as one
-//!   test (`jdbb diagnose --record --plan` on a volumetric plan), with the scales on the
-//!   instrument's calibration, the identifiability beside the record's own rank, and each
-//!   plane's G and H.
-//!
-//! Built: the identifiability, the plan, the linear fit at the plan's positions, the
-//! synchronisation and the joint diagnosis. Not yet: the QEMU scenario, the compensation of
-//! three squarenesses at once, and the report's picture of the whole test.
+//! Built: the identifiability, the plan, the linear fit at the plan's positions, and the
+//! synchronisation of a record across its elements ([`elements`]). Not yet: its joint diagnosis
+//! with backlash, servo and cyclic terms (`jdbb diagnose --record --plan` refuses a volumetric plan), the QEMU scenario,
+//! the compensation of three squarenesses at once, and the report.
 //!
 //! May use: [`crate::numerics`] and nalgebra, the instrument model (`jdbb_core`), and
-//! [`crate::plan`], [`crate::model`], [`crate::sync`], [`crate::diagnose`] and [`crate::report`]
-//! by import only (the plane test's plan builder makes each element; its synchronisation and
-//! diagnosis run the record). Nothing in those folders uses this module.
-pub mod diagnose;
+//! the plan and path types of [`crate::plan`] and [`crate::model`] by import only (the plane
+//! test's plan builder makes each element). Nothing in those folders uses this module.
+pub mod elements;
 pub mod fit;
 pub mod ident;
 pub mod plan;
+
+use std::path::Path;
+
+use crate::plan::{Plan, Purpose};
+use crate::{Error, Result};
+
+/// Refuse to diagnose a record of a volumetric plan (read from `plan_file`) as a plane test: its
+/// joint diagnosis is not built yet, and a plane test's fit would name the wrong axes.
+pub fn refuse_diagnosis(plan: &Plan, plan_file: &Path) -> Result<()> {
+    if plan.purpose != Purpose::VolumetricTest {
+        return Ok(());
+    }
+    Err(Error::Usage(format!(
+        "{} is a volumetric test (cones and arcs of several planes): volumetric diagnosis is not built yet; keep the record, and diagnose plane tests (jdbb plan --plane) meanwhile",
+        plan_file.display()
+    )))
+}
