@@ -6,17 +6,20 @@
 //! - [`ident`]: what such a test can identify of a linear error field — the design matrix of the
 //!   three scales, three squarenesses, the set-up offset and the instrument's scale, its rank,
 //!   condition number and confounded combinations;
-//! - [`elements`]: how long the machine stays on each element of a plan (a record cut into its
-//!   elements);
 //! - [`fit`]: the linear model's nine terms fitted to changes of D at known positions, with σ
 //!   and the undetermined groups (the core of the joint diagnosis);
 //! - [`plan`]: the plan of a volumetric test (`jdbb plan --volumetric`), one plan.json
 //!   (version [`crate::plan::VOLUMETRIC_VERSION`]) and one program for every dialect,
-//!   and the check of a machine's travel.
+//!   and the check of a machine's travel;
+//! - [`elements`]: a volumetric record synchronised across all its elements (each found from D
+//!   alone by the plane test's synchronisation, with its start and feed), and how long the
+//!   machine stays on each element of a plan.
 //!
-//! Built: the identifiability, the plan, and the linear fit at the plan's positions. Not yet: the
-//! synchronisation of a volumetric record and its joint diagnosis with backlash, servo and
-//! cyclic terms (`jdbb diagnose --record --plan` refuses a volumetric plan) and the report.
+//! Built: the identifiability, the plan, the linear fit at the plan's positions, the
+//! synchronisation of a record across its elements ([`elements`]), a volumetric plan simulated and
+//! played in QEMU, and one compensation of three squarenesses and scales. Not yet: the joint
+//! diagnosis with backlash, servo and cyclic terms (`jdbb diagnose --record --plan` refuses a
+//! volumetric plan) and the report.
 //!
 //! May use: [`crate::numerics`] and nalgebra, the instrument model (`jdbb_core`), and
 //! the plan and path types of [`crate::plan`] and [`crate::model`] by import only (the plane
