@@ -79,12 +79,19 @@ pub struct Options {
     pub controller: Option<crate::compensate::Controller>,
 }
 
+/// Most groups the selection names by default: a real machine carries eight effects at once
+/// (issue 27), a worn screw's ends are a group of their own beside its gap, and the selection
+/// stops by its criterion long before on a machine with fewer (the cap of 8 left a dense
+/// machine's scale mismatch and reversal spike unnamed, `tests/tests/real_machine.rs`).
+pub const MAX_GROUPS: usize = 12;
+
 impl Default for Options {
     fn default() -> Self {
         Options {
             select: SelectOptions {
                 gamma: 0.5,
                 min_peak: MIN_EFFECT_UM,
+                max_effects: MAX_GROUPS,
                 ..SelectOptions::default()
             },
             harmonics: 8,
@@ -253,6 +260,9 @@ pub struct Diagnosis {
     /// Where `following_error` is named: the radius it takes off each circle at each speed the
     /// test ran it (a feed sweep runs one radius at several), q·v²/R ([`RadiusLoss`]).
     pub radius_loss: Vec<RadiusLoss>,
+    /// Per axis that reverses and per end: the peak a person sees in the trace after the
+    /// reversals there, with its duration ([`super::reversal`]).
+    pub reversal_peaks: Vec<super::reversal::ReversalPeak>,
 }
 
 /// The radius a named following error takes off one circle at one feed: q·v²/R
@@ -1376,6 +1386,14 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
             left_out.push(found[ei].effect);
             continue;
         }
+        // A ring after the reversals is vibration, never a reversal spike (issue 26).
+        if let Some((ei, reason)) =
+            super::reversal::ringing_spike(path, d_mm, &final_set, &theta)
+        {
+            not_significant.push(NotSignificant::of(&found[ei], reason));
+            left_out.push(found[ei].effect);
+            continue;
+        }
         // Each machine effect alone with its refitted parameters: its peak on D for the floor
         // here, its set-up projection for its share below (one pass each, nothing kept).
         let alone: Vec<Option<Alone>> = found
@@ -1541,6 +1559,7 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
         }
     }
     let radius_loss = radius_losses(path, &found, &runs, &circles);
+    let reversal_peaks = super::reversal::reversal_peaks(path, &resid, &final_set, &theta);
     Ok(Diagnosis {
         samples: m,
         baseline_rms_um,
@@ -1574,6 +1593,7 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
         weak_on_arc: weak,
         noise_tau_int,
         radius_loss,
+        reversal_peaks,
     })
 }
 

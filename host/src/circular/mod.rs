@@ -41,6 +41,7 @@ pub mod plot;
 pub mod progress;
 pub mod record_sim;
 pub mod report;
+pub mod reversal;
 pub mod runs;
 pub mod simulate;
 pub mod sync;

@@ -462,13 +462,7 @@ impl Effect {
                     }
                 }
             }
-            Effect::ReversalSpike(a) => {
-                let k = a.index();
-                let (h, tau) = (1e-3 * theta[0], theta[1].max(MIN_TAU_MS));
-                for_each_spike(path, k, i0, n, |j, s, dt_ms| {
-                    q[j][k] -= h * s * decay(dt_ms / tau);
-                });
-            }
+            Effect::ReversalSpike(a) => spike_delta_block(a, path, i0, theta, 0.0, q),
         }
     }
 
@@ -506,18 +500,7 @@ impl Effect {
                 }
             }
             Effect::ReversalSpike(ax) => {
-                let k = ax.index();
-                let (h, tau) = (theta[0], theta[1].max(MIN_TAU_MS));
-                for o in rows.clone() {
-                    out[o] = 0.0;
-                    out[o + 1] = 0.0;
-                }
-                for_each_spike(path, k, i0, n, |j, s, dt_ms| {
-                    let e = decay(dt_ms / tau);
-                    let o = j * stride + offset;
-                    out[o] = -u[j][k] * s * e;
-                    out[o + 1] = -u[j][k] * h * s * e * dt_ms / (tau * tau);
-                });
+                spike_gradient_block(ax, path, i0, theta, 0.0, u, out, stride, offset)
             }
             Effect::Backlash(ax) | Effect::BacklashEnds(ax) => {
                 let k = ax.index();
@@ -664,7 +647,7 @@ pub(crate) fn for_each_dead_band(
             0.5
         }
     };
-    for_each_last_reversal(path, k, i0, n, |j, last| {
+    for_each_last_reversal(path, k, i0, n, 0.0, |j, last| {
         let x = path.p_mm[i0 + j][k];
         let wp = weight_pos(x);
         let gap = pos_um * wp + neg_um * (1.0 - wp);
@@ -690,34 +673,93 @@ pub(crate) fn for_each_dead_band(
     });
 }
 
-/// Call `f(j, s, Δt_ms)` for each sample i0 + j (j < n) after a reversal of axis k: s the new
-/// direction, Δt the time since the reversal (ms). Samples before the first reversal are skipped.
-fn for_each_spike(path: &Path, k: usize, i0: usize, n: usize, mut f: impl FnMut(usize, f64, f64)) {
+/// Add a reversal spike of axis `a` (parameters `theta` = [h µm, τ ms]) to `q` (mm) for samples
+/// i0 + j, each reversal taking place `shift_ms` after the path's (the axis's own delay behind
+/// its command: [`EffectSet::spike_shift_ms`]).
+fn spike_delta_block(
+    a: Axis,
+    path: &Path,
+    i0: usize,
+    theta: &[f64],
+    shift_ms: f64,
+    q: &mut [[f64; 3]],
+) {
+    let k = a.index();
+    let (h, tau) = (1e-3 * theta[0], theta[1].max(MIN_TAU_MS));
+    for_each_spike(path, k, i0, q.len(), shift_ms, |j, s, dt_ms| {
+        q[j][k] -= h * s * decay(dt_ms / tau);
+    });
+}
+
+/// The gradient of a reversal spike of axis `a` at `theta` (see [`Effect::gradient_block`]),
+/// its reversals `shift_ms` after the path's. The shift is held: its change with the servo
+/// delay it comes from is not in this gradient (it moves a spike by a few ms of its tens).
+#[allow(clippy::too_many_arguments)]
+fn spike_gradient_block(
+    a: Axis,
+    path: &Path,
+    i0: usize,
+    theta: &[f64],
+    shift_ms: f64,
+    u: &[[f64; 3]],
+    out: &mut [f64],
+    stride: usize,
+    offset: usize,
+) {
+    let k = a.index();
+    let n = u.len();
+    let (h, tau) = (theta[0], theta[1].max(MIN_TAU_MS));
+    for j in 0..n {
+        out[j * stride + offset] = 0.0;
+        out[j * stride + offset + 1] = 0.0;
+    }
+    for_each_spike(path, k, i0, n, shift_ms, |j, s, dt_ms| {
+        let e = decay(dt_ms / tau);
+        let o = j * stride + offset;
+        out[o] = -u[j][k] * s * e;
+        out[o + 1] = -u[j][k] * h * s * e * dt_ms / (tau * tau);
+    });
+}
+
+/// Call `f(j, s, Δt_ms)` for each sample i0 + j (j < n) after a reversal of axis k, the
+/// reversals taking place `shift_ms` after the path's: s the new direction, Δt the time since
+/// the reversal (ms). Samples before the first reversal are skipped.
+fn for_each_spike(
+    path: &Path,
+    k: usize,
+    i0: usize,
+    n: usize,
+    shift_ms: f64,
+    mut f: impl FnMut(usize, f64, f64),
+) {
     if path.reversals[k].is_empty() {
         return;
     }
-    for_each_last_reversal(path, k, i0, n, |j, last| {
+    let shift_s = 1e-3 * shift_ms;
+    for_each_last_reversal(path, k, i0, n, shift_s, |j, last| {
         if let Some(r) = last {
-            f(j, f64::from(r.new_dir), 1e3 * (path.t_s[i0 + j] - r.t_s));
+            f(j, f64::from(r.new_dir), 1e3 * (path.t_s[i0 + j] - r.t_s - shift_s));
         }
     });
 }
 
 /// Call `f(j, last)` for each sample i0 + j (j < n) with the last reversal of axis k at or
-/// before it (None before the first): one walk through the reversals for a block of samples.
+/// before it (None before the first), each reversal taken `shift_s` after the path's: one walk
+/// through the reversals for a block of samples.
 fn for_each_last_reversal(
     path: &Path,
     k: usize,
     i0: usize,
     n: usize,
+    shift_s: f64,
     mut f: impl FnMut(usize, Option<super::path::Reversal>),
 ) {
     let revs = &path.reversals[k];
     let t = &path.t_s[i0..i0 + n];
     // Index of the first reversal after t[0]; the one before it is in force.
-    let mut next = revs.partition_point(|r| r.t_s <= t[0]);
+    let mut next = revs.partition_point(|r| r.t_s + shift_s <= t[0]);
     for (j, &tj) in t.iter().enumerate() {
-        while next < revs.len() && revs[next].t_s <= tj {
+        while next < revs.len() && revs[next].t_s + shift_s <= tj {
             next += 1;
         }
         f(j, next.checked_sub(1).map(|i| revs[i]));
@@ -936,7 +978,7 @@ impl Candidate {
                 for o in rows {
                     out[o] = 0.0;
                 }
-                for_each_spike(path, k, i0, n, |j, s, dt_ms| {
+                for_each_spike(path, k, i0, n, 0.0, |j, s, dt_ms| {
                     out[j * stride + offset] = -u[j][k] * s * decay(dt_ms / tau);
                 });
             }
@@ -997,8 +1039,40 @@ impl EffectSet {
         q.copy_from_slice(&path.p_mm[i0..i0 + n]);
         dd[..n].fill(0.0);
         for (e, &o) in self.effects.iter().zip(&self.offsets) {
-            e.add_delta_block(path, i0, &theta[o..o + e.n_params()], q, dd);
+            let th = &theta[o..o + e.n_params()];
+            match *e {
+                Effect::ReversalSpike(a) => {
+                    spike_delta_block(a, path, i0, th, self.spike_shift_ms(theta, a), q)
+                }
+                _ => e.add_delta_block(path, i0, th, q, dd),
+            }
         }
+    }
+
+    /// How long (ms) after its command axis `a` reverses, by the set's servo delay
+    /// ([`Effect::ServoMismatch`]: τ_i = τ̄ + Δτ/2, τ_j = τ̄ − Δτ/2) at `theta`; 0 without one.
+    /// A reversal spike is where the axis reverses, not where its command does: a spike
+    /// started at the command's reversal while the axis turns 1–6 ms later reads 5–15 % low
+    /// (τ 15–45 ms, `tests/tests/real_machine.rs`).
+    pub fn spike_shift_ms(&self, theta: &[f64], a: Axis) -> f64 {
+        self.effects
+            .iter()
+            .zip(&self.offsets)
+            .find_map(|(e, &o)| match *e {
+                Effect::ServoMismatch(pair) => {
+                    let (i, j) = pair.axes();
+                    let (dtau, lag) = (theta[o], theta[o + 1]);
+                    if a == i {
+                        Some(lag + 0.5 * dtau)
+                    } else if a == j {
+                        Some(lag - 0.5 * dtau)
+                    } else {
+                        None
+                    }
+                }
+                _ => None,
+            })
+            .unwrap_or(0.0)
     }
 
     /// [`EffectSet::distance_mm`] of every sample of the path (bit for bit the same), a block
@@ -1063,15 +1137,14 @@ impl crate::numerics::lsq::Problem for ExactModel<'_> {
                 res.push(1e3 * (r + d - self.d_mm[i0 + j]));
             }
             for (e, &o) in self.set.effects.iter().zip(&self.set.offsets) {
-                e.gradient_block(
-                    self.path,
-                    i0,
-                    &theta[o..o + e.n_params()],
-                    &u,
-                    &mut grads,
-                    n,
-                    o,
-                );
+                let th = &theta[o..o + e.n_params()];
+                match *e {
+                    Effect::ReversalSpike(a) => {
+                        let shift_ms = self.set.spike_shift_ms(theta, a);
+                        spike_gradient_block(a, self.path, i0, th, shift_ms, &u, &mut grads, n, o)
+                    }
+                    _ => e.gradient_block(self.path, i0, th, &u, &mut grads, n, o),
+                }
             }
             for j in 0..len {
                 visit(i0 + j, res[j], &grads[j * n..(j + 1) * n]);
