@@ -161,6 +161,11 @@ pub fn reversal_peaks(
     } else {
         (resid_um[..m].iter().map(|v| v * v).sum::<f64>() / m as f64).sqrt()
     };
+    let period_ms = {
+        let mut d: Vec<f64> = path.t_s[..m].windows(2).map(|w| w[1] - w[0]).collect();
+        d.sort_by(f64::total_cmp);
+        1e3 * d.get(d.len() / 2).copied().unwrap_or(1e-3)
+    };
     let mut out = vec![];
     for a in Axis::ALL {
         let k = a.index();
@@ -188,7 +193,7 @@ pub fn reversal_peaks(
                 let i1 = path.t_s[..m].partition_point(|&t| t <= hi);
                 pooled.extend((i0..i1).map(|i| (1e3 * (path.t_s[i] - t_r), trace[i])));
             }
-            if let Some(p) = peak_of(&mut pooled, revs.len(), noise_um) {
+            if let Some(p) = peak_of(&mut pooled, revs.len(), period_ms, noise_um) {
                 out.push(ReversalPeak {
                     axis: a,
                     end,
@@ -202,9 +207,11 @@ pub fn reversal_peaks(
 }
 
 /// A named reversal spike where the trace after its axis's reversals rings at every end
-/// ([`Shape::Vibration`]): its index in `set` and why it is not a spike, in words. A ring is a
-/// structural mode kicked by the reversal: left in the residual with its frequency stated
-/// (issue 26), never named as a spike.
+/// ([`Shape::Vibration`]) or grows and releases at every end ([`Shape::StickSlip`]): its index
+/// in `set` and why it is not a spike, in words. A ring is a structural mode kicked by the
+/// reversal, left in the residual with its frequency stated (issue 26); stick-slip is named as
+/// such in `reversal_peaks` with its peak per end. Neither is named as a spike, whose fitted
+/// height would be neither's peak (35–44 % of a stick-slip's).
 pub fn ringing_spike(
     path: &Path,
     d_mm: &[f64],
@@ -232,6 +239,7 @@ pub fn ringing_spike(
     let peaks = reversal_peaks(path, &resid_um, set, theta);
     spikes.into_iter().find_map(|(i, a)| {
         let ends: Vec<&ReversalPeak> = peaks.iter().filter(|p| p.axis == a).collect();
+        let letter = a.letter().to_ascii_uppercase();
         let rings: Vec<(f64, f64)> = ends
             .iter()
             .filter_map(|p| match p.shape {
@@ -243,18 +251,33 @@ pub fn ringing_spike(
                 _ => None,
             })
             .collect();
-        (!ends.is_empty() && rings.len() == ends.len()).then(|| {
+        let sticks = ends.iter().filter(|p| p.shape == Shape::StickSlip).count();
+        if ends.is_empty() {
+            None
+        } else if rings.len() == ends.len() {
             let (f, z) = rings[0];
-            (
+            Some((
                 i,
                 format!(
-                    "the trace after {}'s reversals rings ({f:.1} Hz, damping ratio {z:.3}): vibration, not a spike (reversal_peaks)",
-                    a.letter().to_ascii_uppercase()
+                    "the trace after {letter}'s reversals rings ({f:.1} Hz, damping ratio {z:.3}): vibration, not a spike (reversal_peaks)"
                 ),
-            )
-        })
+            ))
+        } else if sticks == ends.len() {
+            Some((
+                i,
+                format!(
+                    "the trace after {letter}'s reversals grows, then releases: stick-slip, not a spike (reversal_peaks)"
+                ),
+            ))
+        } else {
+            None
+        }
     })
 }
+
+/// The pooled trace's points are read off a line through the samples of this many sample
+/// periods after each (see [`peak_of`]).
+pub const LINE_PERIODS: f64 = 3.0;
 
 /// A peak this many σ from zero is printed in the report's text (the JSON has every end): the
 /// largest |mean| of pure noise over the few hundred points of a window is about 3σ.
@@ -308,22 +331,46 @@ pub fn peaks_text(peaks: &[ReversalPeak]) -> String {
 }
 
 /// The peak, its σ, its time and its width at half height of `pooled` ((ms since the
-/// reversal, µm) from `n` reversals), each point the mean of n consecutive pooled samples (about
-/// one sample of each reversal: a wider mean would cut the top off a spike that jumps).
-fn peak_of(pooled: &mut [(f64, f64)], n: usize, noise_um: f64) -> Option<ReversalPeak> {
+/// reversal, µm) from `n` reversals sampled every `period_ms`). Each point of the pooled trace
+/// is the value at its time of the straight line through the pooled samples of the next
+/// [`LINE_PERIODS`] sample periods: a spike that jumps at the reversal is read at its top (a
+/// mean over samples on both sides of the jump, or after it, cuts it: 10 % at τ 25 ms), a
+/// rounded peak at its top, less a curvature of a period or two.
+fn peak_of(
+    pooled: &mut [(f64, f64)],
+    n: usize,
+    period_ms: f64,
+    noise_um: f64,
+) -> Option<ReversalPeak> {
     pooled.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let w = n.max(1);
-    if pooled.len() < w + 2 {
+    let span_ms = LINE_PERIODS * period_ms;
+    let mut smooth: Vec<(f64, f64)> = Vec::with_capacity(pooled.len());
+    let mut hi = 0;
+    let mut points = 0usize;
+    for i in 0..pooled.len() {
+        let t0 = pooled[i].0;
+        while hi < pooled.len() && pooled[hi].0 <= t0 + span_ms {
+            hi += 1;
+        }
+        let win = &pooled[i..hi];
+        if win.len() < 3 {
+            break;
+        }
+        let k = win.len() as f64;
+        let mt = win.iter().map(|p| p.0).sum::<f64>() / k;
+        let mv = win.iter().map(|p| p.1).sum::<f64>() / k;
+        let (sxy, sxx) = win.iter().fold((0.0, 0.0), |(a, b), p| {
+            (a + (p.0 - mt) * (p.1 - mv), b + (p.0 - mt) * (p.0 - mt))
+        });
+        let slope = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+        smooth.push((t0, mv + slope * (t0 - mt)));
+        points = points.max(win.len());
+    }
+    if smooth.len() < 3 {
         return None;
     }
-    let smooth: Vec<(f64, f64)> = pooled
-        .windows(w)
-        .map(|win| {
-            let t: f64 = win.iter().map(|p| p.0).sum();
-            let v: f64 = win.iter().map(|p| p.1).sum();
-            (t / w as f64, v / w as f64)
-        })
-        .collect();
+    // The intercept of a line through k points at its first: σ·√(4/k) for evenly spread points.
+    let w = (points as f64 / 4.0).max(1.0);
     let (ip, &(at_ms, peak_um)) = smooth
         .iter()
         .enumerate()
@@ -355,7 +402,7 @@ fn peak_of(pooled: &mut [(f64, f64)], n: usize, noise_um: f64) -> Option<Reversa
     } else {
         smooth[hi].0
     };
-    let point_sigma_um = noise_um / (w as f64).sqrt();
+    let point_sigma_um = noise_um / w.sqrt();
     let shape = match ring(&smooth[ip..], LOBE_SIGMAS * point_sigma_um) {
         Some(v) => v,
         None if at_ms > STICK_MS => Shape::StickSlip,
@@ -391,6 +438,19 @@ fn ring(trace: &[(f64, f64)], threshold_um: f64) -> Option<Shape> {
             }
         }
     }
+    if lobes.len() < RING_LOBES {
+        return None;
+    }
+    // The ring's regular part: up to the first spacing 30 % off the median (a lobe lost in the
+    // noise merges two and doubles a spacing).
+    let gaps: Vec<f64> = lobes.windows(2).map(|w| w[1].0 - w[0].0).collect();
+    let regular = {
+        let mut g = gaps.clone();
+        g.sort_by(f64::total_cmp);
+        let median = g[g.len() / 2];
+        gaps.iter().take_while(|&&d| (d / median - 1.0).abs() <= 0.3).count()
+    };
+    lobes.truncate(regular + 1);
     if lobes.len() < RING_LOBES {
         return None;
     }
