@@ -30,11 +30,11 @@ use planned::{
     Drawn,
 };
 
-use jdbb::circular::diagnose::{Diagnosis, Found, Options};
-use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
-use jdbb::circular::planned::diagnose_planned;
-use jdbb::circular::report::summary;
-use jdbb::circular::sync::synchronise;
+use jdbb::diagnose::planned::diagnose_planned;
+use jdbb::diagnose::{Diagnosis, Found, Options};
+use jdbb::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
+use jdbb::report::summary;
+use jdbb::sync::synchronise;
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     Axis, BacklashEnds, Bow, Cyclic, MachineErrors, ReversalSpike, SimConfig, Simulation,
@@ -430,7 +430,7 @@ fn run_cases(seeds: &[u64], options: &Options) {
 /// its phase, the ends of a worn screw, a bow's slope) and nothing else. Before issue 26's
 /// reversal work the selection stopped at 8 groups, which left seeds 0, 1 and 2 with 6 of their
 /// 8 effects named (the scale mismatch, 48.8, 22.7 and −32.9 µm/m, and the 6–7 µm reversal
-/// spike missing); the default is now `circular::diagnose::MAX_GROUPS` (12). One test per seed,
+/// spike missing); the default is now `diagnose::MAX_GROUPS` (12). One test per seed,
 /// so that the harness runs them in parallel.
 #[test]
 fn eight_effects_at_once_are_each_named_unbiased_and_nothing_else() {

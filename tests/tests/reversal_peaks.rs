@@ -1,18 +1,18 @@
 //! Reversals as the trade reads them (issue 26): after `jdbb plan`'s XY test (one circle both
 //! ways) runs on the independent G-code machine, `jdbb diagnose` gives per axis and per end the
 //! peak a person sees in the trace and its width at half height
-//! (`jdbb::circular::reversal`). The truth is the machine's own: the true D with the mechanism
+//! (`jdbb::diagnose::reversal`). The truth is the machine's own: the true D with the mechanism
 //! minus the true D of the same machine without it, sample by sample, its peak after each
 //! reversal of X at that end.
 mod planned;
 
-use jdbb::circular::diagnose::Options;
-use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, PlanSpec, Plane};
-use jdbb::circular::planned::diagnose_planned;
-use jdbb::circular::reversal::{End, ReversalPeak, Shape};
-use jdbb::circular::report::summary;
-use jdbb::circular::sync::synchronise;
-use jdbb::circular::model::Axis as HostAxis;
+use jdbb::diagnose::planned::diagnose_planned;
+use jdbb::diagnose::reversal::{End, ReversalPeak, Shape};
+use jdbb::diagnose::Options;
+use jdbb::model::Axis as HostAxis;
+use jdbb::plan::{plan, write_program, Dialect as PlanDialect, PlanSpec, Plane};
+use jdbb::report::summary;
+use jdbb::sync::synchronise;
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     Axis, Dialect, Friction, MachineErrors, Recording, ReversalSpike, ServoLoop, SimConfig,
@@ -26,7 +26,7 @@ const R: f64 = 95.0;
 const FEED: f64 = 1000.0;
 
 /// The XY test of radius [`R`] about [`CENTRE`] at [`FEED`].
-fn xy_plan() -> jdbb::circular::plan::Plan {
+fn xy_plan() -> jdbb::plan::Plan {
     let spec = PlanSpec::machine_test(&[R], &[0.0], Plane::Xy, FEED, CENTRE, PlanDialect::Linuxcnc);
     plan(&spec, &Calibration::DEFAULT).unwrap()
 }

@@ -20,7 +20,7 @@
 //! deviation: positive outward). Its σ is the residual's rms away from every reversal over
 //! √(samples averaged) — the noise of the mean at the peak. The duration is the width of the
 //! pooled trace at half its peak (FWHM, ms): τ·ln 2 for a spike that decays as e^(−Δt/τ).
-use super::model::{Axis, Effect, EffectSet, Path};
+use crate::model::{Axis, Effect, EffectSet, Path};
 
 /// The pooled trace starts this long (ms) before the commanded reversal: an axis that lags its
 /// command (a servo delay of a few ms, a loop's 1/Kv of 15–35 ms) reverses later, not earlier.
