@@ -161,11 +161,6 @@ pub fn reversal_peaks(
     } else {
         (resid_um[..m].iter().map(|v| v * v).sum::<f64>() / m as f64).sqrt()
     };
-    let period_ms = {
-        let mut d: Vec<f64> = path.t_s[..m].windows(2).map(|w| w[1] - w[0]).collect();
-        d.sort_by(f64::total_cmp);
-        1e3 * d.get(d.len() / 2).copied().unwrap_or(1e-3)
-    };
     let mut out = vec![];
     for a in Axis::ALL {
         let k = a.index();
@@ -193,7 +188,7 @@ pub fn reversal_peaks(
                 let i1 = path.t_s[..m].partition_point(|&t| t <= hi);
                 pooled.extend((i0..i1).map(|i| (1e3 * (path.t_s[i] - t_r), trace[i])));
             }
-            if let Some(p) = peak_of(&mut pooled, revs.len(), period_ms, noise_um) {
+            if let Some(p) = peak_of(&mut pooled, revs.len(), noise_um) {
                 out.push(ReversalPeak {
                     axis: a,
                     end,
@@ -275,10 +270,6 @@ pub fn ringing_spike(
     })
 }
 
-/// The pooled trace's points are read off a line through the samples of this many sample
-/// periods after each (see [`peak_of`]).
-pub const LINE_PERIODS: f64 = 3.0;
-
 /// A peak this many σ from zero is printed in the report's text (the JSON has every end): the
 /// largest |mean| of pure noise over the few hundred points of a window is about 3σ.
 pub const SHOWN_SIGMAS: f64 = 5.0;
@@ -331,46 +322,22 @@ pub fn peaks_text(peaks: &[ReversalPeak]) -> String {
 }
 
 /// The peak, its σ, its time and its width at half height of `pooled` ((ms since the
-/// reversal, µm) from `n` reversals sampled every `period_ms`). Each point of the pooled trace
-/// is the value at its time of the straight line through the pooled samples of the next
-/// [`LINE_PERIODS`] sample periods: a spike that jumps at the reversal is read at its top (a
-/// mean over samples on both sides of the jump, or after it, cuts it: 10 % at τ 25 ms), a
-/// rounded peak at its top, less a curvature of a period or two.
-fn peak_of(
-    pooled: &mut [(f64, f64)],
-    n: usize,
-    period_ms: f64,
-    noise_um: f64,
-) -> Option<ReversalPeak> {
+/// reversal, µm) from `n` reversals), each point the mean of n consecutive pooled samples (about
+/// one sample of each reversal: a wider mean would cut the top off a spike that jumps).
+fn peak_of(pooled: &mut [(f64, f64)], n: usize, noise_um: f64) -> Option<ReversalPeak> {
     pooled.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let span_ms = LINE_PERIODS * period_ms;
-    let mut smooth: Vec<(f64, f64)> = Vec::with_capacity(pooled.len());
-    let mut hi = 0;
-    let mut points = 0usize;
-    for i in 0..pooled.len() {
-        let t0 = pooled[i].0;
-        while hi < pooled.len() && pooled[hi].0 <= t0 + span_ms {
-            hi += 1;
-        }
-        let win = &pooled[i..hi];
-        if win.len() < 3 {
-            break;
-        }
-        let k = win.len() as f64;
-        let mt = win.iter().map(|p| p.0).sum::<f64>() / k;
-        let mv = win.iter().map(|p| p.1).sum::<f64>() / k;
-        let (sxy, sxx) = win.iter().fold((0.0, 0.0), |(a, b), p| {
-            (a + (p.0 - mt) * (p.1 - mv), b + (p.0 - mt) * (p.0 - mt))
-        });
-        let slope = if sxx > 0.0 { sxy / sxx } else { 0.0 };
-        smooth.push((t0, mv + slope * (t0 - mt)));
-        points = points.max(win.len());
-    }
-    if smooth.len() < 3 {
+    let w = n.max(1);
+    if pooled.len() < w + 2 {
         return None;
     }
-    // The intercept of a line through k points at its first: σ·√(4/k) for evenly spread points.
-    let w = (points as f64 / 4.0).max(1.0);
+    let smooth: Vec<(f64, f64)> = pooled
+        .windows(w)
+        .map(|win| {
+            let t: f64 = win.iter().map(|p| p.0).sum();
+            let v: f64 = win.iter().map(|p| p.1).sum();
+            (t / w as f64, v / w as f64)
+        })
+        .collect();
     let (ip, &(at_ms, peak_um)) = smooth
         .iter()
         .enumerate()
@@ -396,13 +363,17 @@ fn peak_of(
             ti
         }
     };
-    let t_lo = if lo > 0 { cross(lo - 1, lo) } else { smooth[lo].0 };
+    let t_lo = if lo > 0 {
+        cross(lo - 1, lo)
+    } else {
+        smooth[lo].0
+    };
     let t_hi = if hi + 1 < smooth.len() {
         cross(hi, hi + 1)
     } else {
         smooth[hi].0
     };
-    let point_sigma_um = noise_um / w.sqrt();
+    let point_sigma_um = noise_um / (w as f64).sqrt();
     let shape = match ring(&smooth[ip..], LOBE_SIGMAS * point_sigma_um) {
         Some(v) => v,
         None if at_ms > STICK_MS => Shape::StickSlip,
@@ -448,7 +419,9 @@ fn ring(trace: &[(f64, f64)], threshold_um: f64) -> Option<Shape> {
         let mut g = gaps.clone();
         g.sort_by(f64::total_cmp);
         let median = g[g.len() / 2];
-        gaps.iter().take_while(|&&d| (d / median - 1.0).abs() <= 0.3).count()
+        gaps.iter()
+            .take_while(|&&d| (d / median - 1.0).abs() <= 0.3)
+            .count()
     };
     lobes.truncate(regular + 1);
     if lobes.len() < RING_LOBES {
@@ -492,7 +465,11 @@ mod tests {
         let mut p = vec![];
         for i in 0..2 * n {
             let ts = i as f64 * 1e-3;
-            let th = if i < n { w * ts } else { w * (2.0 * n as f64 * 1e-3 - ts) };
+            let th = if i < n {
+                w * ts
+            } else {
+                w * (2.0 * n as f64 * 1e-3 - ts)
+            };
             t.push(ts);
             p.push([r * th.cos(), r * th.sin(), 0.0]);
         }
@@ -506,7 +483,11 @@ mod tests {
         all.sort_by(f64::total_cmp);
         let mut resid = vec![0.0; path.len()];
         for r in &path.reversals[0] {
-            let next = all.iter().copied().find(|&t| t > r.t_s).unwrap_or(f64::INFINITY);
+            let next = all
+                .iter()
+                .copied()
+                .find(|&t| t > r.t_s)
+                .unwrap_or(f64::INFINITY);
             for (i, v) in resid.iter_mut().enumerate() {
                 let dt_ms = 1e3 * (path.t_s[i] - r.t_s);
                 if dt_ms >= 0.0 && path.t_s[i] < next {

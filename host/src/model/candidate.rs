@@ -213,7 +213,7 @@ impl Candidate {
                 for o in rows {
                     out[o] = 0.0;
                 }
-                for_each_spike(path, k, i0, n, 0.0, |j, s, dt_ms| {
+                for_each_spike(path, k, i0, n, |j, s, dt_ms| {
                     out[j * stride + offset] = -u[j][k] * s * decay(dt_ms / tau);
                 });
             }
@@ -274,40 +274,8 @@ impl EffectSet {
         q.copy_from_slice(&path.p_mm[i0..i0 + n]);
         dd[..n].fill(0.0);
         for (e, &o) in self.effects.iter().zip(&self.offsets) {
-            let th = &theta[o..o + e.n_params()];
-            match *e {
-                Effect::ReversalSpike(a) => {
-                    spike_delta_block(a, path, i0, th, self.spike_shift_ms(theta, a), q)
-                }
-                _ => e.add_delta_block(path, i0, th, q, dd),
-            }
+            e.add_delta_block(path, i0, &theta[o..o + e.n_params()], q, dd);
         }
-    }
-
-    /// How long (ms) after its command axis `a` reverses, by the set's servo delay
-    /// ([`Effect::ServoMismatch`]: τ_i = τ̄ + Δτ/2, τ_j = τ̄ − Δτ/2) at `theta`; 0 without one.
-    /// A reversal spike is where the axis reverses, not where its command does: a spike
-    /// started at the command's reversal while the axis turns 1–6 ms later reads 5–15 % low
-    /// (τ 15–45 ms, `tests/tests/real_machine.rs`).
-    pub fn spike_shift_ms(&self, theta: &[f64], a: Axis) -> f64 {
-        self.effects
-            .iter()
-            .zip(&self.offsets)
-            .find_map(|(e, &o)| match *e {
-                Effect::ServoMismatch(pair) => {
-                    let (i, j) = pair.axes();
-                    let (dtau, lag) = (theta[o], theta[o + 1]);
-                    if a == i {
-                        Some(lag + 0.5 * dtau)
-                    } else if a == j {
-                        Some(lag - 0.5 * dtau)
-                    } else {
-                        None
-                    }
-                }
-                _ => None,
-            })
-            .unwrap_or(0.0)
     }
 
     /// [`EffectSet::distance_mm`] of every sample of the path (bit for bit the same), a block
@@ -372,14 +340,15 @@ impl crate::numerics::lsq::Problem for ExactModel<'_> {
                 res.push(1e3 * (r + d - self.d_mm[i0 + j]));
             }
             for (e, &o) in self.set.effects.iter().zip(&self.set.offsets) {
-                let th = &theta[o..o + e.n_params()];
-                match *e {
-                    Effect::ReversalSpike(a) => {
-                        let shift_ms = self.set.spike_shift_ms(theta, a);
-                        spike_gradient_block(a, self.path, i0, th, shift_ms, &u, &mut grads, n, o)
-                    }
-                    _ => e.gradient_block(self.path, i0, th, &u, &mut grads, n, o),
-                }
+                e.gradient_block(
+                    self.path,
+                    i0,
+                    &theta[o..o + e.n_params()],
+                    &u,
+                    &mut grads,
+                    n,
+                    o,
+                );
             }
             for j in 0..len {
                 visit(i0 + j, res[j], &grads[j * n..(j + 1) * n]);

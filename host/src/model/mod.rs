@@ -475,7 +475,13 @@ impl Effect {
                     }
                 }
             }
-            Effect::ReversalSpike(a) => spike_delta_block(a, path, i0, theta, 0.0, q),
+            Effect::ReversalSpike(a) => {
+                let k = a.index();
+                let (h, tau) = (1e-3 * theta[0], theta[1].max(MIN_TAU_MS));
+                for_each_spike(path, k, i0, n, |j, s, dt_ms| {
+                    q[j][k] -= h * s * decay(dt_ms / tau);
+                });
+            }
         }
     }
 
@@ -513,7 +519,18 @@ impl Effect {
                 }
             }
             Effect::ReversalSpike(ax) => {
-                spike_gradient_block(ax, path, i0, theta, 0.0, u, out, stride, offset)
+                let k = ax.index();
+                let (h, tau) = (theta[0], theta[1].max(MIN_TAU_MS));
+                for o in rows.clone() {
+                    out[o] = 0.0;
+                    out[o + 1] = 0.0;
+                }
+                for_each_spike(path, k, i0, n, |j, s, dt_ms| {
+                    let e = decay(dt_ms / tau);
+                    let o = j * stride + offset;
+                    out[o] = -u[j][k] * s * e;
+                    out[o + 1] = -u[j][k] * h * s * e * dt_ms / (tau * tau);
+                });
             }
             Effect::Backlash(ax) | Effect::BacklashEnds(ax) => {
                 let k = ax.index();
@@ -660,7 +677,7 @@ pub(crate) fn for_each_dead_band(
             0.5
         }
     };
-    for_each_last_reversal(path, k, i0, n, 0.0, |j, last| {
+    for_each_last_reversal(path, k, i0, n, |j, last| {
         let x = path.p_mm[i0 + j][k];
         let wp = weight_pos(x);
         let gap = pos_um * wp + neg_um * (1.0 - wp);
@@ -686,93 +703,34 @@ pub(crate) fn for_each_dead_band(
     });
 }
 
-/// Add a reversal spike of axis `a` (parameters `theta` = [h µm, τ ms]) to `q` (mm) for samples
-/// i0 + j, each reversal taking place `shift_ms` after the path's (the axis's own delay behind
-/// its command: [`EffectSet::spike_shift_ms`]).
-fn spike_delta_block(
-    a: Axis,
-    path: &Path,
-    i0: usize,
-    theta: &[f64],
-    shift_ms: f64,
-    q: &mut [[f64; 3]],
-) {
-    let k = a.index();
-    let (h, tau) = (1e-3 * theta[0], theta[1].max(MIN_TAU_MS));
-    for_each_spike(path, k, i0, q.len(), shift_ms, |j, s, dt_ms| {
-        q[j][k] -= h * s * decay(dt_ms / tau);
-    });
-}
-
-/// The gradient of a reversal spike of axis `a` at `theta` (see [`Effect::gradient_block`]),
-/// its reversals `shift_ms` after the path's. The shift is held: its change with the servo
-/// delay it comes from is not in this gradient (it moves a spike by a few ms of its tens).
-#[allow(clippy::too_many_arguments)]
-fn spike_gradient_block(
-    a: Axis,
-    path: &Path,
-    i0: usize,
-    theta: &[f64],
-    shift_ms: f64,
-    u: &[[f64; 3]],
-    out: &mut [f64],
-    stride: usize,
-    offset: usize,
-) {
-    let k = a.index();
-    let n = u.len();
-    let (h, tau) = (theta[0], theta[1].max(MIN_TAU_MS));
-    for j in 0..n {
-        out[j * stride + offset] = 0.0;
-        out[j * stride + offset + 1] = 0.0;
-    }
-    for_each_spike(path, k, i0, n, shift_ms, |j, s, dt_ms| {
-        let e = decay(dt_ms / tau);
-        let o = j * stride + offset;
-        out[o] = -u[j][k] * s * e;
-        out[o + 1] = -u[j][k] * h * s * e * dt_ms / (tau * tau);
-    });
-}
-
-/// Call `f(j, s, Δt_ms)` for each sample i0 + j (j < n) after a reversal of axis k, the
-/// reversals taking place `shift_ms` after the path's: s the new direction, Δt the time since
-/// the reversal (ms). Samples before the first reversal are skipped.
-fn for_each_spike(
-    path: &Path,
-    k: usize,
-    i0: usize,
-    n: usize,
-    shift_ms: f64,
-    mut f: impl FnMut(usize, f64, f64),
-) {
+/// Call `f(j, s, Δt_ms)` for each sample i0 + j (j < n) after a reversal of axis k: s the new
+/// direction, Δt the time since the reversal (ms). Samples before the first reversal are skipped.
+fn for_each_spike(path: &Path, k: usize, i0: usize, n: usize, mut f: impl FnMut(usize, f64, f64)) {
     if path.reversals[k].is_empty() {
         return;
     }
-    let shift_s = 1e-3 * shift_ms;
-    for_each_last_reversal(path, k, i0, n, shift_s, |j, last| {
+    for_each_last_reversal(path, k, i0, n, |j, last| {
         if let Some(r) = last {
-            f(j, f64::from(r.new_dir), 1e3 * (path.t_s[i0 + j] - r.t_s - shift_s));
+            f(j, f64::from(r.new_dir), 1e3 * (path.t_s[i0 + j] - r.t_s));
         }
     });
 }
 
 /// Call `f(j, last)` for each sample i0 + j (j < n) with the last reversal of axis k at or
-/// before it (None before the first), each reversal taken `shift_s` after the path's: one walk
-/// through the reversals for a block of samples.
+/// before it (None before the first): one walk through the reversals for a block of samples.
 fn for_each_last_reversal(
     path: &Path,
     k: usize,
     i0: usize,
     n: usize,
-    shift_s: f64,
-    mut f: impl FnMut(usize, Option<super::path::Reversal>),
+    mut f: impl FnMut(usize, Option<crate::model::path::Reversal>),
 ) {
     let revs = &path.reversals[k];
     let t = &path.t_s[i0..i0 + n];
     // Index of the first reversal after t[0]; the one before it is in force.
-    let mut next = revs.partition_point(|r| r.t_s + shift_s <= t[0]);
+    let mut next = revs.partition_point(|r| r.t_s <= t[0]);
     for (j, &tj) in t.iter().enumerate() {
-        while next < revs.len() && revs[next].t_s + shift_s <= tj {
+        while next < revs.len() && revs[next].t_s <= tj {
             next += 1;
         }
         f(j, next.checked_sub(1).map(|i| revs[i]));

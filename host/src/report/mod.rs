@@ -482,7 +482,11 @@ pub fn details(d: &Diagnosis) -> String {
             d.samples
         );
     }
-    let _ = write!(s, "{}", crate::diagnose::reversal::peaks_text(&d.reversal_peaks));
+    let _ = write!(
+        s,
+        "{}",
+        crate::diagnose::reversal::peaks_text(&d.reversal_peaks)
+    );
     if partial_arcs(d).is_empty() {
         // A harmonic's amplitude from m samples of noise σ has a standard error of about
         // σ·√(2/m).
