@@ -22,12 +22,19 @@ pub struct Options {
     pub controller: Option<crate::compensate::Controller>,
 }
 
+/// Most groups the selection names by default: a real machine carries eight effects at once
+/// (issue 27), a worn screw's ends are a group of their own beside its gap, and the selection
+/// stops by its criterion long before on a machine with fewer (the cap of 8 left a dense
+/// machine's scale mismatch and reversal spike unnamed, `tests/tests/real_machine.rs`).
+pub const MAX_GROUPS: usize = 12;
+
 impl Default for Options {
     fn default() -> Self {
         Options {
             select: SelectOptions {
                 gamma: 0.5,
                 min_peak: MIN_EFFECT_UM,
+                max_effects: MAX_GROUPS,
                 ..SelectOptions::default()
             },
             harmonics: 8,
@@ -196,6 +203,9 @@ pub struct Diagnosis {
     /// Where `following_error` is named: the radius it takes off each circle at each speed the
     /// test ran it (a feed sweep runs one radius at several), q·v²/R ([`RadiusLoss`]).
     pub radius_loss: Vec<RadiusLoss>,
+    /// Per axis that reverses and per end: the peak a person sees in the trace after the
+    /// reversals there, with its duration ([`crate::diagnose::reversal`]).
+    pub reversal_peaks: Vec<crate::diagnose::reversal::ReversalPeak>,
 }
 
 /// The radius a named following error takes off one circle at one feed: q·v²/R

@@ -54,6 +54,7 @@ mod diagnosis;
 pub mod input;
 pub mod pitch_hint;
 pub mod planned;
+pub mod reversal;
 pub mod runs;
 pub mod zone;
 pub use diagnosis::*;
@@ -639,6 +640,12 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
             left_out.push(found[ei].effect);
             continue;
         }
+        // A ring after the reversals is vibration, never a reversal spike (issue 26).
+        if let Some((ei, reason)) = reversal::ringing_spike(path, d_mm, &final_set, &theta) {
+            not_significant.push(NotSignificant::of(&found[ei], reason));
+            left_out.push(found[ei].effect);
+            continue;
+        }
         // Each machine effect alone with its refitted parameters: its peak on D for the floor
         // here, its set-up projection for its share below (one pass each, nothing kept).
         let alone: Vec<Option<Alone>> = found
@@ -804,6 +811,7 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
         }
     }
     let radius_loss = radius_losses(path, &found, &runs, &circles);
+    let reversal_peaks = reversal::reversal_peaks(path, &resid, &final_set, &theta);
     Ok(Diagnosis {
         samples: m,
         baseline_rms_um,
@@ -837,6 +845,7 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
         weak_on_arc: weak,
         noise_tau_int,
         radius_loss,
+        reversal_peaks,
     })
 }
 

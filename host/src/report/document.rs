@@ -457,6 +457,7 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
         "gain",
         "noise_tau_int",
         "radius_loss",
+        "reversal_peaks",
         "harmonics_um",
         "lsq_setup",
         "circular_deviation_g_um",
@@ -524,6 +525,17 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
     const ZONE: &[&str] = &["g_um", "centre", "radius_offset_um"];
     const ARC: &[&str] = &["start_deg", "sweep_deg", "partial"];
     const WEAK: &[&str] = &["names", "free_fraction"];
+    const REVERSAL_PEAK: &[&str] = &[
+        "axis",
+        "end",
+        "reversals",
+        "peak_um",
+        "peak_sigma_um",
+        "at_ms",
+        "duration_ms",
+        "shape",
+        "vibration",
+    ];
     const TOLERANCE: &[&str] = &["g_um", "pass"];
     const DIRECTIONS: &[&str] = &["ccw", "cw"];
     const RANGE: &[&str] = &["max_um", "min_um"];
@@ -549,6 +561,7 @@ fn known_keys(v: &serde_json::Value) -> std::result::Result<(), (String, String)
     each("circles", CIRCLE)?;
     each("arcs", ARC)?;
     each("weak_on_arc", WEAK)?;
+    each("reversal_peaks", REVERSAL_PEAK)?;
     for name in ["baseline", "final", "minimum_zone"] {
         if let Some(x) = v.get(name) {
             keys(x, FIGURES, name)?;

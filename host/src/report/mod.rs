@@ -113,6 +113,14 @@
 //! radius_loss[]            where following_error is named: {radius_mm, feed_mm_min, loss_um,
 //!                          sigma_um} for each circle at each speed it ran (a feed sweep runs
 //!                          one radius at several): the radius the loops take off it, q·v²/R
+//! reversal_peaks[]         per axis that reverses and per end (`pos`/`neg`): {axis, end,
+//!                          reversals, peak_um, peak_sigma_um, at_ms, duration_ms, shape
+//!                          (`spike`, `stick_slip`, `vibration`), vibration (null, or
+//!                          {frequency_hz, damping, amplitude_um})}: the peak a
+//!                          person sees in the trace after the reversals there (radial, µm,
+//!                          positive outward; what the static effects leave plus a named
+//!                          spike), when after the reversal it peaks and its width at half
+//!                          height (ms), `diagnose::reversal`
 //! harmonics_um[]           amplitude of residual harmonics 1..8 against the angle in the plane
 //!                          of the two axes with the largest travel, µm
 //! lsq_setup                {x_um, y_um, z_um, e_um}: the least-squares set-up of all samples,
@@ -474,6 +482,11 @@ pub fn details(d: &Diagnosis) -> String {
             d.samples
         );
     }
+    let _ = write!(
+        s,
+        "{}",
+        crate::diagnose::reversal::peaks_text(&d.reversal_peaks)
+    );
     if partial_arcs(d).is_empty() {
         // A harmonic's amplitude from m samples of noise σ has a standard error of about
         // σ·√(2/m).
@@ -769,6 +782,19 @@ pub fn to_json(d: &Diagnosis) -> serde_json::Value {
         "radius_loss": d.radius_loss.iter().map(|l| json!({
             "radius_mm": num(l.radius_mm), "feed_mm_min": num(l.feed_mm_min),
             "loss_um": num(l.loss_um), "sigma_um": l.sigma_um.map(num),
+        })).collect::<Vec<_>>(),
+        "reversal_peaks": d.reversal_peaks.iter().map(|r| json!({
+            "axis": r.axis.letter().to_string(), "end": r.end.word(),
+            "reversals": r.reversals, "peak_um": num(r.peak_um),
+            "peak_sigma_um": num(r.peak_sigma_um), "at_ms": num(r.at_ms),
+            "duration_ms": num(r.duration_ms), "shape": r.shape.word(),
+            "vibration": match r.shape {
+                crate::diagnose::reversal::Shape::Vibration { frequency_hz, damping, amplitude_um } => json!({
+                    "frequency_hz": num(frequency_hz), "damping": num(damping),
+                    "amplitude_um": num(amplitude_um),
+                }),
+                _ => serde_json::Value::Null,
+            },
         })).collect::<Vec<_>>(),
         "harmonics_um": d.harmonics_um,
         "lsq_setup": {
