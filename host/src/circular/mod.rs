@@ -44,5 +44,6 @@ pub mod report;
 pub mod runs;
 pub mod simulate;
 pub mod sync;
+pub mod timeline;
 pub mod words;
 pub mod zone;
