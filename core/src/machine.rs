@@ -35,7 +35,7 @@ pub struct AxisErrors {
     /// Lost motion (backlash) b (µm), positive = play: the carriage lags its motor by b/2 in the
     /// direction of motion, δ = −b/2 moving +k, +b/2 moving −k (eq. 14 with f = −b). A step,
     /// exact away from a reversal: a real clearance is a dead band taken up over the first b of
-    /// travel after it, which the host's models (`circular::model`) evaluate.
+    /// travel after it, which the host's models (`model`) evaluate.
     pub backlash_um: f64,
 }
 

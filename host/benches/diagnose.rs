@@ -12,11 +12,11 @@
 //! forward selection, the exact refit, residual harmonics, G and H. CSV parsing is not timed.
 use std::time::Instant;
 
-use jdbb::circular::diagnose::{diagnose, Options};
-use jdbb::circular::input::read_samples;
-use jdbb::circular::model::parse_pitch;
-use jdbb::circular::model::Path;
-use jdbb::circular::simulate::{distances_mm, measure, nominal_path, parse_effect, PathSpec};
+use jdbb::diagnose::input::read_samples;
+use jdbb::diagnose::{diagnose, Options};
+use jdbb::model::parse_pitch;
+use jdbb::model::Path;
+use jdbb::simulate::{distances_mm, measure, nominal_path, parse_effect, PathSpec};
 
 fn simulated(n: usize) -> (Path, Vec<f64>) {
     let period_s = std::f64::consts::TAU * 50.0 / (1000.0 / 60.0);

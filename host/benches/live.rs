@@ -16,11 +16,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use jdbb::circular::plan::build::{plan, PlanSpec};
-use jdbb::circular::plan::{Dialect, Plan, Plane, Segment};
 use jdbb::link::stream::{SeqSample, Stats};
 use jdbb::live_web::feed::{new_board, LiveFeed};
 use jdbb::live_web::server::{LiveServer, SHUTDOWN_LIMIT};
+use jdbb::plan::build::{plan, PlanSpec};
+use jdbb::plan::{Dialect, Plan, Plane, Segment};
 use jdbb_core::protocol::{Sample, Status};
 
 const RATE_HZ: f64 = 5000.0;
@@ -136,13 +136,10 @@ fn main() {
     let plan2 = plan(&spec, &jdbb_core::calib::Calibration::DEFAULT).expect("the plan");
     let d2 = synthetic(&plan2);
     let t_s: Vec<f64> = (0..d2.len()).map(|i| i as f64 / RATE_HZ).collect();
-    let rec = jdbb::circular::sync::Record::from_samples(
-        std::path::Path::new("bench"),
-        t_s.clone(),
-        d2.clone(),
-    );
+    let rec =
+        jdbb::sync::Record::from_samples(std::path::Path::new("bench"), t_s.clone(), d2.clone());
     let t = Instant::now();
-    let full = jdbb::circular::sync::synchronise(&plan2, &rec).expect("synchronised");
+    let full = jdbb::sync::synchronise(&plan2, &rec).expect("synchronised");
     let t_sync = t.elapsed();
     let last_data_s = full.circles[1]
         .data

@@ -4,7 +4,12 @@
 //! |---|---|
 //! | [`link`] | the instrument connection: frame stream and its accounting, recording, live readout |
 //! | [`live_web`] | the live page during a test (`--web`): progress, trace, diagnosis while recording |
-//! | [`circular`] | circular tests: effect models, simulation, diagnosis, report and plots |
+//! | [`model`] | a test's nominal path and the candidate machine effects (seed 000), in the trade's words |
+//! | [`plan`] | the program a test runs: plan.json and G-code for the controller dialects |
+//! | [`sync`] | a recording lined up with its plan from D alone; glitches set aside |
+//! | [`simulate`] | a test on a machine with chosen errors; a plan's program run and recorded; progress |
+//! | [`diagnose`] | reading a test; circles, G and H; candidate search, selection, exact refit |
+//! | [`report`] | a diagnosis as text, JSON, polar plots, HTML and PDF; its JSON read back |
 //! | [`compensate`] | a diagnosis as settings of a CNC controller (LinuxCNC, grblHAL, Marlin, Klipper) |
 //! | [`history`] | a machine's diagnoses over time in one SQLite file; trends |
 //! | [`rotary`] | rotary axes (seed 002): six geometric errors; angle-indexed run diagnosis |
@@ -19,24 +24,31 @@
 //! | [`error`] | the error type and its exit codes |
 //! | [`fsio`] | the one writer (no link, no device, whole files, sets, `--force`) and input limits |
 //!
-//! Dependencies point one way: `cli` → `compensate`, `history`, `live_web`, `volumetric` → `circular`, `rotary`, `rrsps`,
-//! `instrument`, `link` → `numerics`,
+//! Dependencies point one way: `cli` → `compensate`, `history`, `live_web`, `volumetric`,
+//! `instrument`, `link` → the test folders `report` → `diagnose` → `simulate` → `sync` → `plan`
+//! → `model`; these and `rotary`, `rrsps` → `numerics`, (one exception, older than the folders:
+//! `diagnose` asks `compensate` which effects a controller can set)
 //! `table` → `jdbb_core` (the instrument model, wire protocol and machine error models shared
 //! with the firmware). No module below `cli` prints or reads the command line.
-pub mod circular;
 pub mod cli;
 pub mod compensate;
 pub mod dates;
+pub mod diagnose;
 pub mod error;
 pub mod fsio;
 pub mod history;
 pub mod instrument;
 pub mod link;
 pub mod live_web;
+pub mod model;
 pub mod numerics;
+pub mod plan;
 pub mod profile;
+pub mod report;
 pub mod rotary;
 pub mod rrsps;
+pub mod simulate;
+pub mod sync;
 pub mod table;
 pub mod units;
 pub mod volumetric;

@@ -968,9 +968,9 @@ fn planned_run(dir: &Path, machine: &str) -> (String, Vec<Sample>, f64, f64) {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let plan_file = dir.join("plan/plan.json");
-    let plan = jdbb::circular::plan::Plan::read(&plan_file).unwrap();
-    let m = jdbb::circular::machine::Machine::parse(Path::new("m.toml"), machine).unwrap();
-    let (samples, truth) = jdbb::circular::record_sim::record(&plan, &m).unwrap();
+    let plan = jdbb::plan::Plan::read(&plan_file).unwrap();
+    let m = jdbb::simulate::machine::Machine::parse(Path::new("m.toml"), machine).unwrap();
+    let (samples, truth) = jdbb::simulate::record_sim::record(&plan, &m).unwrap();
     let t0 = samples[0].t_us as f64;
     (
         plan_file.to_str().unwrap().to_string(),

@@ -1,5 +1,5 @@
 //! The compensation's sign conventions, proven rather than asserted (issue 10): a round trip on
-//! the project's own simulator (`jdbb::circular::simulate`, the fit's own effect models on the
+//! the project's own simulator (`jdbb::simulate`, the fit's own effect models on the
 //! fit's `Path`), so the *machine's* conventions here are the diagnosis' own. What this proves is
 //! the controller side — that each emitted setting, applied with the controller's documented
 //! semantics, removes what the diagnosis measured. That the diagnosis measured the machine's
@@ -35,15 +35,13 @@
 #![allow(clippy::needless_range_loop)]
 use std::path::Path as FsPath;
 
-use jdbb::circular::diagnose::{diagnose, Diagnosis, Options as DiagOptions};
-use jdbb::circular::document::DiagnosisDoc;
-use jdbb::circular::model::{Effect, EffectSet, ExactModel, Path};
-use jdbb::circular::report::to_json;
-use jdbb::circular::simulate::{
-    distances_mm, measure, nominal_path, parse_effect, EffectValue, PathSpec,
-};
 use jdbb::compensate::{plan, Controller, Current, Options, Placement, Plan};
+use jdbb::diagnose::{diagnose, Diagnosis, Options as DiagOptions};
+use jdbb::model::{Effect, EffectSet, ExactModel, Path};
 use jdbb::numerics::lsq::{least_squares, LsqOptions};
+use jdbb::report::document::DiagnosisDoc;
+use jdbb::report::to_json;
+use jdbb::simulate::{distances_mm, measure, nominal_path, parse_effect, EffectValue, PathSpec};
 
 /// Settings in force on the simulated controller, parsed from emitted or `--current` text.
 #[derive(Debug, Clone)]

@@ -1,5 +1,5 @@
 //! Round trip of the project's own simulator (issue 3, issue 21): data made by
-//! `jdbb::circular::simulate` — which evaluates the same effect models (`circular::model`, core's
+//! `jdbb::simulate` — which evaluates the same effect models (`model`, core's
 //! machine) on the same `Path` the fit uses — with effects drawn at random; the diagnosis runs
 //! without being told and must name the effect, its value unbiased, and nothing else. Because
 //! generator and fit share every convention (signs, pairings, phase origins), this checks the
@@ -9,9 +9,9 @@
 //! cases.
 mod common;
 
-use jdbb::circular::diagnose::{diagnose, Diagnosis, Options};
-use jdbb::circular::model::{Axis, Effect, Pair, Path};
-use jdbb::circular::simulate::{distances_mm, measure, nominal_path, EffectValue, PathSpec};
+use jdbb::diagnose::{diagnose, Diagnosis, Options};
+use jdbb::model::{Axis, Effect, Pair, Path};
+use jdbb::simulate::{distances_mm, measure, nominal_path, EffectValue, PathSpec};
 use rand::{Rng, SeedableRng};
 
 /// A circular test: ccw then cw circles at the radii, 200 Hz, 1000 mm/min, xy plane at height h.
@@ -53,7 +53,7 @@ fn setup(rng: &mut impl Rng) -> Vec<EffectValue> {
 }
 
 /// Machine effects found (set-up excluded).
-fn machine(d: &Diagnosis) -> Vec<&jdbb::circular::diagnose::Found> {
+fn machine(d: &Diagnosis) -> Vec<&jdbb::diagnose::Found> {
     d.effects.iter().filter(|f| !f.effect.is_setup()).collect()
 }
 
@@ -153,7 +153,7 @@ fn round_trip_of_simulate_names_a_hidden_random_effect_alone() {
             vec![name.clone()],
             "case {case}: hidden {} (R {radius:.1} mm, σ {sigma:.2} µm)\n{}",
             effect.name(),
-            jdbb::circular::report::summary(&d)
+            jdbb::report::summary(&d)
         );
         // The absolute part of the bias bound, in the effect's unit.
         let abs = match effect {

@@ -239,14 +239,14 @@ fn fuzz_file<T>(name: &'static str, base: &'static [u8], read: impl Fn(&Path) ->
 #[test]
 fn csv_samples() {
     fuzz_file("s.csv", leak(samples_text()), |p| {
-        jdbb::circular::input::read_samples(p, [None; 3])
+        jdbb::diagnose::input::read_samples(p, [None; 3])
     });
 }
 
 #[test]
 fn record_csv() {
     fuzz_file("rec.csv", RECORD.as_bytes(), |p| {
-        jdbb::circular::sync::Record::read(p)
+        jdbb::sync::Record::read(p)
     });
     // recompute reads a record too (and writes only a complete output).
     let cal = jdbb_core::calib::Calibration::DEFAULT;
@@ -261,7 +261,7 @@ fn record_csv() {
 #[test]
 fn plan_json() {
     fuzz_file("plan.json", leak(&program_outputs().0), |p| {
-        jdbb::circular::plan::Plan::read(p)
+        jdbb::plan::Plan::read(p)
     });
 }
 
@@ -277,15 +277,15 @@ fn machine_toml() {
     // The example `jdbb simulate --machine` prints (every key, and the list of every effect).
     fuzz_file(
         "m.toml",
-        leak(&jdbb::circular::machine::example()),
-        jdbb::circular::machine::Machine::read,
+        leak(&jdbb::simulate::machine::example()),
+        jdbb::simulate::machine::Machine::read,
     );
 }
 
 #[test]
 fn diagnosis_json() {
     fuzz_file("diag.json", leak(&program_outputs().1), |p| {
-        jdbb::circular::document::DiagnosisDoc::read(p)
+        jdbb::report::document::DiagnosisDoc::read(p)
     });
 }
 

@@ -265,8 +265,7 @@ fn an_old_history_without_kept_records_opens_and_gains_them() {
     {
         use jdbb::history::Store;
         let mut h = jdbb::history::History::open_at(&path, 4).unwrap();
-        let (doc, text) =
-            jdbb::circular::document::DiagnosisDoc::read(&d.join("diag.json")).unwrap();
+        let (doc, text) = jdbb::report::document::DiagnosisDoc::read(&d.join("diag.json")).unwrap();
         h.add("mill", &doc, &text, "diag.json", None).unwrap();
         assert_eq!(h.version().unwrap(), 4);
     }

@@ -9,11 +9,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use jdbb::circular::plan::build::{plan, PlanSpec};
-use jdbb::circular::plan::{Dialect, Plan, Plane, Segment};
 use jdbb::link::stream::{SeqSample, Stats};
 use jdbb::live_web::feed::{new_board, LiveFeed};
 use jdbb::live_web::server::{Limits, LiveServer};
+use jdbb::plan::build::{plan, PlanSpec};
+use jdbb::plan::{Dialect, Plan, Plane, Segment};
 use jdbb_core::protocol::{Sample, Status};
 
 fn test_plan() -> Plan {
@@ -954,14 +954,14 @@ fn bad_web_options_fail_clearly_and_leave_nothing() {
 #[test]
 fn each_circle_names_the_hidden_effects_and_circle_2_before_its_feed_out() {
     let plan = test_plan();
-    let machine = jdbb::circular::machine::Machine::parse(
+    let machine = jdbb::simulate::machine::Machine::parse(
         std::path::Path::new("m.toml"),
         "feed_override_pct = 103\naccel_mm_s2 = 600\n\
          [instrument]\nsample_rate_hz = 1000\nnoise_um = 0.2\nclock_ppm = 40\n\
          [effects]\nbacklash_x = 8.0\nsquareness_xy = 30.0\n",
     )
     .unwrap();
-    let (samples, _) = jdbb::circular::record_sim::record(&plan, &machine).unwrap();
+    let (samples, _) = jdbb::simulate::record_sim::record(&plan, &machine).unwrap();
     let mut feed = LiveFeed::new(new_board(), Some(&plan), Some(20.0));
     let mut stats = Stats::default();
     // Fed 100 samples at a time with a pause while the worker runs.

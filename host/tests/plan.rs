@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use gcode::{Code, Value};
-use jdbb::circular::plan::{
+use jdbb::plan::{
     calibration_circles, default_calibration_distances, instrument, line_d_range, plan,
     write_program, Close, Dialect, LineRole, Plan, PlanSpec, Plane, Purpose, Segment, Sense,
     ON_CIRCLE_NM, ON_CIRCLE_SEARCH_DEG,
@@ -1228,7 +1228,7 @@ fn lead_in_and_overshoot_of_a_partial_arc_come_from_inside_it() {
         .iter()
         .filter_map(|sg| match sg {
             Segment::Arc {
-                role: jdbb::circular::plan::ArcRole::Data,
+                role: jdbb::plan::ArcRole::Data,
                 start_deg,
                 sweep_deg,
                 ..
@@ -1253,7 +1253,7 @@ fn lead_in_and_overshoot_of_a_partial_arc_come_from_inside_it() {
     assert!(p.segments.iter().all(|sg| !matches!(
         sg,
         Segment::Arc {
-            role: jdbb::circular::plan::ArcRole::LeadIn | jdbb::circular::plan::ArcRole::Overshoot,
+            role: jdbb::plan::ArcRole::LeadIn | jdbb::plan::ArcRole::Overshoot,
             ..
         }
     )));

@@ -11,7 +11,7 @@ use common::ok;
 /// The Chromium `jdbb diagnose --pdf` prints with (`JDBB_CHROMIUM`, else on `PATH`); None, said
 /// as a skip, without one (a failure with `JDBB_REQUIRE_CHROMIUM=1`).
 fn chromium_or_skip() -> Option<PathBuf> {
-    let found = jdbb::circular::pdf::find_chromium().ok();
+    let found = jdbb::report::pdf::find_chromium().ok();
     if found.is_none() {
         let msg = "chromium not found (scripts/setup.sh installs it; JDBB_CHROMIUM names a binary)";
         if std::env::var("JDBB_REQUIRE_CHROMIUM").as_deref() == Ok("1") {

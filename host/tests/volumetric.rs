@@ -5,7 +5,7 @@
 //! (Every dialect's program parsed back by an independent reader: `tests/plan.rs`.)
 use std::path::Path;
 
-use jdbb::circular::plan::{LineRole, Plan, Plane, Purpose, Segment, Sense, VOLUMETRIC_VERSION};
+use jdbb::plan::{LineRole, Plan, Plane, Purpose, Segment, Sense, VOLUMETRIC_VERSION};
 mod common;
 use common::{jdbb, stderr, stdout};
 

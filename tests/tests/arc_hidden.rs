@@ -10,10 +10,10 @@ mod planned;
 
 use planned::{machine_names, read_back};
 
-use jdbb::circular::diagnose::{diagnose, Diagnosis, Options};
-use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
-use jdbb::circular::report::summary;
-use jdbb::circular::sync::{data_path, synchronise};
+use jdbb::diagnose::{diagnose, Diagnosis, Options};
+use jdbb::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
+use jdbb::report::summary;
+use jdbb::sync::{data_path, synchronise};
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     Axis, BacklashEnds, Bow, Cyclic, Dialect, LateralPlay, MachineErrors, Recording, SimConfig,
@@ -78,7 +78,7 @@ fn diagnose_record(plan: &Plan, rec: &Recording, pitch: [Option<f64>; 3]) -> Dia
         t.cycle_start_us
     );
     // The diagnosis JSON's plan says which arc was run.
-    let pj = jdbb::circular::report::plan_json(std::path::Path::new("plan.json"), plan);
+    let pj = jdbb::report::plan_json(std::path::Path::new("plan.json"), plan);
     assert_eq!(pj["arc"]["sweep_deg"], plan.arc.sweep_deg);
     assert_eq!(pj["arc"]["data_sweep_deg"], plan.arc.data_sweep_deg);
     // Every data arc of the plan found: the data arc ccw and back cw.
@@ -88,8 +88,8 @@ fn diagnose_record(plan: &Plan, rec: &Recording, pitch: [Option<f64>; 3]) -> Dia
         .filter(|s| {
             matches!(
                 s,
-                jdbb::circular::plan::Segment::Arc {
-                    role: jdbb::circular::plan::ArcRole::Data,
+                jdbb::plan::Segment::Arc {
+                    role: jdbb::plan::ArcRole::Data,
                     ..
                 }
             )
@@ -108,7 +108,7 @@ fn diagnose_record(plan: &Plan, rec: &Recording, pitch: [Option<f64>; 3]) -> Dia
 /// resembles, and its one-circle twin, the second-order scale of j, as confounded with it; no
 /// harmonics; the note in the summary, the JSON and report.html.
 fn assert_partial_arc_reported(d: &Diagnosis, plane: Plane) {
-    let text = format!("{}{}", summary(d), jdbb::circular::report::details(d));
+    let text = format!("{}{}", summary(d), jdbb::report::details(d));
     assert_eq!(d.arcs.len(), 1, "{text}");
     let a = d.arcs[0];
     assert!(a.is_partial(), "{a:?}");
@@ -153,11 +153,11 @@ fn assert_partial_arc_reported(d: &Diagnosis, plane: Plane) {
     assert!(text.contains("partial arc: circle 1 covers"), "{text}");
     assert!(text.contains(&from), "{text}");
     // The JSON and report.html say it too.
-    let json = jdbb::circular::report::to_json(d);
+    let json = jdbb::report::to_json(d);
     assert_eq!(json["arcs"][0]["partial"], true);
     assert_eq!(json["weak_on_arc"][0]["names"][0], bow.as_str());
-    let doc: jdbb::circular::document::DiagnosisDoc = serde_json::from_value(json).unwrap();
-    let html = jdbb::circular::html::report_html(d, &doc).unwrap();
+    let doc: jdbb::report::document::DiagnosisDoc = serde_json::from_value(json).unwrap();
+    let html = jdbb::report::html::report_html(d, &doc).unwrap();
     assert!(html.contains("Partial arc: circle 1 covers"), "{html}");
     assert!(html.contains("Weak on this arc"), "{html}");
 }

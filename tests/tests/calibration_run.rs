@@ -9,12 +9,12 @@
 //! machine's linear errors on these spheres.
 use std::path::Path;
 
-use jdbb::circular::plan::{
+use jdbb::instrument::fit::{Calibrated, Options};
+use jdbb::instrument::run::calibrate_run;
+use jdbb::plan::{
     calibration_circles, default_calibration_distances, instrument, plan, write_program,
     Dialect as PlanDialect, Plan, PlanSpec, Plane, Purpose,
 };
-use jdbb::instrument::fit::{Calibrated, Options};
-use jdbb::instrument::run::calibrate_run;
 use jdbb_core::geometry::Model;
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{Dialect, MachineErrors, Recording, SimConfig, Simulation};

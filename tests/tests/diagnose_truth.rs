@@ -14,11 +14,11 @@ mod planned;
 
 use planned::{assert_unbiased, machine_names, read_back};
 
-use jdbb::circular::diagnose::{Diagnosis, Found, Options};
-use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
-use jdbb::circular::planned::diagnose_planned;
-use jdbb::circular::report::summary;
-use jdbb::circular::sync::synchronise;
+use jdbb::diagnose::planned::diagnose_planned;
+use jdbb::diagnose::{Diagnosis, Found, Options};
+use jdbb::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
+use jdbb::report::summary;
+use jdbb::sync::synchronise;
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     Axis, BacklashEnds, Cyclic, Dialect, Interference, MachineErrors, ReversalSpike, Scale2,
@@ -251,7 +251,7 @@ fn the_cyclic_phase_is_measured_from_the_table_ball() {
 /// the ball on a whole pitch and 113.5 % with the ball at X 253.7, after which the diagnosis
 /// found 0.5 µm of a 2.5 µm error. The timeline now weighs every timing fact by what the
 /// machine's errors can do to it and reads the ramps again through the errors found (issue 20,
-/// `circular::planned`): the cyclic error is named alone, unbiased, with its phase.
+/// `diagnose::planned`): the cyclic error is named alone, unbiased, with its phase.
 #[test]
 fn a_cyclic_error_along_the_feed_in_does_not_bias_the_synchronised_feed() {
     let p = make_plan(&[90.0], &[0.0], Plane::Xy);

@@ -10,9 +10,9 @@ mod planned;
 
 use planned::machine_names;
 
-use jdbb::circular::diagnose::{diagnose, Diagnosis, Found, Options};
-use jdbb::circular::plan::{plan, Close, Dialect as PlanDialect, Plan, PlanSpec, Plane};
-use jdbb::circular::report::summary;
+use jdbb::diagnose::{diagnose, Diagnosis, Found, Options};
+use jdbb::plan::{plan, Close, Dialect as PlanDialect, Plan, PlanSpec, Plane};
+use jdbb::report::summary;
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     Axis, Dialect, MachineErrors, SimConfig, SpindleGrowth, Squareness, ThermalGrowth,

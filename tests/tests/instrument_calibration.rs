@@ -356,7 +356,7 @@ fn report(label: &str, v: &Value) {
 }
 
 /// `jdbb diagnose`'s JSON for a record and path, through the library (the same
-/// `circular::report::to_json` the CLI prints with `--json`).
+/// `report::to_json` the CLI prints with `--json`).
 fn diagnose_in_process(dir: &Path, name: &str, rec: &CircularRecord, d_mm: &[f64]) -> Value {
     let mut rows = rec.rows.clone();
     for (r, d) in rows.iter_mut().zip(d_mm) {
@@ -367,15 +367,10 @@ fn diagnose_in_process(dir: &Path, name: &str, rec: &CircularRecord, d_mm: &[f64
     std::fs::write(&rec_file, record_csv(&rows)).unwrap();
     std::fs::write(&path_file, path_csv(&rec.path)).unwrap();
     let (path, d, _) =
-        jdbb::circular::input::read_record_with_path(&rec_file, &path_file, 0.0, [None; 3])
+        jdbb::diagnose::input::read_record_with_path(&rec_file, &path_file, 0.0, [None; 3])
             .unwrap();
-    let diag = jdbb::circular::diagnose::diagnose(
-        &path,
-        &d,
-        &jdbb::circular::diagnose::Options::default(),
-    )
-    .unwrap();
-    jdbb::circular::report::to_json(&diag)
+    let diag = jdbb::diagnose::diagnose(&path, &d, &jdbb::diagnose::Options::default()).unwrap();
+    jdbb::report::to_json(&diag)
 }
 
 #[test]

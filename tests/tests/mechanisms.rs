@@ -11,12 +11,12 @@ mod planned;
 
 use planned::{machine_names, read_back};
 
-use jdbb::circular::diagnose::{diagnose, Diagnosis, Found, Options};
-use jdbb::circular::document::DiagnosisDoc;
-use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
-use jdbb::circular::report::{summary, to_json};
-use jdbb::circular::sync::{data_path, synchronise};
 use jdbb::compensate::{self, Controller, Current, Placement};
+use jdbb::diagnose::{diagnose, Diagnosis, Found, Options};
+use jdbb::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
+use jdbb::report::document::DiagnosisDoc;
+use jdbb::report::{summary, to_json};
+use jdbb::sync::{data_path, synchronise};
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     Axis, BacklashEnds, Bow, Dialect, LateralPlay, MachineErrors, SimConfig, Simulation,

@@ -18,10 +18,10 @@ mod planned;
 
 use planned::{machine_names, read_back};
 
-use jdbb::circular::diagnose::{Diagnosis, Options};
-use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
-use jdbb::circular::planned::diagnose_planned;
-use jdbb::circular::sync::synchronise;
+use jdbb::diagnose::planned::diagnose_planned;
+use jdbb::diagnose::{Diagnosis, Options};
+use jdbb::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
+use jdbb::sync::synchronise;
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     ColouredNoise, Dialect, MachineErrors, Realistic, ServoLoop, SimConfig, Simulation, Tuning,

@@ -30,11 +30,11 @@ use planned::{
     Drawn,
 };
 
-use jdbb::circular::diagnose::{Diagnosis, Found, Options};
-use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
-use jdbb::circular::planned::diagnose_planned;
-use jdbb::circular::report::summary;
-use jdbb::circular::sync::synchronise;
+use jdbb::diagnose::planned::diagnose_planned;
+use jdbb::diagnose::{Diagnosis, Found, Options};
+use jdbb::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
+use jdbb::report::summary;
+use jdbb::sync::synchronise;
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     Axis, BacklashEnds, Bow, Cyclic, MachineErrors, ReversalSpike, SimConfig, Simulation,
@@ -434,7 +434,7 @@ fn run_cases(seeds: &[u64], options: &Options) {
 }
 
 /// As `jdbb diagnose --record --plan` runs. It fails: the selection stops at
-/// `SelectOptions::max_effects` (8 groups in `circular::diagnose::Options::default()`), which
+/// `SelectOptions::max_effects` (8 groups in `diagnose::Options::default()`), which
 /// left seeds 0, 1 and 2 with 6 of their 8 effects named — the scale mismatch (48.8, 22.7 and
 /// −32.9 µm/m, a 0.9–2.2 µm second harmonic left in the residual) and the reversal spike (6.5,
 /// 6.8, 5.8 µm) missing. With them missing the servo mismatch's common lag came out at −39.7,

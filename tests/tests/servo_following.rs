@@ -12,10 +12,10 @@ mod planned;
 
 use planned::{machine_names, read_back};
 
-use jdbb::circular::diagnose::{diagnose, Diagnosis, Found, Options};
-use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
-use jdbb::circular::report::summary;
-use jdbb::circular::sync::{data_path, synchronise};
+use jdbb::diagnose::{diagnose, Diagnosis, Found, Options};
+use jdbb::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
+use jdbb::report::summary;
+use jdbb::sync::{data_path, synchronise};
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{Dialect, MachineErrors, ServoLoop, SimConfig, Simulation};
 

@@ -16,11 +16,11 @@ mod planned;
 
 use planned::read_back;
 
-use jdbb::circular::diagnose::{Diagnosis, Options};
-use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
-use jdbb::circular::planned::diagnose_planned;
-use jdbb::circular::report::summary;
-use jdbb::circular::sync::synchronise;
+use jdbb::diagnose::planned::diagnose_planned;
+use jdbb::diagnose::{Diagnosis, Options};
+use jdbb::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
+use jdbb::report::summary;
+use jdbb::sync::synchronise;
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     Axis, Bow, Cyclic, Dialect, LateralPlay, MachineErrors, Realistic, ReversalSpike, SimConfig,

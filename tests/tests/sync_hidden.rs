@@ -10,10 +10,10 @@ mod planned;
 
 use planned::{assert_unbiased_sigma, machine_names, read_back};
 
-use jdbb::circular::diagnose::{diagnose, Diagnosis, Options};
-use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
-use jdbb::circular::planned::diagnose_planned;
-use jdbb::circular::sync::{data_path, synchronise, Record, MAX_DATA_SAMPLES};
+use jdbb::diagnose::planned::diagnose_planned;
+use jdbb::diagnose::{diagnose, Diagnosis, Options};
+use jdbb::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
+use jdbb::sync::{data_path, synchronise, Record, MAX_DATA_SAMPLES};
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     Axis, Cyclic, Dialect, MachineErrors, Recording, ReversalSpike, SimConfig, Simulation,
@@ -115,7 +115,7 @@ fn diagnose_record_feed(
 /// Exactly `name` was found, its value `truth` by the rule (`planned::assert_unbiased`: within 5 %
 /// and 1 % + 3σ, σ under 10 %; a spike's under 25 %).
 fn assert_only(d: &Diagnosis, name: &str, truth: f64) -> f64 {
-    let text = jdbb::circular::report::summary(d);
+    let text = jdbb::report::summary(d);
     assert_eq!(machine_names(d), vec![name.to_string()], "{text}");
     let f = d.effects.iter().find(|f| f.effect.name() == name).unwrap();
     // A spike's σ carries the timing σ (see `planned::assert_unbiased_sigma`).
@@ -149,7 +149,7 @@ fn a_perfect_machine_shows_nothing() {
         assert!(
             machine_names(&d).is_empty(),
             "{}",
-            jdbb::circular::report::summary(&d)
+            jdbb::report::summary(&d)
         );
     }
 }

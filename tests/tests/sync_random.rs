@@ -26,11 +26,11 @@ use planned::{
     Drawn,
 };
 
-use jdbb::circular::diagnose::{diagnose, Options};
-use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
-use jdbb::circular::planned::diagnose_planned;
-use jdbb::circular::report::summary;
-use jdbb::circular::sync::{data_path, synchronise, FeedSource, Sync};
+use jdbb::diagnose::planned::diagnose_planned;
+use jdbb::diagnose::{diagnose, Options};
+use jdbb::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
+use jdbb::report::summary;
+use jdbb::sync::{data_path, synchronise, FeedSource, Sync};
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     Axis, BacklashEnds, Bow, Cyclic, Dialect, Interference, LateralPlay, MachineErrors, Recording,

@@ -16,8 +16,8 @@ mod planned;
 
 use planned::read_back;
 
-use jdbb::circular::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
-use jdbb::circular::sync::{data_path, synchronise};
+use jdbb::plan::{plan, write_program, Dialect as PlanDialect, Plan, PlanSpec, Plane};
+use jdbb::sync::{data_path, synchronise};
 use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{Dialect, MachineErrors, ServoLoop, SimConfig, Simulation};
 

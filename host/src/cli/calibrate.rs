@@ -4,12 +4,12 @@ use std::path::PathBuf;
 use jdbb_core::calib::Calibration;
 
 use super::output::{emit, json_text, print};
-use crate::circular::plan::{Plan, Purpose};
 use crate::instrument::file::{calibration_toml, read_calibration};
 use crate::instrument::fit::{calibrate, Options};
 use crate::instrument::report::{summary, to_json};
 use crate::instrument::run::calibrate_run_noted;
 use crate::instrument::samples::read_samples;
+use crate::plan::{Plan, Purpose};
 use crate::{Error, Result};
 
 /// Arguments of `jdbb calibrate`.

@@ -4,10 +4,10 @@ use std::path::PathBuf;
 
 use super::args::{finite_value as finite, per_axis};
 use super::output::print;
-use crate::circular::document::DiagnosisDoc;
 use crate::compensate::{plan, render, Controller, Current, Options, Placement};
 use crate::fsio::FileSet;
 use crate::profile::MachineProfile;
+use crate::report::document::DiagnosisDoc;
 use crate::Result;
 
 /// The profile's units and increment system, where the values in force do not give them: the

@@ -1,20 +1,18 @@
-//! `jdbb diagnose`: arguments and glue to [`crate::circular`].
+//! `jdbb diagnose`: arguments and glue to [`crate::diagnose`] and [`crate::report`].
 use std::path::PathBuf;
 
 use super::output::{emit, json_text, print};
-use crate::circular::diagnose::{diagnose, Options};
-use crate::circular::document::DiagnosisDoc;
-use crate::circular::html::report_html;
-use crate::circular::input::{read_record_with_path, read_samples};
-use crate::circular::model::parse_pitch;
-use crate::circular::plan::Plan;
-use crate::circular::planned::diagnose_record;
-use crate::circular::plot::write_report;
-use crate::circular::report::{
-    details, plan_json, summary, sync_details, sync_json, sync_summary, to_json,
-};
-use crate::circular::sync::Record;
+use crate::diagnose::input::{read_record_with_path, read_samples};
+use crate::diagnose::planned::diagnose_record;
+use crate::diagnose::{diagnose, Options};
 use crate::fsio::{check_dir_destination, write_dir};
+use crate::model::parse_pitch;
+use crate::plan::Plan;
+use crate::report::document::DiagnosisDoc;
+use crate::report::html::report_html;
+use crate::report::plot::write_report;
+use crate::report::{details, plan_json, summary, sync_details, sync_json, sync_summary, to_json};
+use crate::sync::Record;
 use crate::{Error, Result};
 
 /// Arguments of `jdbb diagnose`.
@@ -111,7 +109,7 @@ const MAX_COMPENSATION_BYTES: usize = 64 * 1024;
 
 /// The test's conditions from the options (ISO 230-4: operator, temperatures, table ball,
 /// compensation in force) and the record's header (instrument serial), as fields of the
-/// diagnosis JSON (documented in `circular::report`); read before the work, so a bad option
+/// diagnosis JSON (documented in `report`); read before the work, so a bad option
 /// costs nothing.
 fn conditions(args: &DiagnoseArgs) -> Result<serde_json::Value> {
     use serde_json::json;
@@ -151,7 +149,7 @@ fn conditions(args: &DiagnoseArgs) -> Result<serde_json::Value> {
     }
     if let Some(record) = &args.record {
         if let Some(serial) =
-            crate::circular::input::record_header_value(record, crate::table::INSTRUMENT_SERIAL)?
+            crate::diagnose::input::record_header_value(record, crate::table::INSTRUMENT_SERIAL)?
         {
             json["instrument"] = json!({"serial": serial});
         }
@@ -183,11 +181,11 @@ fn read_calibration(file: &std::path::Path) -> Result<serde_json::Value> {
 }
 
 /// The run's facts from the options (machine, date, tolerance and verdict, calibration) into
-/// the diagnosis JSON (documented in `circular::report`); returns the verdict line to print.
+/// the diagnosis JSON (documented in `report`); returns the verdict line to print.
 fn add_run_facts(
     json: &mut serde_json::Value,
     args: &DiagnoseArgs,
-    diag: &crate::circular::diagnose::Diagnosis,
+    diag: &crate::diagnose::Diagnosis,
 ) -> Result<Option<String>> {
     use serde_json::json;
     if let Some(m) = &args.machine {
@@ -206,7 +204,7 @@ fn add_run_facts(
     let Some(tol) = args.tolerance_um else {
         return Ok(None);
     };
-    let (pass, line) = crate::circular::report::tolerance_verdict(diag, tol);
+    let (pass, line) = crate::report::tolerance_verdict(diag, tol);
     json["tolerance"] = json!({"g_um": tol, "pass": pass});
     Ok(Some(line))
 }
@@ -284,7 +282,7 @@ fn profile_pitch(
     };
     let (path, _) = read_samples(samples, [None; 3])?;
     let pitch = parse_pitch(&all)?;
-    let moving: Vec<String> = crate::circular::model::Axis::ALL
+    let moving: Vec<String> = crate::model::Axis::ALL
         .iter()
         .filter_map(|&a| {
             let p = pitch[a.index()]?;
@@ -299,7 +297,7 @@ pub fn diagnose_samples(
     samples: &std::path::Path,
     pitch: [Option<f64>; 3],
     opts: &Options,
-) -> Result<crate::circular::diagnose::Diagnosis> {
+) -> Result<crate::diagnose::Diagnosis> {
     let (path, d) = read_samples(samples, pitch)?;
     diagnose(&path, &d, opts)
 }
@@ -311,7 +309,7 @@ pub fn diagnose_planned(
     plan_file: &std::path::Path,
     pitch: [Option<f64>; 3],
     opts: &Options,
-) -> Result<(Plan, Record, crate::circular::planned::Planned)> {
+) -> Result<(Plan, Record, crate::diagnose::planned::Planned)> {
     let plan = Plan::read(plan_file)?;
     crate::volumetric::refuse_diagnosis(&plan, plan_file)?;
     let rec = Record::read(record)?;
@@ -353,7 +351,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     // Before the work too: a --pdf that cannot be printed costs nothing.
     let chromium = args
         .pdf
-        .then(crate::circular::pdf::find_chromium)
+        .then(crate::report::pdf::find_chromium)
         .transpose()?;
     let pitch = match &args.pitch {
         Some(s) => parse_pitch(s)?,
@@ -374,7 +372,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         (None, Some(record), Some(nominal), None) => {
             let (path, d, glitches) =
                 read_record_with_path(record, nominal, args.path_offset_s.unwrap_or(0.0), pitch)?;
-            if let Some(n) = crate::circular::glitch::describe(&glitches, &|_| None) {
+            if let Some(n) = crate::sync::glitch::describe(&glitches, &|_| None) {
                 path_note = Some(n);
             }
             diagnose(&path, &d, &opts)?
@@ -432,7 +430,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             let page = stage.join("report.html");
             crate::fsio::write_file(&page, html.as_bytes(), false)?;
             match &chromium {
-                Some(c) => crate::circular::pdf::print_to_pdf(
+                Some(c) => crate::report::pdf::print_to_pdf(
                     c,
                     &page,
                     &stage.join("report.pdf"),

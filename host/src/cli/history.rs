@@ -4,9 +4,9 @@ use std::fmt::Write;
 use std::path::PathBuf;
 
 use super::output::print;
-use crate::circular::document::DiagnosisDoc;
 use crate::history::keep::{self, Kept, KeptFile};
 use crate::history::{effect_order, printable, trend};
+use crate::report::document::DiagnosisDoc;
 use crate::units::{format_to, human};
 use crate::Result;
 
@@ -199,7 +199,7 @@ fn rerun(kept: &Kept, machine: &str, location: &str) -> Result<String> {
     let record_path = restore(record, "record")?;
     let plan_path = plan.map(|p| restore(p, "plan")).transpose()?;
     let stored = DiagnosisDoc::parse(std::path::Path::new(location), &kept.diagnosis)?;
-    let pitch = crate::circular::model::Axis::ALL.map(|a| stored.pitch_mm(a));
+    let pitch = crate::model::Axis::ALL.map(|a| stored.pitch_mm(a));
     let diag = match &plan_path {
         Some(p) => {
             super::diagnose::diagnose_planned(&record_path, p, pitch, &Default::default())?
@@ -208,7 +208,7 @@ fn rerun(kept: &Kept, machine: &str, location: &str) -> Result<String> {
         }
         None => super::diagnose::diagnose_samples(&record_path, pitch, &Default::default())?,
     };
-    let now: DiagnosisDoc = serde_json::from_value(crate::circular::report::to_json(&diag))
+    let now: DiagnosisDoc = serde_json::from_value(crate::report::to_json(&diag))
         .map_err(|e| {
             crate::Error::Numerics(format!(
                 "the new diagnosis does not read back as a document ({e}); this is a bug, please report it"

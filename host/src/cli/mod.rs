@@ -2,7 +2,7 @@
 //! the library, which takes typed input and returns typed results. Only this folder prints.
 //!
 //! - [`devices`], [`live`], [`record`]: the instrument link ([`crate::link`]);
-//! - [`plan`], [`simulate`], [`diagnose`]: circular tests ([`crate::circular`]);
+//! - [`plan`], [`simulate`], [`diagnose`]: circular tests ([`crate::plan`], [`crate::simulate`], [`crate::diagnose`]);
 //! - [`compensate`], [`history`]: acting on a diagnosis ([`crate::compensate`],
 //!   [`crate::history`]);
 //! - [`rotary`], [`diagnose_rotary`]: rotary axes ([`crate::rotary`]);

@@ -1,19 +1,19 @@
-//! `jdbb plan`: the program a ballbar test runs, and its plan.json ([`crate::circular::plan`]).
+//! `jdbb plan`: the program a ballbar test runs, and its plan.json ([`crate::plan`]).
 use std::path::{Path, PathBuf};
 
 use jdbb_core::calib::Calibration;
 
 use super::output::emit;
-use crate::circular::plan::build::{
+use crate::fsio::FileSet;
+use crate::plan::build::{
     DEFAULT_ARC_DEG, DEFAULT_CORNER_DWELL_S, DEFAULT_DWELL_S, DEFAULT_FEED_IN_MM,
 };
-use crate::circular::plan::{
+use crate::plan::{
     calibration_circles, default_calibration_distances, default_lead_in_overshoot, gcode,
     instrument, machine_test_circles, plan, write_program, Close, Dialect, LineRole, Plan,
     PlanSpec, Plane, Purpose, Segment,
 };
-use crate::circular::sync::MIN_CRUISE_FRACTION;
-use crate::fsio::FileSet;
+use crate::sync::MIN_CRUISE_FRACTION;
 use crate::volumetric::plan as volumetric;
 use crate::{Error, Result};
 
@@ -382,7 +382,7 @@ fn setup_text(plan: &Plan, json: &Path, program: &Path, blocks: usize) -> String
     }
     if arc.is_partial() {
         // The synchronisation takes a partial arc's feed from the feed-in's cruise
-        // (`circular::sync`): the feed-in must be long enough to reach the feed.
+        // (`sync`): the feed-in must be long enough to reach the feed.
         let fastest_mm_min = plan
             .circles
             .iter()

@@ -8,8 +8,6 @@ use std::time::Instant;
 
 use super::output::{emit, note, print};
 use super::stream_args::StreamArgs;
-use crate::circular::plan::{Plan, PLAN_ID_KEY};
-use crate::circular::progress::Tracker;
 use crate::link::record::{
     check_output, create_partial, finish_output, header, partial_path, record_watched, summary,
     CsvOut, End,
@@ -19,6 +17,8 @@ use crate::link::stream::{SeqSample, Stats};
 use crate::live_web::end::diagnose_record;
 use crate::live_web::feed::{new_board, LiveFeed, PUBLISH_INTERVAL};
 use crate::live_web::server::LAST_STATE_GRACE;
+use crate::plan::{Plan, PLAN_ID_KEY};
+use crate::simulate::progress::Tracker;
 use crate::{Error, Result};
 
 /// Arguments of `jdbb record`.

@@ -1,22 +1,22 @@
 //! `jdbb simulate`: a circular test on a machine with chosen errors, written as the
 //! `t_s,x_mm,y_mm,z_mm,d_mm` CSV that `jdbb diagnose --samples` reads; or, with `--plan` and
 //! `--machine`, a plan's program run on a machine described in a TOML file and recorded as `jdbb
-//! record` records it ([`crate::circular::record_sim`]), for `jdbb diagnose --record --plan`.
+//! record` records it ([`crate::simulate::record_sim`]), for `jdbb diagnose --record --plan`.
 use std::io::Write;
 use std::path::PathBuf;
 
 use super::output::{note, print, stdout_result};
-use crate::circular::machine::{example, Machine};
-use crate::circular::model::{parse_pitch, Path};
-use crate::circular::plan::{Plan, PLAN_ID_KEY};
-use crate::circular::record_sim::record;
-use crate::circular::simulate::{
-    distances_mm, measure, nominal_path, parse_effect, parse_plane, write_csv, EffectValue,
-    PathSpec,
-};
 use crate::fsio::{check_destination, Staged};
 use crate::link::record::{header, write_csv_lines};
 use crate::link::stream::SeqSample;
+use crate::model::{parse_pitch, Path};
+use crate::plan::{Plan, PLAN_ID_KEY};
+use crate::simulate::machine::{example, Machine};
+use crate::simulate::record_sim::record;
+use crate::simulate::{
+    distances_mm, measure, nominal_path, parse_effect, parse_plane, write_csv, EffectValue,
+    PathSpec,
+};
 use crate::{Error, Result};
 
 /// Arguments of `jdbb simulate`.

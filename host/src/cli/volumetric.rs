@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use super::plan::{place_text, reach_text, written_text};
-use crate::circular::plan::{gcode, Dialect, Plan};
+use crate::plan::{gcode, Dialect, Plan};
 use crate::volumetric::ident::{combination_text, identifiability, separation_text, Term};
 use crate::volumetric::plan::{data_points_mm, element_kind};
 

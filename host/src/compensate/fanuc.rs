@@ -45,7 +45,7 @@ use super::current::Current;
 use super::{
     defaults_note, table_change, table_span_mm, Block, Cannot, MachineErrors, Placement, Plan,
 };
-use crate::circular::model::{Axis, Pair};
+use crate::model::{Axis, Pair};
 use crate::{Error, Result};
 
 /// Most points between the extremes of one axis' pitch error table.

@@ -21,7 +21,7 @@ use std::path::Path;
 
 use super::current::{number, Current};
 use super::{change, defaults_note, scale_epsilon, Block, Cannot, Change, MachineErrors, Plan};
-use crate::circular::model::{Axis, Pair};
+use crate::model::{Axis, Pair};
 use crate::Result;
 
 /// Read the `--current` format (module docs).

@@ -36,7 +36,7 @@ use super::{
     change, defaults_note, linear_table, table_change, table_span_mm, Block, MachineErrors,
     Placement, Plan,
 };
-use crate::circular::model::{Axis, Pair};
+use crate::model::{Axis, Pair};
 use crate::Result;
 
 /// Most points of one `*.COM` table.

@@ -32,7 +32,7 @@ use super::current::{key_value, number, Current};
 use super::{
     change, defaults_note, scale_epsilon, skew_factors, Block, Cannot, Change, MachineErrors, Plan,
 };
-use crate::circular::model::Axis;
+use crate::model::Axis;
 use crate::{Error, Result};
 
 /// Side AD of the rhombus `SET_SKEW` is given, mm.

@@ -56,7 +56,7 @@ use std::path::{Path, PathBuf};
 
 use super::current::{key_value, number, Current};
 use super::{change, defaults_note, plausible, Block, Change, MachineErrors, Options, Plan};
-use crate::circular::model::{Axis, Pair};
+use crate::model::{Axis, Pair};
 use crate::{Error, Result};
 
 /// Largest number of triplets LinuxCNC takes per joint.

@@ -33,7 +33,7 @@ use super::current::{gcode_words, number, Current};
 use super::{
     change, defaults_note, scale_epsilon, skew_factors, Block, Cannot, Change, MachineErrors, Plan,
 };
-use crate::circular::model::Axis;
+use crate::model::Axis;
 use crate::Result;
 
 /// Read the `--current` format (module docs).

@@ -12,7 +12,7 @@
 //! Each controller's module quotes its semantics with the source named in the project's
 //! `shared/notes/controllers.md`; [`MachineErrors`] is the common model they all start from.
 //!
-//! # Conventions (from [`crate::circular::model`])
+//! # Conventions (from [`crate::model`])
 //!
 //! The diagnosis reports errors δ added to the commanded position (the actual position is
 //! command + δ), with positions k in mm relative to the table ball:
@@ -42,8 +42,8 @@
 //! alone.
 use std::fmt::Write;
 
-use crate::circular::document::DiagnosisDoc;
-use crate::circular::model::{Axis, Effect, Pair};
+use crate::model::{Axis, Effect, Pair};
+use crate::report::document::DiagnosisDoc;
 use crate::units::{format_estimate, human};
 use crate::{Error, Result};
 
@@ -172,7 +172,7 @@ pub const SIGNIFICANT_SIGMAS: f64 = 3.0;
 /// (`MachineErrors::tuning`). A reversal spike is a setting only of a controller that
 /// compensates it (`controller` Heidenhain); None stands for the settings every control has.
 /// The one definition of "compensable": the compensation plans and the diagnosis' what-if G
-/// ([`crate::circular::diagnose::Diagnosis::g_if_compensated_um`]) both use it.
+/// ([`crate::diagnose::Diagnosis::g_if_compensated_um`]) both use it.
 pub fn is_setting(effect: Effect, controller: Option<Controller>) -> bool {
     match effect {
         Effect::Backlash(_)

@@ -38,7 +38,7 @@ use super::{
     change, defaults_note, linear_table, table_at, table_change, table_span_mm, Block,
     MachineErrors, Placement, Plan,
 };
-use crate::circular::model::{Axis, Pair};
+use crate::model::{Axis, Pair};
 use crate::{Error, Result};
 
 /// Most points jdbb writes in one axis' EEC table.

@@ -16,7 +16,7 @@
 //! - A run is one diagnosis file, kept whole, with its effects and conditions in columns. Adding
 //!   the same file twice adds nothing (a 64-bit FNV-1a digest of its text per machine). A file
 //!   of an older diagnosis format is kept upgraded to the current one
-//!   ([`crate::circular::document::upgrade`]), as are the runs of an older history file
+//!   ([`crate::report::document::upgrade`]), as are the runs of an older history file
 //!   (migration 3 of [`schema`]): an old run keeps its meaning under today's signs.
 //! - Runs are comparable when their conditions match: plane, circles (radius and height within
 //!   0.5 mm), feed (within 2 %), test plan and instrument calibration (equal as JSON). The trend
@@ -28,14 +28,14 @@
 //! - Raw records kept with their runs (`history add --keep-record`, table `kept_files`, migration
 //!   5): gzip-compressed and checksummed ([`keep`]), restored and re-diagnosed by `history rerun`.
 //!
-//! May use: [`crate::circular::document`] (the diagnosis file), rusqlite, plotters.
+//! May use: [`crate::report::document`] (the diagnosis file), rusqlite, plotters.
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use rusqlite::{params, Connection, OptionalExtension, TransactionBehavior};
 use serde::{Deserialize, Serialize};
 
-use crate::circular::document::{upgraded_text, DiagnosisDoc};
+use crate::report::document::{upgraded_text, DiagnosisDoc};
 use crate::{Error, Result};
 
 pub mod fleet;
@@ -1362,7 +1362,7 @@ mod tests {
             .unwrap();
         let doc = DiagnosisDoc::parse(Path::new("stored"), &stored).unwrap();
         let v: serde_json::Value = serde_json::from_str(&stored).unwrap();
-        assert_eq!(v["format"], crate::circular::document::FORMAT);
+        assert_eq!(v["format"], crate::report::document::FORMAT);
         assert_eq!(v["effects"][1]["params"]["b_um"].as_f64(), Some(8.0));
         assert_eq!(doc.effects[0].params.get("x_um"), Some(&Some(-12.0)));
         assert_eq!(v["lsq_setup"]["y_um"].as_f64(), Some(7.0));

@@ -173,7 +173,7 @@ pub const MIGRATIONS: &[Migration] = &[
 
 /// Migration 3: runs stored before diagnosis format 2 keep their meaning under its signs.
 /// - `effects`: the value of every `backlash_k` is negated (positive is now lost motion);
-/// - `runs.diagnosis`: the stored file is upgraded as [`crate::circular::document::upgrade`]
+/// - `runs.diagnosis`: the stored file is upgraded as [`crate::report::document::upgrade`]
 ///   does when such a file is read (backlash and set-up offset signs, zone centres, the one G,
 ///   shares adding up to 1). `runs.digest` stays that of the file as it was added, so adding
 ///   the same old file again still adds nothing. A stored text that is not JSON is left as is.
@@ -190,7 +190,7 @@ fn to_format_2(tx: &Transaction) -> rusqlite::Result<()> {
         .query_map([], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, String>(1)?)))?
         .collect::<rusqlite::Result<Vec<_>>>()?;
     for (id, text) in rows {
-        if let Some(new) = crate::circular::document::upgraded_text(&text) {
+        if let Some(new) = crate::report::document::upgraded_text(&text) {
             tx.execute(
                 "UPDATE runs SET diagnosis = ?1 WHERE id = ?2",
                 params![new, id],

@@ -674,7 +674,7 @@ pub fn plot_svg(
     marks: &[Mark],
     tolerance_um: Option<f64>,
 ) -> Result<()> {
-    crate::circular::plot::register_font();
+    crate::report::plot::register_font();
     let err = |e: &dyn std::fmt::Display| Error::Numerics(format!("plotting failed: {e}"));
     // The plot, and under it room for the most legend lines a panel can have: the tolerance,
     // the marks, the slope and three kinds of run.

@@ -1,6 +1,6 @@
 //! The calibration fit: which instrument effects the calibrator's samples show, how large they
 //! are and how sure we are; the same engine and report shape as `diagnose`
-//! ([`crate::circular::diagnose`]).
+//! ([`crate::diagnose`]).
 //!
 //! Pipeline ([`calibrate`]):
 //! 1. Baseline: the nominal instrument's D at each sample's counts against the reference,

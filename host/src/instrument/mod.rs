@@ -15,8 +15,8 @@
 //!   spheres, with the nominal positions; the set-up offset is fitted alongside.
 //! - [`recompute`]: a `jdbb record` file with `d_mm` recomputed from the counts.
 //!
-//! May use: [`crate::numerics`], [`crate::table`], [`crate::error`], [`crate::circular`]'s plan
-//! and synchronisation (for [`run`]) and `jdbb_core` (the
+//! May use: [`crate::numerics`], [`crate::table`], [`crate::error`], the plan, synchronisation and
+//! diagnosis ([`crate::plan`], [`crate::sync`], [`crate::diagnose`], for [`run`]) and `jdbb_core` (the
 //! instrument model `geometry` and its parameters `calib`: the model fitted here is the core's,
 //! never a copy). [`crate::cli`] uses this module, never the reverse; nothing here prints.
 pub mod effects;

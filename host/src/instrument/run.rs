@@ -1,14 +1,14 @@
 //! Calibration samples without a calibrator: a `jdbb record` file of a machine running the
 //! program of a plan (best `jdbb plan --calibration-test`: spheres at several distances),
-//! synchronised with the plan from D alone ([`crate::circular::sync`]). Each data-arc sample
+//! synchronised with the plan from D alone ([`crate::sync`]). Each data-arc sample
 //! gives the encoders' counts and the ball's nominal position p relative to the table ball;
 //! the reference is |p + c| with the set-up offset c fitted alongside the instrument
 //! ([`super::fit`]). The machine is taken as perfect: what it does wrong goes into the
 //! instrument's terms it is confounded with ([`super::fit::machine_separation`] says which).
 use std::path::Path;
 
-use crate::circular::plan::Plan;
-use crate::circular::sync::{data_path, synchronise, Record, Sync};
+use crate::plan::Plan;
+use crate::sync::{data_path, synchronise, Record, Sync};
 use crate::table::Table;
 use crate::{Error, Result};
 use jdbb_core::calib::Calibration;
@@ -91,7 +91,7 @@ pub fn run_samples(
             return Err(Error::Usage(format!(
                 "{}: more than {} samples on the data arcs; a calibration takes each sample's counts as they are: record at a lower rate",
                 record.display(),
-                crate::circular::sync::MAX_DATA_SAMPLES
+                crate::sync::MAX_DATA_SAMPLES
             )));
         }
         e1.push(enc1[i]);

@@ -194,7 +194,7 @@ impl SampleCheck {
     }
 
     /// Check D against the range the plan's program moves the instrument through, `lo..hi`
-    /// (mm; [`crate::circular::plan::Plan::mounted_d_range_mm`]: the segments after the stop),
+    /// (mm; [`crate::plan::Plan::mounted_d_range_mm`]: the segments after the stop),
     /// widened by [`PLAN_RANGE_MARGIN_MM`].
     pub fn set_plan_range(&mut self, lo: f64, hi: f64) {
         self.plan_mm = Some((lo - PLAN_RANGE_MARGIN_MM, hi + PLAN_RANGE_MARGIN_MM));
@@ -839,7 +839,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let f = dir.path().join("rec.csv");
         std::fs::write(&f, format!("{CSV_HEADER}{text}")).unwrap();
-        let rec = crate::circular::sync::Record::read(&f).unwrap();
+        let rec = crate::sync::Record::read(&f).unwrap();
         assert_eq!(rec.t_s.len(), 47);
         assert_eq!(rec.marked, 1);
     }

@@ -4,11 +4,11 @@
 use std::path::Path;
 
 use super::state::Verdict;
-use crate::circular::diagnose::Options;
-use crate::circular::plan::Plan;
-use crate::circular::planned::diagnose_record as diagnose_planned_record;
-use crate::circular::report::{summary, sync_summary, tolerance_verdict};
-use crate::circular::sync::Record;
+use crate::diagnose::planned::diagnose_record as diagnose_planned_record;
+use crate::diagnose::Options;
+use crate::plan::Plan;
+use crate::report::{summary, sync_summary, tolerance_verdict};
+use crate::sync::Record;
 use crate::Result;
 
 /// Synchronise and diagnose the record at `record` with `plan`; the text `jdbb diagnose --record

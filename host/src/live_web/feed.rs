@@ -8,9 +8,9 @@ use std::time::{Duration, Instant};
 
 use super::state::{Counts, LiveState, Tracker, Verdict};
 use super::worker::Diagnoser;
-use crate::circular::plan::Plan;
 use crate::link::live::RateMeter;
 use crate::link::stream::{SeqSample, Stats};
+use crate::plan::Plan;
 
 /// Least time between two publications (25 Hz at most, so that the page, which looks every
 /// [`super::server::EVENT_INTERVAL`], gets well over 10 a second).

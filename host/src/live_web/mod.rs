@@ -11,7 +11,8 @@
 //! - [`server`]: the HTTP server (axum) serving the page and the event stream, read-only,
 //!   on localhost unless told otherwise (then with a token).
 //!
-//! May use: [`crate::circular`] (the plan, the synchronisation, the diagnosis and its summary),
+//! May use: the plan, the synchronisation, the diagnosis and its summary ([`crate::plan`],
+//! [`crate::sync`], [`crate::diagnose`], [`crate::report`]),
 //! [`crate::link::stream`]'s samples and counters, [`crate::link::live`]'s rate meter. Prints
 //! nothing (the CLI does).
 pub mod end;

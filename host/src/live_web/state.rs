@@ -4,7 +4,7 @@
 //! # Progress from D
 //! Each circle of the plan is entered by a feed-in that moves D from the feed-in start's level
 //! `D_in` to the circle's `D_c`, and left by a feed-out back to `D_in` — the levels the
-//! synchronisation ([`crate::circular::sync`]) looks for. The tracker follows them sample by
+//! synchronisation ([`crate::sync`]) looks for. The tracker follows them sample by
 //! sample: *waiting* for circle k's feed-in (D crosses (D_in + D_c)/2 towards D_c), *feed-in*
 //! (until D is within [`LEVEL_TOLERANCE_MM`] of D_c), *circle* (the arcs, until D crosses the
 //! midpoint back), *feed-out* (until D is back within the tolerance of D_in), then circle k + 1.
@@ -15,8 +15,8 @@
 //! (`jdbb diagnose --record --plan`).
 use serde::Serialize;
 
-use crate::circular::plan::{ArcRole, LineRole, Plan, Segment, Sense};
-use crate::circular::sync::LEVEL_TOLERANCE_MM;
+use crate::plan::{ArcRole, LineRole, Plan, Segment, Sense};
+use crate::sync::LEVEL_TOLERANCE_MM;
 
 /// Most trace points kept (and pushed) for the current circle: beyond it every other point is
 /// dropped and only every 2nd (4th, …) sample taken from then on.
@@ -437,8 +437,8 @@ impl Tracker {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::circular::plan::build::{plan, PlanSpec};
-    use crate::circular::plan::{Dialect, Plane};
+    use crate::plan::build::{plan, PlanSpec};
+    use crate::plan::{Dialect, Plane};
 
     /// A two-radius plan and D along it at the programmed feed, 1 kHz, with a 5 µm
     /// once-per-revolution wobble on the arcs.

@@ -17,12 +17,12 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use crate::circular::diagnose::{diagnose, Diagnosis, Options};
-use crate::circular::input::check_holes;
-use crate::circular::plan::{LineRole, Plan, Segment};
-use crate::circular::report::{share_percentages, summary, sync_summary, tolerance_verdict};
-use crate::circular::sync::{data_path, synchronise, synchronise_running, Record, Running, Sync};
-use crate::circular::words::cause;
+use crate::diagnose::input::check_holes;
+use crate::diagnose::{diagnose, Diagnosis, Options};
+use crate::model::words::cause;
+use crate::plan::{LineRole, Plan, Segment};
+use crate::report::{share_percentages, summary, sync_summary, tolerance_verdict};
+use crate::sync::{data_path, synchronise, synchronise_running, Record, Running, Sync};
 use crate::units::{format_estimate, format_to, human};
 
 /// Seconds of samples after a circle's feed-out is seen back at D_in before its diagnosis runs:
@@ -359,8 +359,8 @@ impl Work<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::circular::plan::build::{plan, PlanSpec};
-    use crate::circular::plan::{Dialect, Plane};
+    use crate::plan::build::{plan, PlanSpec};
+    use crate::plan::{Dialect, Plane};
 
     fn two_circles() -> Plan {
         let spec = PlanSpec::machine_test(

@@ -1,6 +1,6 @@
 //! Forward selection of model terms by BIC on a Gram matrix, and the rank tests it rests on: which
 //! candidate columns the data support, which the data cannot tell apart. Shared by the circular
-//! diagnosis (`circular::diagnose`) and the angle-indexed rotary runs (`rotary::run_diagnosis`);
+//! diagnosis (`diagnose`) and the angle-indexed rotary runs (`rotary::run_diagnosis`);
 //! it sees only numbers and column names, never the physics.
 //!
 //! Selection: starting from the `base` columns, repeatedly add the candidate group that lowers

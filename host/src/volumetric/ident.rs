@@ -16,7 +16,7 @@
 //! and ûᵀ·E·p = pᵀ·E·p / D₀ sees only the symmetric part of E: a rotation (the antisymmetric
 //! part) moves the ball across the bar, not along it. The symmetric part is the three scales
 //! (E_xx, E_yy, E_zz: `scale_x`, …) and the three squarenesses; a squareness is written as the
-//! plane diagnosis writes it ([`crate::circular::model::Effect::Squareness`]): `squareness_xy` is
+//! plane diagnosis writes it ([`crate::model::Effect::Squareness`]): `squareness_xy` is
 //! δx = s·y, so ∂D/∂s = u_x·p_y. Ten terms ([`Term::ALL`]): 3 scales, 3 squarenesses (µm/m),
 //! the set-up offset in x, y, z (µm) and the instrument's scale (µm/m).
 //!
@@ -36,7 +36,7 @@
 //! smallest of those, of the nine terms with the calibration as the length reference.
 use nalgebra::{DMatrix, SVD};
 
-use crate::circular::path::{Axis, Pair};
+use crate::model::path::{Axis, Pair};
 
 /// Relative size below which a singular value counts as zero (the rank's tolerance).
 pub const RANK_TOLERANCE: f64 = 1e-9;

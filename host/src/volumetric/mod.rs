@@ -9,7 +9,7 @@
 //! - [`fit`]: the linear model's nine terms fitted to changes of D at known positions, with σ
 //!   and the undetermined groups (the core of the joint diagnosis);
 //! - [`plan`]: the plan of a volumetric test (`jdbb plan --volumetric`), one plan.json
-//!   (version [`crate::circular::plan::VOLUMETRIC_VERSION`]) and one program for every dialect,
+//!   (version [`crate::plan::VOLUMETRIC_VERSION`]) and one program for every dialect,
 //!   and the check of a machine's travel.
 //!
 //! Built: the identifiability, the plan, and the linear fit at the plan's positions. Not yet: the
@@ -18,15 +18,15 @@
 //! the compensation of three squarenesses at once, and the report.
 //!
 //! May use: [`crate::numerics`] and nalgebra, the instrument model (`jdbb_core`), and
-//! [`crate::circular`]'s plan and path types by import only (the plane test's plan builder makes
-//! each element). Nothing in `circular` uses this module.
+//! the plan and path types of [`crate::plan`] and [`crate::model`] by import only (the plane
+//! test's plan builder makes each element). Nothing in those folders uses this module.
 pub mod fit;
 pub mod ident;
 pub mod plan;
 
 use std::path::Path;
 
-use crate::circular::plan::{Plan, Purpose};
+use crate::plan::{Plan, Purpose};
 use crate::{Error, Result};
 
 /// Refuse to diagnose a record of a volumetric plan (read from `plan_file`) as a plane test: its

@@ -5,12 +5,12 @@
 //! 1. **xy cones**: on each ball distance D (`--distance`, in order), circles at each height H
 //!    (`--height`; default 0, D/3 and 2D/3) of radius R = √(D² − H²), heights upwards on the
 //!    first distance, downwards on the next, and so on, each run as a plane test's circle
-//!    (full circle from 0°, ccw then cw, [`crate::circular::plan`]);
+//!    (full circle from 0°, ccw then cw, [`crate::plan`]);
 //! 2. **a zx arc** through the ball on each distance: 220° from −110° of z (−20° to 200° of x,
 //!    the ballbar's vertical test), ccw then back cw, lead-in and overshoot 20° from inside;
 //! 3. **a yz arc** the same, 220° from −20° of y.
 //!
-//! Each element is planned as a plane test ([`crate::circular::plan::build::plan`]) and keeps
+//! Each element is planned as a plane test ([`crate::plan::build::plan`]) and keeps
 //! that plan's path: take-up, dwells, feed-in, arcs, feed-out, and moves between its own circles.
 //! Between two elements the spindle ball moves **along the shell**: up its meridian to the
 //! higher of the two elevations, along that latitude to the next element's azimuth (the
@@ -20,8 +20,8 @@
 //! elements it joins, and the instrument stays in range; the whole plan is checked for that.
 //!
 //! What it determines of the linear error field: [`super::ident`] over [`data_points_mm`].
-use crate::circular::plan::build::{self, check_range, q, CircleSpec, PlanSpec};
-use crate::circular::plan::{
+use crate::plan::build::{self, check_range, q, CircleSpec, PlanSpec};
+use crate::plan::{
     dist, instrument, line_d_range, Circle, Instrument, LineRole, Plan, Plane, Purpose, Segment,
     VOLUMETRIC_VERSION,
 };
@@ -385,7 +385,7 @@ pub fn check_travel(plan: &Plan, travel: &Travel) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::circular::plan::Dialect;
+    use crate::plan::Dialect;
 
     fn spec(dialect: Dialect) -> VolumetricSpec {
         VolumetricSpec {

@@ -3,10 +3,10 @@
 //! --record` reads it, the names a diagnosis gives, and the seeded suites' draws and checks. They
 //! use the host's reader, which the library of this crate must not: its simulators are written
 //! apart from the host.
-use jdbb::circular::diagnose::Diagnosis;
-use jdbb::circular::model::Path;
-use jdbb::circular::plan::{write_program, Dialect as PlanDialect, Plan};
-use jdbb::circular::sync::{data_path, synchronise, Record};
+use jdbb::diagnose::Diagnosis;
+use jdbb::model::Path;
+use jdbb::plan::{write_program, Dialect as PlanDialect, Plan};
+use jdbb::sync::{data_path, synchronise, Record};
 use jdbb_tests::gmachine::{Dialect, MachineErrors, Recording, SimConfig, Simulation};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;

@@ -15,9 +15,9 @@
 //! [`MIN_ARC_DEG`] about the table ball.
 use std::path::Path as FsPath;
 
-use super::model::{Axis, Path};
-use super::runs::{main_plane, split_runs, MAX_RUN_STEP_RAD};
-use super::sync::{Record, Sync, MAX_DATA_SAMPLES};
+use crate::diagnose::runs::{main_plane, split_runs, MAX_RUN_STEP_RAD};
+use crate::model::{Axis, Path};
+use crate::sync::{Record, Sync, MAX_DATA_SAMPLES};
 use crate::table::Table;
 use crate::{Error, Result};
 
@@ -88,7 +88,7 @@ struct Bins {
 impl Bins {
     /// Add one raw sample: into the last bin if it is not full, else a new one.
     fn push(&mut self, t: f64, p: [f64; 3], d: f64) {
-        let r = super::plan::dist(&p, &[0.0; 3]);
+        let r = crate::plan::dist(&p, &[0.0; 3]);
         // A reversal: an axis that moved one way now moves the other.
         let reversal = self.last.is_some_and(|(q, step)| {
             (0..3).any(|j| {
@@ -139,7 +139,7 @@ impl Bins {
             .iter()
             .zip(&self.r)
             .map(|(p, &r)| {
-                let len = super::plan::dist(p, &[0.0; 3]);
+                let len = crate::plan::dist(p, &[0.0; 3]);
                 if len > 0.0 {
                     std::array::from_fn(|j| p[j] * r / len)
                 } else {
@@ -155,7 +155,7 @@ impl Bins {
         if k == 0 {
             return true;
         }
-        let step = |a: &[f64; 3], b: &[f64; 3]| super::plan::dist(a, b);
+        let step = |a: &[f64; 3], b: &[f64; 3]| crate::plan::dist(a, b);
         let before = step(&self.p[k - 1], &self.p[k]) / f64::from(self.n[k - 1].max(1));
         step(&self.p[k], p) <= 2.0 * before * f64::from(self.width) + 1e-9
     }
@@ -184,8 +184,8 @@ impl Bins {
         let mut k = 0;
         while k < len {
             let pair = k + 1 < len && (all || !self.fence[k + 1]) && {
-                let step = super::plan::dist(&self.p[k], &self.p[k + 1]);
-                let near = |i: usize, j: usize| super::plan::dist(&self.p[i], &self.p[j]);
+                let step = crate::plan::dist(&self.p[k], &self.p[k + 1]);
+                let near = |i: usize, j: usize| crate::plan::dist(&self.p[i], &self.p[j]);
                 let before = if k > 0 { near(k - 1, k) } else { step };
                 let after = if k + 2 < len {
                     near(k + 1, k + 2)
@@ -367,8 +367,8 @@ pub fn check_holes(rec: &Record, sync: &Sync) -> Result<()> {
                             x,
                             k + 1,
                             match a.sense {
-                                super::plan::Sense::Ccw => "ccw",
-                                super::plan::Sense::Cw => "cw",
+                                crate::plan::Sense::Ccw => "ccw",
+                                crate::plan::Sense::Cw => "cw",
                             },
                             a.t_start_s,
                             a.t_end_s
@@ -397,9 +397,9 @@ pub fn check_circular(path: &Path) -> std::result::Result<(), String> {
     let sweep_deg = runs
         .iter()
         .map(|r| {
-            let a = super::runs::angles(&path.p_mm[r.range.clone()], plane);
+            let a = crate::diagnose::runs::angles(&path.p_mm[r.range.clone()], plane);
             a.windows(2)
-                .map(|w| super::runs::wrap_pi(w[1] - w[0]).abs())
+                .map(|w| crate::diagnose::runs::wrap_pi(w[1] - w[0]).abs())
                 .sum::<f64>()
                 .to_degrees()
         })
@@ -421,7 +421,7 @@ pub fn read_record_with_path(
     nominal: &FsPath,
     offset_s: f64,
     pitch_mm: [Option<f64>; 3],
-) -> Result<(Path, Vec<f64>, Vec<super::glitch::Glitch>)> {
+) -> Result<(Path, Vec<f64>, Vec<crate::sync::glitch::Glitch>)> {
     // The path: t_s strictly increasing.
     let mut nt = Table::open_with(nominal, crate::fsio::Limit::Table)?;
     let ncols = nt.require(&["t_s", "x_mm", "y_mm", "z_mm"])?;

@@ -1,6 +1,6 @@
 //! The timeline under a position loop (issue 26): a ramp of D read as the machine's *command*
 //! passed through its loop, so that a loop that delays and rounds the feed-in cannot bend the
-//! timeline ([`super::sync`] uses it; docs/synchronisation.md, "Under a position loop").
+//! timeline ([`super`] uses it; docs/synchronisation.md, "Under a position loop").
 //!
 //! # The model
 //! A position loop of gain Kv with velocity feed-forward k_v follows its command as
@@ -14,7 +14,7 @@
 //! the speed of a cruise, only when it is reached), its start and end are the program's, and
 //! the arcs, which the loop delays by τ too, start τ after the command's end: the ramps and the
 //! arcs between them are timed on one clock, the loop's lag a parameter of it rather than a bend.
-use super::sync::Profile;
+use super::Profile;
 use crate::numerics::lsq::{least_squares, LsqOptions, Problem};
 
 /// A lag is taken as the loop's only where the fit fixes it to this many standard errors and it

@@ -5,9 +5,9 @@
 //! the extended model's prediction after the same removal (its machine effects), with the one
 //! circular deviation G per circle and direction (ISO 230-4, minimum-zone centre, as the text and
 //! the JSON) and hysteresis H; plus the JSON of the diagnosis. Figures are shown to the digits
-//! the test's noise supports ([`super::report`], *Digits*).
+//! the test's noise supports ([`crate::report`], *Digits*).
 //!
-//! Each run (one circle, one direction, no jump; [`super::runs::split_runs`]) is its own
+//! Each run (one circle, one direction, no jump; [`crate::diagnose::runs::split_runs`]) is its own
 //! polyline, so no chord crosses the plot; several circles get one colour each (ccw dark, cw
 //! light) on one deviation scale, as the caption says.
 //!
@@ -27,7 +27,7 @@ use std::path::Path as FsPath;
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
-use super::diagnose::Diagnosis;
+use crate::diagnose::Diagnosis;
 use crate::units::format_to;
 use crate::{Error, Result};
 
@@ -182,11 +182,11 @@ impl Orientation {
 
 /// The runs of `runs` (in sample order) where a pass of a circle in one direction starts: a run
 /// that goes on from where the previous one ended (same circle and direction, its first angle
-/// within [`super::runs::MAX_RUN_STEP_RAD`] of the previous run's last, ahead in its direction)
+/// within [`crate::diagnose::runs::MAX_RUN_STEP_RAD`] of the previous run's last, ahead in its direction)
 /// was cut from it by a gap in time only — the samples left out around an axis reversal, bins of
 /// a long record — and is no new start.
-pub fn pass_starts(runs: &[super::runs::Run], angle_rad: &[f64]) -> Vec<bool> {
-    use super::runs::{wrap_pi, MAX_RUN_STEP_RAD};
+pub fn pass_starts(runs: &[crate::diagnose::runs::Run], angle_rad: &[f64]) -> Vec<bool> {
+    use crate::diagnose::runs::{wrap_pi, MAX_RUN_STEP_RAD};
     let mut out = Vec::with_capacity(runs.len());
     for (k, run) in runs.iter().enumerate() {
         let goes_on = k > 0 && {
@@ -451,7 +451,7 @@ impl Layout {
     }
 }
 
-/// The measured runs as polylines: one series per [`super::runs::Run`], so no chord joins the
+/// The measured runs as polylines: one series per [`crate::diagnose::runs::Run`], so no chord joins the
 /// end of one run (another direction, circle or a jump) to the start of the next; each drawn
 /// through the samples [`decimate`] keeps, bins of `bin` samples.
 fn run_points<'a>(
@@ -460,7 +460,7 @@ fn run_points<'a>(
     dev: &'a [f64],
     bin: usize,
     at: impl Fn(f64, f64) -> (f64, f64) + 'a,
-) -> impl Iterator<Item = (&'a super::runs::Run, Vec<(f64, f64)>)> + 'a {
+) -> impl Iterator<Item = (&'a crate::diagnose::runs::Run, Vec<(f64, f64)>)> + 'a {
     d.runs
         .iter()
         .filter(|r| view.shows(r.circle))
@@ -815,7 +815,7 @@ pub fn write_report(dir: &FsPath, d: &Diagnosis, json: &serde_json::Value) -> Re
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::circular::runs::{split_runs, MAX_RUN_STEP_RAD};
+    use crate::diagnose::runs::{split_runs, MAX_RUN_STEP_RAD};
 
     #[test]
     fn a_vertical_plane_is_drawn_from_the_front_with_z_up() {

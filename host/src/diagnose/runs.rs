@@ -3,8 +3,8 @@
 //! G and H are taken over, and the residual's harmonics against the angle.
 // Index loops over the axes (k in 0..3) and samples mirror the equations; keep them.
 #![allow(clippy::needless_range_loop)]
-use super::model::Path;
-use super::path::median_interval;
+use crate::model::path::median_interval;
+use crate::model::Path;
 use crate::numerics::lsq::GramAccumulator;
 
 /// One circle of the path: nominal radius in the main plane and height along its normal (mm).

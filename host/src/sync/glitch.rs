@@ -1,6 +1,6 @@
 //! Glitches: single samples (or a few in a row) of a record whose D lies far off the samples
 //! around them — a loose cable, an encoder miscount, a corrupted value the device did not
-//! catch. A glitch is data, not a crash: [`find`] names them, [`super::sync::Record::read`]
+//! catch. A glitch is data, not a crash: [`find`] names them, [`crate::sync::Record::read`]
 //! sets them aside before anything else sees D, and [`describe`] says how many and where.
 //!
 //! # The test

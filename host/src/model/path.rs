@@ -194,7 +194,7 @@ pub struct Path {
     pub(crate) phase: Vec<[(f64, f64); 3]>,
     /// Standard error of the samples' times against the machine's motion (s): 0 where the path
     /// comes with its times (a nominal path file, a simulation); the synchronisation's where the
-    /// times were found from D ([`super::sync`]). What depends on the time of a reversal (a
+    /// times were found from D ([`crate::sync`]). What depends on the time of a reversal (a
     /// reversal spike's height) carries it into its standard error.
     pub timing_sigma_s: f64,
 }

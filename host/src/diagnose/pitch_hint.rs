@@ -7,7 +7,7 @@
 //! its amplitude is at least [`CLEAR_RATIO`] times the strongest away from it.
 use nalgebra::{Matrix4, Vector4};
 
-use super::model::{Axis, Path};
+use crate::model::{Axis, Path};
 
 /// Shortest and longest pitch tried (mm): fine-pitch screws to long-lead ones.
 pub const MIN_PITCH_MM: f64 = 1.0;
@@ -158,10 +158,10 @@ fn amplitude_um(bins: &[Bin], f: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
-    use super::super::diagnose::{diagnose, Options};
-    use super::super::model::Effect;
-    use super::super::simulate::{distances_mm, measure, nominal_path, EffectValue, PathSpec};
     use super::*;
+    use crate::diagnose::{diagnose, Options};
+    use crate::model::Effect;
+    use crate::simulate::{distances_mm, measure, nominal_path, EffectValue, PathSpec};
 
     /// A circle of r 60 mm in XY with backlash and, optionally, a cyclic error of X at
     /// `cyclic_pitch_mm`; diagnosed without `--pitch`.

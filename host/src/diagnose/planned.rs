@@ -1,5 +1,5 @@
 //! The diagnosis of a recording of a planned test (`jdbb diagnose --record REC --plan plan.json`):
-//! synchronise it ([`super::sync`]), diagnose its data arcs ([`super::diagnose`]), and where the
+//! synchronise it ([`crate::sync`]), diagnose its data arcs ([`crate::diagnose`]), and where the
 //! diagnosis names errors that depend on the position alone (a cyclic or scale error, a
 //! squareness, a bowed axis), read the ramps again through them and diagnose again.
 //!
@@ -10,14 +10,14 @@
 //! same errors on the arcs, over the whole circle; taken off the ramps, they leave the ruler
 //! true. Passes stop when the feed moves by less than 10⁻⁶ (at most [`MAX_PASSES`]).
 //!
-//! May use: [`super::sync`], [`super::diagnose`], [`super::model`], [`super::path`].
-use super::diagnose::{diagnose, Diagnosis, Options};
-use super::input::check_holes;
-use super::model::{Effect, EffectSet};
-use super::path::Path;
-use super::plan::Plan;
-use super::progress::{Tracker, FIRST_S};
-use super::sync::{check_feed, data_path, synchronise, synchronise_with, Record, Ruler, Sync};
+//! May use: [`crate::sync`], [`crate::diagnose`], [`crate::model`], [`crate::model::path`].
+use crate::diagnose::input::check_holes;
+use crate::diagnose::{diagnose, Diagnosis, Options};
+use crate::model::path::Path;
+use crate::model::{Effect, EffectSet};
+use crate::plan::Plan;
+use crate::simulate::progress::{Tracker, FIRST_S};
+use crate::sync::{check_feed, data_path, synchronise, synchronise_with, Record, Ruler, Sync};
 use crate::{Error, Result};
 
 /// Most diagnoses of one record (the first and the re-reads of the ramps).

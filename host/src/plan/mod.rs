@@ -42,7 +42,7 @@
 //! dead bands and spikes of those reversals off the data arc. `--lead-in-deg 0 --overshoot-deg
 //! 0` makes the data arc the whole arc (then the data start from rest, and a run of the 220° test
 //! so planned named a 0.05 µm reversal spike that was not there). The synchronisation needs the
-//! feed-in of a partial arc to reach the feed ([`crate::circular::sync`]): `jdbb plan` says so
+//! feed-in of a partial arc to reach the feed ([`crate::sync`]): `jdbb plan` says so
 //! when `--feed-in-mm` is short for the feed.
 //!
 //! A dwell of 0 s is left out. Arcs are split into equal pieces of at most 180° (a full circle or
@@ -141,6 +141,10 @@
 //!
 //! May use: `jdbb_core::{calib, geometry}`, [`crate::table`]. Inside: [`build`] makes a plan
 //! from a [`PlanSpec`], [`gcode`] writes it.
+//!
+//! The folder `plan/`: [`build`] makes a plan, [`gcode`] writes its program for four controller
+//! dialects. May use: [`crate::model`] (below it), `jdbb_core::{calib, geometry}`; nothing of
+//! `sync`, `simulate`, `diagnose` or `report` (which use it).
 use std::path::Path;
 
 use jdbb_core::calib::Calibration;

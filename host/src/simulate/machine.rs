@@ -12,10 +12,10 @@ use std::path::{Path as FsPath, PathBuf};
 use jdbb_core::calib::Calibration;
 use serde::Deserialize;
 
-use super::model::Effect;
-use super::path::{Axis, Pair};
-use super::plan::Dialect;
-use super::simulate::{parse_effect, EffectValue};
+use crate::model::path::{Axis, Pair};
+use crate::model::Effect;
+use crate::plan::Dialect;
+use crate::simulate::{parse_effect, EffectValue};
 use crate::{Error, Result};
 
 /// The commented example machine (`jdbb simulate --machine` with no file prints it).
@@ -324,7 +324,7 @@ impl Machine {
         let mut pitch_mm = [None; 3];
         if let Some(p) = &m.pitch_mm {
             for (k, v) in p.get_ref() {
-                let Some(axis) = super::path::Axis::parse(&k.to_ascii_lowercase()) else {
+                let Some(axis) = crate::model::path::Axis::parse(&k.to_ascii_lowercase()) else {
                     return Err(at(
                         p.span(),
                         format!("pitch_mm: `{k}` is not an axis; use x, y or z"),

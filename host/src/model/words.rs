@@ -4,7 +4,7 @@
 //! from here).
 //!
 //! The texts name the mechanism and where to look, not the paper a model comes from: the models
-//! and their references (seed 000's equations) are documented in [`super::model`].
+//! and their references (seed 000's equations) are documented in [`crate::model`].
 //!
 //! Signs, as ballbar users read them:
 //! - `backlash_k` (µm): **positive = lost motion (play)** at reversal, negative = the axis runs
@@ -13,7 +13,7 @@
 //! - `servo_mismatch_ij` (ms): positive = i follows its command later than j;
 //! - `reversal_spike_k` (µm): positive = the axis sticks at reversal and catches up;
 //! - `setup_offset` (µm): where the table ball is relative to where it was assumed.
-use super::model::{Axis, Effect, Pair};
+use crate::model::{Axis, Effect, Pair};
 
 fn up(a: Axis) -> char {
     a.letter().to_ascii_uppercase()

@@ -25,12 +25,12 @@ use jdbb_core::protocol::{Sample, Status};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
-use super::machine::Machine;
-use super::model::Effect;
-use super::path::Path;
-use super::plan::{Dialect, Plan, Segment};
-use super::simulate::{distances_mm, EffectValue, MAX_SAMPLES};
-use super::sync::Profile;
+use crate::model::path::Path;
+use crate::model::Effect;
+use crate::plan::{Dialect, Plan, Segment};
+use crate::simulate::machine::Machine;
+use crate::simulate::{distances_mm, EffectValue, MAX_SAMPLES};
+use crate::sync::Profile;
 use crate::{Error, Result};
 
 /// One piece of the program's timeline (program time, s from cycle start).
@@ -83,7 +83,7 @@ fn blends(a: &Segment, b: &Segment) -> bool {
                 from_mm,
                 ..
             },
-        ) => c1 == c2 && s1 == s2 && f1 == f2 && super::plan::dist(to_mm, from_mm) < 1e-3,
+        ) => c1 == c2 && s1 == s2 && f1 == f2 && crate::plan::dist(to_mm, from_mm) < 1e-3,
         _ => false,
     }
 }
@@ -296,8 +296,8 @@ pub fn record(plan: &Plan, machine: &Machine) -> Result<(Vec<Sample>, Truth)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::circular::plan::build::{plan as make_plan, PlanSpec};
-    use crate::circular::plan::Plane;
+    use crate::plan::build::{plan as make_plan, PlanSpec};
+    use crate::plan::Plane;
     use jdbb_core::calib::Calibration;
 
     fn machine(text: &str) -> Machine {
@@ -363,7 +363,7 @@ mod tests {
             // Before cycle start at the start point, and back at the feed-in start at the end.
             assert_eq!(tl.position_at(&plan, -1.0), plan.start_mm);
             let end = tl.position_at(&plan, tl.end_s() + 1.0);
-            assert!(super::super::plan::dist(&end, &[188.0, 50.0, -20.0]) < 1e-9);
+            assert!(crate::plan::dist(&end, &[188.0, 50.0, -20.0]) < 1e-9);
         }
     }
 
@@ -383,7 +383,7 @@ mod tests {
             }
             for k in 0..=5000 {
                 let t = profile.t0_s + k as f64 * profile.duration_s() / 5000.0;
-                let r = super::super::plan::dist(&tl.position_at(&plan, t), &c);
+                let r = crate::plan::dist(&tl.position_at(&plan, t), &c);
                 lo = lo.min(r);
                 hi = hi.max(r);
             }

@@ -5,15 +5,24 @@
 //! The machine errors come from `jdbb_core::machine` (the shared seed 000 models); set-up
 //! offset, length offset and servo mismatch are added here. D is the exact distance
 //! |p + δ + c| + e, then noise and reading resolution are applied.
+//!
+//! The folder `simulate/`: this module simulates a test on a machine with chosen errors;
+//! [`machine`] (the machine TOML) and [`record_sim`]: a plan's program run on a machine and
+//! recorded as `jdbb record` records it; [`progress`]: where a recording stands against its
+//! plan while it is made. May use: [`crate::model`], [`crate::plan`], [`crate::sync`];
+//! nothing of `diagnose` or `report`.
 // Index loops over the axes (k in 0..3) and samples mirror the equations; keep them.
 #![allow(clippy::needless_range_loop)]
+pub mod machine;
+pub mod progress;
+pub mod record_sim;
 use std::io::Write;
 
 use jdbb_core::machine::{AxisErrors, MachineErrors};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
-use super::model::{Effect, EffectSet, Path};
+use crate::model::{Effect, EffectSet, Path};
 use crate::{Error, Result};
 
 /// One effect with its parameters (in the effect's parameter units, see
@@ -253,9 +262,9 @@ pub fn distances_mm(path: &Path, effects: &[EffectValue]) -> Result<Vec<f64>> {
             }
             Effect::Squareness(pair) => {
                 let k = match pair {
-                    super::model::Pair::Xy => 0,
-                    super::model::Pair::Yz => 1,
-                    super::model::Pair::Zx => 2,
+                    crate::model::Pair::Xy => 0,
+                    crate::model::Pair::Yz => 1,
+                    crate::model::Pair::Zx => 2,
                 };
                 m.squareness_um_per_m[k] += p[0];
             }

@@ -1,5 +1,5 @@
 //! What a diagnosis says, for people and for programs: the text summary and the documented JSON.
-//! (The polar plot is [`super::plot`].)
+//! (The polar plot is [`crate::report::plot`].)
 //!
 //! # Digits
 //! Every figure printed for people (text, `report.html`, plots) is rounded to what its σ
@@ -11,10 +11,10 @@
 //!
 //! # One G
 //! A test has one circular deviation G per circle and direction: the radial width of the minimum
-//! zone of that trace (ISO 230-4 with the minimum-zone centre, [`super::zone`]). Text, JSON,
+//! zone of that trace (ISO 230-4 with the minimum-zone centre, [`crate::diagnose::zone`]). Text, JSON,
 //! `report.html` and the plots all show that G; the test's G is the largest of them. Beside it,
 //! the filtered G: the same of the trace low-passed at 50 undulations per revolution
-//! ([`super::zone`], *Filter*), which the instrument's noise does not inflate.
+//! ([`crate::diagnose::zone`], *Filter*), which the instrument's noise does not inflate.
 //!
 //! # One centre
 //! The fitted set-up (`setup_offset`, `length_offset`: where the table ball is relative to where
@@ -51,7 +51,7 @@
 //!   was assumed (the same sign as `jdbb calibrate`'s table-ball offset).
 //!
 //! Files written before these conventions (no `format`, or `format` 1) are upgraded when read
-//! ([`super::document`]).
+//! ([`crate::report::document`]).
 //!
 //! # JSON (`--json`, and `diagnosis.json` in `--report DIR`)
 //! ```text
@@ -89,7 +89,7 @@
 //!                          set-up)
 //!   .setup                 true for setup_offset and length_offset
 //!   .cause                 the cause in the trade's words, what to check or set
-//!                          ([`super::words`])
+//!                          ([`crate::model::words`])
 //! confounded[][]           groups of names the test cannot tell apart (effects, or set-up
 //!                          components setup_offset.x/.y/.z); a group of one is a parameter the
 //!                          path does not excite at all
@@ -128,7 +128,7 @@
 //!                          acts on them) taken out of the measured traces, µm
 //! pitch_hint               null, or without --pitch where the residual is above its noise
 //!                          and one pitch stands out in it against an axis' position
-//!                          (`circular::pitch_hint`): {axis, pitch_mm, amplitude_um}, the pitch
+//!                          (`diagnose::pitch_hint`): {axis, pitch_mm, amplitude_um}, the pitch
 //!                          to try with --pitch (a cyclic error may be unmodelled)
 //! lsq_circular_deviation_g_um  only in files upgraded from format 1: their G about the
 //!                          least-squares centre, kept (not written by this version)
@@ -144,7 +144,7 @@
 //! ```
 //!
 //! Added for acting on a diagnosis (issue 10); every field is optional to a reader, so a file
-//! written before them still reads ([`super::document`]):
+//! written before them still reads ([`crate::report::document`]):
 //!
 //! ```text
 //! effects[].contribution_rms_um  RMS of the radial deviation the effect alone makes, with its
@@ -197,16 +197,28 @@
 //! instrument               {serial}: the instrument's serial number, from the record's
 //!                          `# instrument_serial:` header line (as the device reported it)
 //! ```
+//!
+//! The folder `report/`: this module writes a diagnosis (text, JSON); [`plot`] draws it (polar
+//! plot, SVG and PNG); [`document`] reads that JSON back (the input contract of compensation and
+//! history); [`html`] is the report a person reads (`report.html`), [`pdf`] the same page
+//! printed. May use: [`crate::model`], [`crate::plan`], [`crate::sync`], [`crate::diagnose`],
+//! [`crate::numerics`], [`crate::units`]; the highest of the test folders.
 // Index loops over the axes (k in 0..3) and samples mirror the equations; keep them.
-use super::diagnose::Diagnosis;
-use super::document::FORMAT;
-use super::model::{Effect, Pair};
-use super::plan::{Plan, Sense};
-use super::sync::Sync;
-use super::words::{cause, param_text};
-use super::zone::CircleZone;
+pub mod document;
+pub mod html;
+pub mod pdf;
+pub mod plot;
+mod timing;
+use crate::diagnose::zone::CircleZone;
+use crate::diagnose::Diagnosis;
+use crate::model::words::{cause, param_text};
+use crate::model::{Effect, Pair};
 use crate::numerics::mzc::MinimumZone;
+use crate::plan::{Plan, Sense};
+use crate::report::document::FORMAT;
+use crate::sync::Sync;
 use crate::units::{format_estimate, format_to, percentages};
+pub use timing::*;
 
 /// What a technician reads of a diagnosis (the default text of `jdbb diagnose`): where the table
 /// ball is and how to move it, the machine effects ranked by their share of G (see *Shares*)
@@ -368,7 +380,7 @@ pub fn details(d: &Diagnosis) -> String {
         if f.params.len() > 1 {
             let _ = writeln!(s, "    {}", params_text(f));
         }
-        if f.effect == crate::circular::model::Effect::FollowingError {
+        if f.effect == crate::model::Effect::FollowingError {
             let _ = writeln!(s, "    {}", radius_loss_text(d, f.value));
         }
         if !f.effect.is_setup() && f.g_without_um.is_finite() {
@@ -452,7 +464,7 @@ pub fn details(d: &Diagnosis) -> String {
         um(d.final_rms_um),
         d.gain,
     );
-    if d.noise_tau_int > crate::circular::diagnose::CORRELATED_TAU {
+    if d.noise_tau_int > crate::diagnose::CORRELATED_TAU {
         let _ = writeln!(
             s,
             "noise: correlated, {:.1} samples make one independent sample: the selection and every \
@@ -516,7 +528,7 @@ fn centring_text(d: &Diagnosis) -> String {
 }
 
 /// The parameters of a found effect for people, `label value ± σ unit`, comma-separated.
-fn params_text(f: &super::diagnose::Found) -> String {
+fn params_text(f: &crate::diagnose::Found) -> String {
     f.effect
         .param_names()
         .iter()
@@ -554,7 +566,7 @@ fn confounded_text(group: &[String]) -> String {
 }
 
 /// A candidate a partial arc barely tells from others, as the text says it.
-fn weak_text(w: &super::diagnose::WeakOnArc) -> String {
+fn weak_text(w: &crate::diagnose::WeakOnArc) -> String {
     format!(
         "weak on this arc: only {:.2} % of {}'s shape is its own beside {} (its σ some {:.0} times that of a shape of its own): where one of them is named, the others are its alternative",
         100.0 * w.free_fraction,
@@ -604,7 +616,7 @@ pub fn squareness_angle(pair: Pair, s_um_per_m: f64, sigma: Option<f64>) -> Stri
     } else {
         "square"
     };
-    let up = |a: super::model::Axis| a.letter().to_ascii_uppercase();
+    let up = |a: crate::model::Axis| a.letter().to_ascii_uppercase();
     format!(
         "+{} and +{} at {}°, {kind}",
         up(i),
@@ -645,7 +657,7 @@ pub fn rank_order(shares: &[Option<(f64, f64)>]) -> Vec<usize> {
 
 /// An effect's share of G (see *Shares*): how much of the test's G it makes, (G − G without
 /// it) / G, at least 0; NaN for the set-up or where G is 0.
-pub fn g_share(d: &Diagnosis, f: &super::diagnose::Found) -> f64 {
+pub fn g_share(d: &Diagnosis, f: &crate::diagnose::Found) -> f64 {
     let g = d.circular_deviation_g_um;
     if f.effect.is_setup() || g.is_nan() || g <= 0.0 {
         return f64::NAN;
@@ -918,170 +930,6 @@ pub fn radial_deviation_f(d: &Diagnosis) -> Vec<[Option<(f64, f64)>; 2]> {
     out
 }
 
-/// How far (%) the measured feed may be from the programmed before the summary warns: a
-/// controller's feed runs within a few % of F at 100 % override (its clock and acceleration
-/// limits), while an override knob left at 80 % or 130 % changes every servo effect.
-pub const FEED_OVERRIDE_WARN_PERCENT: f64 = 5.0;
-
-/// Human summary of a synchronisation: cycle start, feed and acceleration, and what the timing
-/// warns of ([`sync_details`] has the clock and the arcs used).
-pub fn sync_summary(_plan: &Plan, s: &Sync) -> String {
-    use std::fmt::Write;
-    let mut out = String::new();
-    let _ = writeln!(
-        out,
-        "synchronised with the plan: cycle start {:.3} s after the record's first sample (device clock {:.0} µs)",
-        s.cycle_start_s,
-        s.t0_us + 1e6 * s.cycle_start_s
-    );
-    let _ = writeln!(
-        out,
-        "feed on the arcs {:.2} % of the programmed {:.1} mm/min{} (on the record's clock); acceleration {:.0} mm/s²",
-        s.feed_percent,
-        s.programmed_feed_mm_min,
-        if s.circles.len() > 1 {
-            format!(", spread {:.2} % over the circles", s.feed_spread_percent)
-        } else {
-            String::new()
-        },
-        s.accel_mm_s2
-    );
-    if let Some(note) = &s.feed_note {
-        let _ = writeln!(out, "timing: {note}");
-    }
-    if (s.feed_percent - 100.0).abs() > FEED_OVERRIDE_WARN_PERCENT {
-        let _ = writeln!(
-            out,
-            "warning: the arcs ran at {:.0} % of the programmed feed (feed override not at 100 %?): servo effects (mismatch, reversal spikes) change with feed, so compare this test only with tests run at the same feed; run it at 100 % override",
-            s.feed_percent
-        );
-    }
-    out
-}
-
-/// The synchronisation's details behind `--verbose`: the clock scale and, per circle, the
-/// radius, height, D measured, feed, acceleration, timing σ and the data arcs' times.
-pub fn sync_details(plan: &Plan, s: &Sync) -> String {
-    use std::fmt::Write;
-    let mut out = String::new();
-    let _ = writeln!(
-        out,
-        "clock scale {}",
-        match s.clock_scale {
-            Some(c) => format!(
-                "{:.5} (measured dwell / programmed dwell; {:+.0} ppm)",
-                c,
-                (c - 1.0) * 1e6
-            ),
-            None =>
-                "not measurable (needs two circles with a dwell between them that no move hides)"
-                    .to_string(),
-        }
-    );
-    for c in &s.circles {
-        let pc = &plan.circles[c.circle];
-        let arcs: Vec<String> = c
-            .data
-            .iter()
-            .map(|a| {
-                format!(
-                    "{} {:.3}–{:.3} s ({} samples)",
-                    match a.sense {
-                        Sense::Ccw => "ccw",
-                        Sense::Cw => "cw",
-                    },
-                    a.t_start_s,
-                    a.t_end_s,
-                    a.samples
-                )
-            })
-            .collect();
-        let _ = writeln!(
-            out,
-            "circle {}: R {:.3} mm, height {:.3} mm, D measured {:.4} mm; feed {:.2} %, acceleration on the arcs {:.0} mm/s², timing ± {:.2} ms; data arcs {}",
-            c.circle + 1,
-            pc.radius_mm,
-            pc.height_mm,
-            c.d_measured_mm,
-            100.0 * c.speed_mm_s / (pc.feed_mm_min / 60.0),
-            c.arc_accel_mm_s2,
-            1e3 * c.timing_sigma_s,
-            arcs.join(", ")
-        );
-    }
-    out
-}
-
-/// The synchronisation as JSON (`sync` in the diagnosis JSON; see the module docs).
-pub fn sync_json(plan: &Plan, s: &Sync) -> serde_json::Value {
-    use serde_json::json;
-    json!({
-        "cycle_start_s": s.cycle_start_s,
-        "cycle_start_device_us": s.t0_us + 1e6 * s.cycle_start_s,
-        "programmed_feed_mm_min": s.programmed_feed_mm_min,
-        "feed_percent": s.feed_percent,
-        "feed_spread_percent": s.feed_spread_percent,
-        "feed_sigma_percent": s.feed_sigma_percent,
-        "feed_facts": s.feed_facts.iter().map(|f| json!({
-            "source": f.source.name(),
-            "circle": f.circle,
-            "feed_percent": 100.0 * f.factor,
-            "sigma_percent": 100.0 * f.sigma,
-        })).collect::<Vec<_>>(),
-        "feed_note": s.feed_note,
-        "clock_scale": s.clock_scale,
-        "accel_mm_s2": s.accel_mm_s2,
-        "data_samples": s.data_samples(),
-        "circles": s.circles.iter().map(|c| {
-            let pc = &plan.circles[c.circle];
-            json!({
-                "circle": c.circle,
-                "radius_mm": pc.radius_mm,
-                "height_mm": pc.height_mm,
-                "d_plan_mm": pc.d_mm,
-                "d_measured_mm": c.d_measured_mm,
-                "feed_percent": 100.0 * c.speed_mm_s / (pc.feed_mm_min / 60.0),
-                "arc_accel_mm_s2": c.arc_accel_mm_s2,
-                "timing_sigma_ms": 1e3 * c.timing_sigma_s,
-                "feed_in": {"start_s": c.feed_in.profile.t0_s, "end_s": c.feed_in.profile.end_s(),
-                            "speed_mm_s": c.feed_in.profile.speed_mm_s, "accel_mm_s2": c.feed_in.profile.accel_mm_s2,
-                            "fit_rms_um": c.feed_in.rms_um},
-                "feed_out": {"start_s": c.feed_out.profile.t0_s, "end_s": c.feed_out.profile.end_s(),
-                             "speed_mm_s": c.feed_out.profile.speed_mm_s, "accel_mm_s2": c.feed_out.profile.accel_mm_s2,
-                             "fit_rms_um": c.feed_out.rms_um},
-                "data_arcs": c.data.iter().map(|a| json!({
-                    "segment": a.segment,
-                    "sense": match a.sense { Sense::Ccw => "ccw", Sense::Cw => "cw" },
-                    "start_s": a.t_start_s,
-                    "end_s": a.t_end_s,
-                    "samples": a.samples,
-                })).collect::<Vec<_>>(),
-            })
-        }).collect::<Vec<_>>(),
-    })
-}
-
-/// What the diagnosis JSON says of the plan (`plan`): the file, dialect, feed, the arc every
-/// circle runs (plan.json's `arc`: a full circle or a partial arc) and the circles, so a report
-/// and the machine's history can tell which test this was.
-pub fn plan_json(file: &std::path::Path, plan: &Plan) -> serde_json::Value {
-    use serde_json::json;
-    json!({
-        "file": file.display().to_string(),
-        "purpose": plan.purpose.name(),
-        "dialect": plan.dialect.name(),
-        "program": plan.program,
-        "plane": plan.plane.name(),
-        "feed_mm_min": plan.feed_mm_min,
-        "centre_mm": plan.centre_mm,
-        "arc": plan.arc,
-        "circles": plan.circles.iter().map(|c| json!({
-            "radius_mm": c.radius_mm, "height_mm": c.height_mm, "d_mm": c.d_mm,
-            "plane": c.plane.name(), "feed_mm_min": c.feed_mm_min,
-        })).collect::<Vec<_>>(),
-    })
-}
-
 /// The verdict against a tolerance on G (µm): pass if every circle's G (each direction,
 /// minimum-zone centre) is at most `tol_um`, and the line `jdbb diagnose --tolerance-um` prints.
 pub fn tolerance_verdict(diag: &Diagnosis, tol_um: f64) -> (bool, String) {
@@ -1118,7 +966,7 @@ fn radius_loss_text(d: &Diagnosis, q_ms2: f64) -> String {
             )
         })
         .collect();
-    let kv = match crate::circular::model::following_error_kv_per_s(q_ms2) {
+    let kv = match crate::model::following_error_kv_per_s(q_ms2) {
         Some(kv) => format!("as a loop without feed-forward: Kv {kv:.1} 1/s"),
         None => "not positive: circles drawn larger, feed-forward above 100 %".into(),
     };

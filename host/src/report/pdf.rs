@@ -1,5 +1,5 @@
 //! `diagnose --report DIR --pdf`: `report.pdf`, the printable report — `report.html` printed by
-//! headless Chromium (`--print-to-pdf`) through the page's print stylesheet ([`super::html`]):
+//! headless Chromium (`--print-to-pdf`) through the page's print stylesheet ([`crate::report::html`]):
 //! A4, page one the machine, the test, the verdict, the polar plot and the ranked effects; the
 //! conditions, G and H and the per-circle plots on the pages after.
 //!

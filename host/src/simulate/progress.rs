@@ -3,19 +3,19 @@
 //!
 //! - **Cycle start**: D leaves the level it had when the record began by more than
 //!   [`MOVE_MM`]. If the record's first sample is not at the start level (within
-//!   [`super::sync::LEVEL_TOLERANCE_MM`]), cycle start was missed: the program ran before the
+//!   [`crate::sync::LEVEL_TOLERANCE_MM`]), cycle start was missed: the program ran before the
 //!   record began, and the record cannot be synchronised with the plan (said after [`FIRST_S`],
 //!   with whether D was moving then).
 //! - **Circle and arc**: once D has left the circle being run, the next circle is the first
-//!   later one of the plan whose level D reaches (within [`super::sync::LEVEL_TOLERANCE_MM`]); the arc's share is the time on that level over
+//!   later one of the plan whose level D reaches (within [`crate::sync::LEVEL_TOLERANCE_MM`]); the arc's share is the time on that level over
 //!   the circle's arcs at the programmed feed (an estimate: the override changes it).
 //! - **End**: the program has ended when at least its duration at the programmed feed has passed
 //!   since cycle start, the last circle was run and left, and D has stood still (within [`MOVE_MM`]) at
-//!   the end point's level (within [`super::sync::LEVEL_TOLERANCE_MM`]) for [`END_STILL_S`].
-use super::machine::Machine;
-use super::plan::{dist, Plan, Segment};
-use super::record_sim::Timeline;
-use super::sync::LEVEL_TOLERANCE_MM;
+//!   the end point's level (within [`crate::sync::LEVEL_TOLERANCE_MM`]) for [`END_STILL_S`].
+use crate::plan::{dist, Plan, Segment};
+use crate::simulate::machine::Machine;
+use crate::simulate::record_sim::Timeline;
+use crate::sync::LEVEL_TOLERANCE_MM;
 
 /// D moving by more than this (mm) from the start level is cycle start.
 pub const MOVE_MM: f64 = 0.02;
@@ -203,9 +203,9 @@ impl Tracker {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::circular::plan::build::{plan as make_plan, PlanSpec};
-    use crate::circular::plan::{Dialect, Plane};
-    use crate::circular::record_sim::record;
+    use crate::plan::build::{plan as make_plan, PlanSpec};
+    use crate::plan::{Dialect, Plane};
+    use crate::simulate::record_sim::record;
     use jdbb_core::calib::Calibration;
 
     fn plan() -> Plan {
@@ -290,8 +290,8 @@ mod tests {
     fn a_calibration_test_is_followed_circle_by_circle_to_its_end() {
         // Spheres of three circles each at one D: equal levels one after another.
         let spec = PlanSpec {
-            purpose: crate::circular::plan::Purpose::CalibrationTest,
-            circles: crate::circular::plan::build::calibration_circles(&[85.0, 95.0]),
+            purpose: crate::plan::Purpose::CalibrationTest,
+            circles: crate::plan::build::calibration_circles(&[85.0, 95.0]),
             ..PlanSpec::machine_test(
                 &[90.0],
                 &[0.0],

@@ -7,8 +7,8 @@
 //! machine coordinates, the compensation in force, each "not given" when absent; the plan as a
 //! table); the machine
 //! effects ranked by their share of the error, each with value ± standard error and its cause
-//! in the trade's words ([`super::words`]); G and H of every circle per ISO 230-4 with the
-//! minimum-zone centre ([`super::zone`]); the polar plot of every circle.
+//! in the trade's words ([`crate::model::words`]); G and H of every circle per ISO 230-4 with the
+//! minimum-zone centre ([`crate::diagnose::zone`]); the polar plot of every circle.
 //!
 //! Definitions the page states too:
 //! - *share of the error* of an effect: the mean square of the radial deviation that effect
@@ -18,18 +18,18 @@
 //! - *G*: one per circle and direction, the minimum zone's (the same figure as the text and the
 //!   plots); figures without a ± of their own are shown to the digits the test's noise supports;
 //! - *F*: ISO 230-4 radial deviation, max and min per circle and direction
-//!   ([`super::report::radial_deviation_f`]);
+//!   ([`crate::report::radial_deviation_f`]);
 //! - *pass*: every circle's G (each direction, minimum-zone centre) is at most the tolerance.
 //!
 //! The page is built from the diagnosis JSON read back as a [`DiagnosisDoc`] (so it shows what
 //! the file says) and from the [`Diagnosis`] for the plotted traces.
 use std::fmt::Write;
 
-use super::diagnose::Diagnosis;
-use super::document::{CircleDoc, DiagnosisDoc, ZoneDoc};
-use super::plot::{polar_svg, View};
-use super::report::split_percentages;
-use super::words::cause;
+use crate::diagnose::Diagnosis;
+use crate::model::words::cause;
+use crate::report::document::{CircleDoc, DiagnosisDoc, ZoneDoc};
+use crate::report::plot::{polar_svg, View};
+use crate::report::split_percentages;
 use crate::units::{format_estimate, format_to, human};
 use crate::Result;
 
@@ -404,7 +404,7 @@ fn feed_text(doc: &DiagnosisDoc, k: usize, measured_mm_min: Option<f64>) -> Stri
 }
 
 /// F max / min of one trace (µm) to the noise's digits, or a dash.
-fn f_cell(r: Option<&super::document::RangeDoc>, noise_um: f64) -> String {
+fn f_cell(r: Option<&crate::report::document::RangeDoc>, noise_um: f64) -> String {
     match r {
         Some(r) => format!("{} / {}", um(r.max_um, noise_um), um(r.min_um, noise_um)),
         None => "–".into(),
@@ -532,7 +532,7 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
         .iter()
         .map(|(e, _)| Some((e.g_share.unwrap_or(f64::NAN), e.share.unwrap_or(f64::NAN))))
         .collect();
-    let effects: Vec<_> = super::report::rank_order(&keys)
+    let effects: Vec<_> = crate::report::rank_order(&keys)
         .into_iter()
         .map(|i| (named[i], pct.effects[i]))
         .collect();
@@ -591,7 +591,12 @@ pub fn report_html(d: &Diagnosis, doc: &DiagnosisDoc) -> Result<String> {
                 .filter_map(|(k, v)| {
                     let v = (*v)?;
                     let s = e.params_sigma.get(k).copied().flatten();
-                    Some(super::words::param_text(k, v, s, "undetermined, held"))
+                    Some(crate::model::words::param_text(
+                        k,
+                        v,
+                        s,
+                        "undetermined, held",
+                    ))
                 })
                 .collect();
             format!(

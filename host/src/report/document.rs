@@ -1,5 +1,5 @@
 //! A diagnosis as a file: the JSON that `jdbb diagnose --json` prints and `--report DIR` writes
-//! (documented in [`super::report`]), read back into types. It is the input contract of
+//! (documented in [`crate::report`]), read back into types. It is the input contract of
 //! `jdbb compensate` and `jdbb history`: they never rerun a diagnosis.
 //!
 //! Every field added after the first version is optional here, so an older file still reads;
@@ -16,13 +16,13 @@ use std::path::Path as FsPath;
 
 use serde::Deserialize;
 
-use super::model::{Axis, Effect};
-use super::words;
+use crate::model::words;
+use crate::model::{Axis, Effect};
 use crate::{Error, Result};
 
 /// The `format` of the diagnosis JSON this version writes and reads: 2 = backlash positive is
 /// lost motion, the set-up offset is where the table ball is, G is the minimum zone's, shares
-/// add up to 1 (see [`super::report`]). Older files are upgraded as they are read ([`upgrade`]).
+/// add up to 1 (see [`crate::report`]). Older files are upgraded as they are read ([`upgrade`]).
 pub const FORMAT: u32 = 2;
 
 /// One effect of the file.
@@ -209,7 +209,7 @@ pub struct Figures {
     pub h_um: Option<f64>,
 }
 
-/// A diagnosis file (see the module docs and [`super::report`] for the fields).
+/// A diagnosis file (see the module docs and [`crate::report`] for the fields).
 #[derive(Debug, Clone, Deserialize)]
 pub struct DiagnosisDoc {
     /// The conventions the file was written in; after [`DiagnosisDoc::parse`], always
@@ -238,7 +238,7 @@ pub struct DiagnosisDoc {
     pub circular_deviation_g_um: Option<f64>,
     pub hysteresis_h_um: Option<f64>,
     /// What-if: the test's G with the compensable settings entered (absent in files before
-    /// it), µm ([`super::diagnose::Diagnosis::g_if_compensated_um`]).
+    /// it), µm ([`crate::diagnose::Diagnosis::g_if_compensated_um`]).
     #[serde(default)]
     pub g_if_compensated_um: Option<f64>,
     /// The test's G of the traces low-passed at `filter_upr` (absent in files before it), µm.
@@ -383,14 +383,14 @@ impl DiagnosisDoc {
     }
 
     /// The machine effects in the order every output lists them: by share of G, then by
-    /// mean-square share ([`super::report::rank_order`]).
+    /// mean-square share ([`crate::report::rank_order`]).
     pub fn ranked_machine_effects(&self) -> Vec<(&EffectDoc, Effect)> {
         let all: Vec<(&EffectDoc, Effect)> = self.machine_effects().collect();
         let keys: Vec<Option<(f64, f64)>> = all
             .iter()
             .map(|(e, _)| Some((e.g_share.unwrap_or(f64::NAN), e.share.unwrap_or(f64::NAN))))
             .collect();
-        super::report::rank_order(&keys)
+        crate::report::rank_order(&keys)
             .into_iter()
             .map(|i| all[i])
             .collect()

@@ -6,7 +6,7 @@
 //! uses the minimum zone ([`crate::numerics::mzc`]), which never gives a larger G. The traces are
 //! the plotted measured deviations (the least-squares set-up of all samples removed), so the
 //! zone centres are reported relative to that set-up centre. H is the largest difference of the
-//! ccw and cw mean deviations in a 1° bin, as in [`super::runs::circle_g_h`]; a centre common to
+//! ccw and cw mean deviations in a 1° bin, as in [`crate::diagnose::runs::circle_g_h`]; a centre common to
 //! both directions does not change it.
 //!
 //! # Filter
@@ -18,8 +18,8 @@
 //! profile filter of ISO 16610-21. It also smooths what is faster than 1/50 of a turn — a
 //! reversal spike of a few ms is mostly gone from the filtered G — so the raw G stays the test's
 //! G (and the tolerance verdict's), the filtered G beside it.
-use super::model::Path;
-use super::runs::{circle_g_h, Circle, Run};
+use crate::diagnose::runs::{circle_g_h, Circle, Run};
+use crate::model::Path;
 use crate::numerics::mzc::{minimum_zone, MinimumZone};
 use crate::Result;
 
@@ -212,9 +212,9 @@ fn lowpass_run(angle_rad: &[f64], dev_um: &[f64], upr: f64) -> (Vec<f64>, Vec<f6
 
 #[cfg(test)]
 mod tests {
-    use super::super::runs::{angles, split_runs_at, MAX_RUN_STEP_RAD};
-    use super::super::simulate::{nominal_path, PathSpec};
     use super::*;
+    use crate::diagnose::runs::{angles, split_runs_at, MAX_RUN_STEP_RAD};
+    use crate::simulate::{nominal_path, PathSpec};
 
     #[test]
     fn zones_of_an_offset_trace_remove_the_offset_and_keep_the_shape() {
