@@ -183,6 +183,17 @@ mod tests {
         assert!(late > settled - 0.2 && late < p.s_at(t), "{late} {settled}");
         // No lag: the command.
         assert_eq!(lagged_s_at(&p, 0.0, t), p.s_at(t));
+        // The closed form against the lag's own equation, ds/dt = (s_cmd − s)/τ, integrated
+        // (midpoint rule, 1 µs steps) through the whole move.
+        let (mut s, mut time, h) = (0.0, p.t0_s, 1e-6);
+        while time < p.end_s() + 0.1 {
+            let mid = s + 0.5 * h * (p.s_at(time) - s) / lag;
+            s += h * (p.s_at(time + 0.5 * h) - mid) / lag;
+            time += h;
+            if ((time - p.t0_s) / 0.01).fract() < h / 0.01 {
+                assert!((lagged_s_at(&p, lag, time) - s).abs() < 1e-6, "{time}");
+            }
+        }
     }
 
     #[test]
