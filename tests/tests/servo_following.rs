@@ -166,3 +166,25 @@ fn a_feed_sweep_names_a_hidden_scale_beside_the_loops_following_error() {
         planned::assert_unbiased(name, f.value, f.sigma.unwrap(), 20.0, 0.0, &summary(&d));
     }
 }
+
+#[test]
+#[ignore = "issue 26: written with the lagged-ramp timeline but not yet run (the shared build did not finish before the deadline); run by hand and un-ignore when it passes"]
+fn ninety_percent_feed_forward_at_3000_mm_min_is_a_following_error() {
+    // The issue: Kv 30 s⁻¹ with 90 % velocity feed-forward at 3000 mm/min on R 95 and 85 mm read
+    // as isotropic scale 16.5 µm/m, later as a drift and lateral plays of ±0.12 µm. The loop
+    // delays the feed-in by τ = 3.3 ms and rounds it; read as the command through the loop
+    // (docs/synchronisation.md) the timeline holds, and the loop is its following error alone.
+    let p = make_plan(&[95.0, 85.0], &[3000.0]);
+    let l = ServoLoop {
+        ff_velocity: 0.9,
+        ..ServoLoop::new(30.0)
+    };
+    let d = run(&p, l, MachineErrors::default(), 5);
+    assert_eq!(
+        machine_names(&d),
+        vec!["following_error"],
+        "{}",
+        summary(&d)
+    );
+    assert_following_error(&d, true_q_ms2(&l, &p), "Kv 30 ff 0.9 F3000");
+}

@@ -60,6 +60,7 @@
 // Index loops over the axes (k in 0..3) and samples mirror the equations; keep them.
 #![allow(clippy::needless_range_loop)]
 pub mod glitch;
+pub mod loop_lag;
 mod record;
 pub use record::*;
 mod running;
@@ -184,6 +185,11 @@ impl Profile {
         }
     }
 
+    /// Duration of the acceleration phase (s; as long as the deceleration's).
+    pub fn accel_phase_s(&self) -> f64 {
+        self.phases().1
+    }
+
     /// Duration of the move (s).
     pub fn duration_s(&self) -> f64 {
         let (vp, ta) = self.phases();
@@ -246,6 +252,9 @@ pub struct Ramp {
     pub rms_um: f64,
     /// Samples used.
     pub samples: usize,
+    /// The position loop's lag the ramp was read through (s; 0 where none is determined): the
+    /// profile is then the command delayed by it ([`loop_lag`]).
+    pub lag_s: f64,
 }
 
 /// One data arc as found in the record.
@@ -693,12 +702,30 @@ fn fit_ramp(
             ((profile.length_mm - len).abs() <= tol).then_some((fit, profile))
         })
         .min_by(|x, y| x.0.rms.total_cmp(&y.0.rms))?;
-    Some(Ramp {
+    let plain = Ramp {
         profile,
         speed_sigma_mm_s: fit.sigma[1].unwrap_or(f64::INFINITY),
         rms_um: fit.rms,
         samples: t.len(),
-    })
+        lag_s: 0.0,
+    };
+    // Under a position loop the ramp is the command through its lag: read so, its speed and ends
+    // are the command's, and the timeline runs the command delayed by the lag.
+    Some(
+        match loop_lag::fit_through_loop(&t, &s, &profile, len, tol) {
+            Some(l) if l.rms_um < plain.rms_um => Ramp {
+                profile: Profile {
+                    t0_s: l.command.t0_s + l.lag_s,
+                    ..l.command
+                },
+                speed_sigma_mm_s: l.speed_sigma_mm_s,
+                rms_um: l.rms_um,
+                samples: t.len(),
+                lag_s: l.lag_s,
+            },
+            _ => plain,
+        },
+    )
 }
 
 /// Find the first crossing of `mid` in direction `dir` (+1 up, −1 down) at or after index `from`.
@@ -819,8 +846,12 @@ pub fn synchronise_with(plan: &Plan, rec: &Record, ruler: Option<&Ruler>) -> Res
             )
         })?;
         let t_arcs = (ramp_in.profile.end_s(), ramp_out.profile.t0_s);
-        // The plateau: D within the tolerance of D_c.
-        let (pi, pj) = (rec.index_at(t_arcs.0), rec.index_at(t_arcs.1));
+        // The plateau: D within the tolerance of D_c, once a loop's lag has settled after the
+        // feed-in (e^-4 of the lag left) and before the feed-out starts to pull it away.
+        let (pi, pj) = (
+            rec.index_at(t_arcs.0 + 4.0 * ramp_in.lag_s),
+            rec.index_at(t_arcs.1 - 4.0 * ramp_out.lag_s),
+        );
         let d_measured = rec.median(t_arcs.0, t_arcs.1).unwrap_or(f64::NAN);
         if let Some(off) = (pi..pj).find(|&i| (rec.d_mm[i] - d_c).abs() > tol) {
             return Err(err(
@@ -900,7 +931,7 @@ pub fn synchronise_with(plan: &Plan, rec: &Record, ruler: Option<&Ruler>) -> Res
                     _ => 0.0,
                 })
                 .sum();
-            cycle_start = ramp_in.profile.t0_s - before;
+            cycle_start = ramp_in.profile.t0_s - ramp_in.lag_s - before;
         }
         if let Some((t_end, dwell_after)) = last_feed_out_end {
             // Between the previous feed-out and this feed-in: dwells and moves. Where D stands

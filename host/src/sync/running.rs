@@ -119,7 +119,10 @@ pub fn synchronise_running(plan: &Plan, rec: &Record, k: usize, before: &Sync) -
     if t_last < need {
         return Ok(Running::Wait { until_s: need });
     }
-    let (pi, pj) = (rec.index_at(t0), rec.index_at(data_end));
+    let (pi, pj) = (
+        rec.index_at(t0 + 4.0 * ramp_in.lag_s),
+        rec.index_at(data_end),
+    );
     if let Some(off) = (pi..pj).find(|&i| (rec.d_mm[i] - d_c).abs() > tol) {
         return Err(Error::Input {
             location: rec.location(off),
@@ -148,6 +151,7 @@ pub fn synchronise_running(plan: &Plan, rec: &Record, k: usize, before: &Sync) -
         speed_sigma_mm_s: f64::INFINITY,
         rms_um: f64::NAN,
         samples: 0,
+        lag_s: ramp_in.lag_s,
     };
     let circle = CircleSync {
         circle: k,
