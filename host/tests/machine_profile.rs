@@ -59,7 +59,7 @@ fn plan_takes_dialect_feeds_table_ball_and_travel_from_the_profile_found_by_name
             "--machine-profile",
             "mill-1",
             "--radius",
-            "50",
+            "90",
             "--out",
             out.to_str().unwrap(),
         ],
@@ -89,7 +89,7 @@ fn plan_takes_dialect_feeds_table_ball_and_travel_from_the_profile_found_by_name
             "--machine-profile",
             "mill-1",
             "--radius",
-            "50",
+            "90",
             "--centre",
             "10,20,30",
             "--dialect",
@@ -108,9 +108,8 @@ fn plan_takes_dialect_feeds_table_ball_and_travel_from_the_profile_found_by_name
     assert_eq!(p["feed_mm_min"], 500.0);
 
     // The profile's machine travel, moved into the program's coordinates by the work offset:
-    // X 230..600 machine is 30..400 in the program, which a circle of R 50 about program X 50
-    // leaves (it reaches X 0 or less); in machine coordinates (250 − 50 = 200) it would leave it
-    // by the same amount, so the message names the program's X 30.
+    // X 230..600 machine is 30..400 in the program, which a circle of R 90 about program X 50
+    // leaves (it reaches X −40 or less); the message names the program's X 30.
     std::fs::write(
         d.join("mill-2.toml"),
         MILL_1.replace("x = [0.0, 600.0]", "x = [230.0, 600.0]"),
@@ -123,7 +122,7 @@ fn plan_takes_dialect_feeds_table_ball_and_travel_from_the_profile_found_by_name
             "--machine-profile",
             "mill-2",
             "--radius",
-            "50",
+            "90",
             "--out",
             d.join("q").to_str().unwrap(),
         ],
@@ -142,7 +141,7 @@ fn a_machine_name_that_is_not_there_says_where_it_looked_and_which_are() {
     std::fs::write(d.join("lathe-2.toml"), "machine = \"lathe-2\"\n").unwrap();
     let o = jdbb(
         &d,
-        &["plan", "--machine-profile", "mill-7", "--radius", "50", "--out", "x"],
+        &["plan", "--machine-profile", "mill-7", "--radius", "90", "--out", "x"],
     );
     assert_eq!(o.status.code(), Some(2));
     let e = stderr(&o);
