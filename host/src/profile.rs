@@ -116,11 +116,19 @@ impl MachineProfile {
                 return Err(bad(format!("increment_system = \"{i}\": IS-B or IS-C")));
             }
         }
-        if let Some(f) = p.feeds_mm_min.iter().find(|f| !(f.is_finite() && **f > 0.0)) {
-            return Err(bad(format!("feeds_mm_min: {f} is not a feed; give feeds > 0 in mm/min")));
+        if let Some(f) = p
+            .feeds_mm_min
+            .iter()
+            .find(|f| !(f.is_finite() && **f > 0.0))
+        {
+            return Err(bad(format!(
+                "feeds_mm_min: {f} is not a feed; give feeds > 0 in mm/min"
+            )));
         }
         if let Some(t) = p.tolerance_um.filter(|t| !(t.is_finite() && *t > 0.0)) {
-            return Err(bad(format!("tolerance_um = {t}: give a tolerance > 0 in µm")));
+            return Err(bad(format!(
+                "tolerance_um = {t}: give a tolerance > 0 in µm"
+            )));
         }
         Ok(p)
     }
@@ -134,10 +142,7 @@ impl MachineProfile {
 
     /// The work coordinate system's zero on axis `a` (0 x, 1 y, 2 z), machine coordinates, mm.
     pub fn work_offset(&self, a: usize) -> f64 {
-        self.work_offset_mm
-            .get(AXES[a])
-            .copied()
-            .unwrap_or(0.0)
+        self.work_offset_mm.get(AXES[a]).copied().unwrap_or(0.0)
     }
 
     /// The table ball's centre in the program's coordinates (`plan --centre`), mm: the machine
@@ -299,7 +304,10 @@ mod tests {
         std::fs::write(dir.join("mill-1.toml"), EXAMPLE).unwrap();
         std::fs::write(dir.join("lathe.toml"), "machine = \"lathe\"\n").unwrap();
         let dirs = [dir.clone()];
-        assert_eq!(find_in(Path::new("mill-1"), &dirs).unwrap(), dir.join("mill-1.toml"));
+        assert_eq!(
+            find_in(Path::new("mill-1"), &dirs).unwrap(),
+            dir.join("mill-1.toml")
+        );
         // A path is a path, never looked up.
         assert_eq!(
             find_in(Path::new("./mill-1"), &dirs).unwrap(),

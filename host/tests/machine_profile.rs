@@ -141,7 +141,15 @@ fn a_machine_name_that_is_not_there_says_where_it_looked_and_which_are() {
     std::fs::write(d.join("lathe-2.toml"), "machine = \"lathe-2\"\n").unwrap();
     let o = jdbb(
         &d,
-        &["plan", "--machine-profile", "mill-7", "--radius", "90", "--out", "x"],
+        &[
+            "plan",
+            "--machine-profile",
+            "mill-7",
+            "--radius",
+            "90",
+            "--out",
+            "x",
+        ],
     );
     assert_eq!(o.status.code(), Some(2));
     let e = stderr(&o);
@@ -205,7 +213,14 @@ fn history_takes_the_machine_and_the_g_tolerance_from_the_profile() {
     // Not held against an effect: the tolerance is on G.
     let o = jdbb(
         &d,
-        &["history", "--db", db, "--machine-profile", "mill-1", "trend"],
+        &[
+            "history",
+            "--db",
+            db,
+            "--machine-profile",
+            "mill-1",
+            "trend",
+        ],
     );
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(!String::from_utf8_lossy(&o.stdout).contains("tolerance"));

@@ -1143,7 +1143,10 @@ fn industrial_position_tables_cancel_a_lead_error_from_the_reference_point() {
         left <= step_um + 2.0 * quantum_um,
         "left {left} µm, the note says {step_um} µm\n{note}"
     );
-    assert!(left > 0.02 * e, "jdbb's interval already leaves under 2 %: {note}");
+    assert!(
+        left > 0.02 * e,
+        "jdbb's interval already leaves under 2 %: {note}"
+    );
     // The machine builder's table at that interval (least input increment 0.0001 mm), from the
     // reference position at machine 0 (point 0) to beyond the travel.
     let interval_units = (need_mm / 0.0001).floor();
@@ -1274,7 +1277,9 @@ fn industrial_cross_tables_cancel_a_leaning_slide_with_their_documented_semantic
         .and_then(|f| f.sigma)
         .unwrap_or_else(|| panic!("{}", summary(&diag)));
     let (lo, hi) = (BALL[1] - 90.0, BALL[1] + 90.0);
-    let ys: Vec<f64> = (0..=400).map(|i| lo + (hi - lo) * i as f64 / 400.0).collect();
+    let ys: Vec<f64> = (0..=400)
+        .map(|i| lo + (hi - lo) * i as f64 / 400.0)
+        .collect();
     let delta_um = |y: f64| s_um_per_m * y * 1e-3;
     let range = |v: Vec<f64>| {
         v.iter().cloned().fold(f64::MIN, f64::max) - v.iter().cloned().fold(f64::MAX, f64::min)

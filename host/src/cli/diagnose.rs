@@ -280,18 +280,17 @@ fn profile_pitch(
     let Some(all) = profile.pitch_arg() else {
         return Ok(None);
     };
-    let moves: Box<dyn Fn(crate::model::Axis) -> bool> =
-        match (&args.samples, &args.plan) {
-            (Some(samples), _) => {
-                let (path, _) = read_samples(samples, [None; 3])?;
-                Box::new(move |a| path.moves(a))
-            }
-            (None, Some(plan_file)) => {
-                let (i, j, _) = Plan::read(plan_file)?.plane.axes();
-                Box::new(move |a| a.index() == i || a.index() == j)
-            }
-            (None, None) => return Ok(None),
-        };
+    let moves: Box<dyn Fn(crate::model::Axis) -> bool> = match (&args.samples, &args.plan) {
+        (Some(samples), _) => {
+            let (path, _) = read_samples(samples, [None; 3])?;
+            Box::new(move |a| path.moves(a))
+        }
+        (None, Some(plan_file)) => {
+            let (i, j, _) = Plan::read(plan_file)?.plane.axes();
+            Box::new(move |a| a.index() == i || a.index() == j)
+        }
+        (None, None) => return Ok(None),
+    };
     let pitch = parse_pitch(&all)?;
     let moving: Vec<String> = crate::model::Axis::ALL
         .iter()

@@ -278,7 +278,10 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             if let Some(f) = plan {
                 kept.push(KeptFile::read(keep::PLAN, f)?);
             }
-            let machine = match (machine.as_ref().or(profile.machine.as_ref()), doc.machine.as_deref()) {
+            let machine = match (
+                machine.as_ref().or(profile.machine.as_ref()),
+                doc.machine.as_deref(),
+            ) {
                 (Some(m), _) => m.clone(),
                 (None, Some(named)) => named.to_string(),
                 (None, None) => {

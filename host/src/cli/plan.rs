@@ -313,11 +313,14 @@ pub fn run(args: &PlanArgs) -> Result<()> {
     }
     set.commit()?;
     let blocks = program.lines().count();
-    emit(&(given.centre_note.unwrap_or_default() + &if args.volumetric {
-        super::volumetric::setup_text(&plan, &json_path, &program_path, blocks)
-    } else {
-        setup_text(&plan, &json_path, &program_path, blocks)
-    }))
+    emit(
+        &(given.centre_note.unwrap_or_default()
+            + &if args.volumetric {
+                super::volumetric::setup_text(&plan, &json_path, &program_path, blocks)
+            } else {
+                setup_text(&plan, &json_path, &program_path, blocks)
+            }),
+    )
 }
 
 /// The program named by the plan at `json` (a plan.json jdbb wrote), if it is one of jdbb's

@@ -338,11 +338,16 @@ fn between_points_note(
     (first_point, last_point): (i64, i64),
     interval_mm: f64,
 ) -> Option<String> {
-    let inside = |n: i64| (tested_mm.0 - interval_mm..=tested_mm.1 + interval_mm).contains(&at_mm(n));
+    let inside =
+        |n: i64| (tested_mm.0 - interval_mm..=tested_mm.1 + interval_mm).contains(&at_mm(n));
     let points: Vec<i64> = (first_point..=last_point).filter(|&n| inside(n)).collect();
     let c: Vec<f64> = points.iter().map(|&n| correction_um(n)).collect();
-    let range_um = c.iter().cloned().fold(f64::MIN, f64::max) - c.iter().cloned().fold(f64::MAX, f64::min);
-    let step_um = c.windows(2).map(|w| (w[1] - w[0]).abs()).fold(0.0, f64::max);
+    let range_um =
+        c.iter().cloned().fold(f64::MIN, f64::max) - c.iter().cloned().fold(f64::MAX, f64::min);
+    let step_um = c
+        .windows(2)
+        .map(|w| (w[1] - w[0]).abs())
+        .fold(0.0, f64::max);
     if range_um.is_nan() || range_um <= 0.0 || step_um <= 0.02 * range_um {
         return None;
     }
