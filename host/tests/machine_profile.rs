@@ -43,6 +43,13 @@ fn jdbb(machines: &Path, args: &[&str]) -> Output {
         .expect("run jdbb")
 }
 
+/// `jdbb ARGS` (as [`jdbb`]), which must succeed.
+fn ok(machines: &Path, args: &[&str]) -> Output {
+    let o = jdbb(machines, args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    o
+}
+
 fn plan_json(out: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(out.join("plan.json")).unwrap()).unwrap()
 }
@@ -52,7 +59,7 @@ fn plan_takes_dialect_feeds_table_ball_and_travel_from_the_profile_found_by_name
     let d = dir("plan");
     std::fs::write(d.join("mill-1.toml"), MILL_1).unwrap();
     let out = d.join("p");
-    let o = jdbb(
+    let o = ok(
         &d,
         &[
             "plan",
@@ -64,7 +71,6 @@ fn plan_takes_dialect_feeds_table_ball_and_travel_from_the_profile_found_by_name
             out.to_str().unwrap(),
         ],
     );
-    assert!(o.status.success(), "{}", stderr(&o));
     let p = plan_json(&out);
     assert_eq!(p["dialect"], "fanuc", "{p}");
     assert!(out.join("O1000.nc").is_file());
@@ -82,7 +88,7 @@ fn plan_takes_dialect_feeds_table_ball_and_travel_from_the_profile_found_by_name
     assert!(text.contains("work offset"), "{text}");
 
     // A flag overrides the profile.
-    let o = jdbb(
+    let o = ok(
         &d,
         &[
             "plan",
@@ -101,7 +107,6 @@ fn plan_takes_dialect_feeds_table_ball_and_travel_from_the_profile_found_by_name
             "--force",
         ],
     );
-    assert!(o.status.success(), "{}", stderr(&o));
     let p = plan_json(&out);
     assert_eq!(p["dialect"], "linuxcnc");
     assert_eq!(p["centre_mm"], serde_json::json!([10.0, 20.0, 30.0]));
@@ -115,7 +120,7 @@ fn plan_takes_dialect_feeds_table_ball_and_travel_from_the_profile_found_by_name
         MILL_1.replace("x = [0.0, 600.0]", "x = [230.0, 600.0]"),
     )
     .unwrap();
-    let o = jdbb(
+    let o = ok(
         &d,
         &[
             "plan",
@@ -181,20 +186,18 @@ fn history_takes_the_machine_and_the_g_tolerance_from_the_profile() {
             diag.to_str().unwrap(),
         ],
     );
-    assert!(o.status.success(), "{}", stderr(&o));
     assert!(String::from_utf8_lossy(&o.stdout).contains("of mill-1"));
-    let o = jdbb(
+    let o = ok(
         &d,
         &["history", "--db", db, "--machine-profile", "mill-1", "list"],
     );
-    assert!(o.status.success(), "{}", stderr(&o));
     assert!(
         String::from_utf8_lossy(&o.stdout).starts_with("machine mill-1: 1 runs"),
         "{}",
         String::from_utf8_lossy(&o.stdout)
     );
     // G 5 µm against the profile's 4 µm.
-    let o = jdbb(
+    let o = ok(
         &d,
         &[
             "history",
@@ -207,11 +210,10 @@ fn history_takes_the_machine_and_the_g_tolerance_from_the_profile() {
             "g",
         ],
     );
-    assert!(o.status.success(), "{}", stderr(&o));
     let t = String::from_utf8_lossy(&o.stdout);
     assert!(t.contains("tolerance 4 µm: over it in run 1"), "{t}");
     // Not held against an effect: the tolerance is on G.
-    let o = jdbb(
+    let o = ok(
         &d,
         &[
             "history",
@@ -222,7 +224,6 @@ fn history_takes_the_machine_and_the_g_tolerance_from_the_profile() {
             "trend",
         ],
     );
-    assert!(o.status.success(), "{}", stderr(&o));
     assert!(!String::from_utf8_lossy(&o.stdout).contains("tolerance"));
     std::fs::remove_dir_all(&d).unwrap();
 }

@@ -351,10 +351,11 @@ fn between_points_note(
     if range_um.is_nan() || range_um <= 0.0 || step_um <= 0.02 * range_um {
         return None;
     }
-    let need_mm = interval_mm * 0.02 * range_um / step_um;
+    // 1.5 % between points: room for what is left at the points (the integers, the fit).
+    let need_mm = interval_mm * 0.015 * range_um / step_um;
     let count = ((tested_mm.1.max(0.0) - tested_mm.0.min(0.0)) / need_mm).ceil();
     Some(format!(
-        "{letter}: between its points the control holds each section's compensation (a staircase, B-63980EN p. 100), so up to {step_um:.2} µm of the {range_um:.2} µm corrected over the tested travel is left between the points every {interval_mm} mm ({:.1} %); under 2 % needs an interval No. 3624 of {need_mm:.2} mm or less ({count} points from the reference position{}), or the interpolation-type pitch error compensation option",
+        "{letter}: between its points the control holds each section's compensation (a staircase, B-63980EN p. 100), so up to {step_um:.2} µm of the {range_um:.2} µm corrected over the tested travel is left between the points every {interval_mm} mm ({:.1} %); under 2 % with what is left at the points needs an interval No. 3624 of {need_mm:.2} mm or less ({count} points from the reference position{}), or the interpolation-type pitch error compensation option",
         100.0 * step_um / range_um,
         if count > MAX_POINTS as f64 { format!(", more than the {MAX_POINTS} of the service literature") } else { String::new() }
     ))
