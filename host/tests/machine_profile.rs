@@ -88,7 +88,7 @@ fn plan_takes_dialect_feeds_table_ball_and_travel_from_the_profile_found_by_name
     assert!(text.contains("work offset"), "{text}");
 
     // A flag overrides the profile.
-    let o = ok(
+    ok(
         &d,
         &[
             "plan",
