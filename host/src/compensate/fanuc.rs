@@ -477,7 +477,7 @@ pub fn plan(m: &MachineErrors, current: &Current, placement: &Placement) -> Resu
                     i.letter().to_ascii_uppercase(),
                     j.letter().to_ascii_uppercase()
                 ),
-                instead: "square the axes mechanically (shim or scrape the column/saddle); if the machine has the straightness compensation option, ask the builder to enter it".into(),
+                instead: format!("{} (shim or scrape the column/saddle); if the machine has the straightness compensation option, ask the builder to enter it", super::square_mechanically(pair)),
             });
         }
     }

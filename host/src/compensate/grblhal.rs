@@ -128,7 +128,7 @@ pub fn plan(m: &MachineErrors, current: &Current) -> Plan {
             p.cannot.push(Cannot {
                 effect: s.text(),
                 why: "grblHAL core has no squareness (skew) compensation".into(),
-                instead: "square the axes mechanically; a gantry driven by two motors with auto-squaring can be squared with its dual axis offset setting (offset = s × the distance between the two rails)".into(),
+                instead: format!("{}; a gantry driven by two motors with auto-squaring can be squared with its dual axis offset setting (offset = s × the distance between the two rails)", super::square_mechanically(pair)),
             });
         }
     }

@@ -503,8 +503,10 @@ pub fn plan(m: &MachineErrors, current: &Current, opts: &Options) -> Result<Plan
         });
     }
     let mut hal = vec![];
+    let mut by_hand = vec![];
     for pair in Pair::ALL {
         if let Some(s) = m.squareness(pair) {
+            by_hand.push(super::square_mechanically(pair));
             let (i, j) = pair.axes();
             let key = format!("matrixkins.C_{}{}", i.letter(), j.letter());
             let c = change(
@@ -525,7 +527,7 @@ pub fn plan(m: &MachineErrors, current: &Current, opts: &Options) -> Result<Plan
             label: "a HAL file, LinuxCNC 2.10 (master) with [KINS] KINEMATICS = matrixkins".into(),
             lines: hal,
         });
-        p.notes.push("squareness: LinuxCNC 2.9 (trivkins) has no squareness compensation; the matrixkins lines need LinuxCNC 2.10/master (loadrt matrixkins, [KINS] KINEMATICS = matrixkins). On 2.9, square the axes mechanically".into());
+        p.notes.push(format!("squareness: LinuxCNC 2.9 (trivkins) has no squareness compensation; the matrixkins lines need LinuxCNC 2.10/master (loadrt matrixkins, [KINS] KINEMATICS = matrixkins). On 2.9, {}", by_hand.join(", ")));
     }
     Ok(p)
 }

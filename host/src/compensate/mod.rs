@@ -745,6 +745,17 @@ pub(crate) fn skew_factors(m: &MachineErrors) -> [Option<(f64, &Measured)>; 3] {
     [f(Pair::Xy), f(Pair::Zx), f(Pair::Yz)]
 }
 
+/// What to do about `pair`'s squareness where a controller has no setting for it: square its two
+/// axes by hand, naming them (`square X and Y mechanically`).
+pub(crate) fn square_mechanically(pair: Pair) -> String {
+    let (i, j) = pair.axes();
+    format!(
+        "square {} and {} mechanically",
+        i.letter().to_ascii_uppercase(),
+        j.letter().to_ascii_uppercase()
+    )
+}
+
 /// The span (machine coordinates, mm) a position table of axis `a` covers: `--travel`, else the
 /// tested circle about the table ball; widened to take in `reference` (a control whose table is
 /// counted from its reference point, Fanuc's, needs the points between it and the tested span).

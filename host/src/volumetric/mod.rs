@@ -6,6 +6,8 @@
 //! - [`ident`]: what such a test can identify of a linear error field — the design matrix of the
 //!   three scales, three squarenesses, the set-up offset and the instrument's scale, its rank,
 //!   condition number and confounded combinations;
+//! - [`elements`]: how long the machine stays on each element of a plan (a record cut into its
+//!   elements);
 //! - [`fit`]: the linear model's nine terms fitted to changes of D at known positions, with σ
 //!   and the undetermined groups (the core of the joint diagnosis);
 //! - [`plan`]: the plan of a volumetric test (`jdbb plan --volumetric`), one plan.json
@@ -14,12 +16,12 @@
 //!
 //! Built: the identifiability, the plan, and the linear fit at the plan's positions. Not yet: the
 //! synchronisation of a volumetric record and its joint diagnosis with backlash, servo and
-//! cyclic terms (`jdbb diagnose --record --plan` refuses a volumetric plan), the QEMU scenario,
-//! the compensation of three squarenesses at once, and the report.
+//! cyclic terms (`jdbb diagnose --record --plan` refuses a volumetric plan) and the report.
 //!
 //! May use: [`crate::numerics`] and nalgebra, the instrument model (`jdbb_core`), and
 //! the plan and path types of [`crate::plan`] and [`crate::model`] by import only (the plane
 //! test's plan builder makes each element). Nothing in those folders uses this module.
+pub mod elements;
 pub mod fit;
 pub mod ident;
 pub mod plan;
