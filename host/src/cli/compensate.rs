@@ -78,15 +78,15 @@ pub struct CompensateArgs {
     pub force: bool,
     /// The machine profile (a commented TOML: controller, units and increment system, table
     /// ball, travel; `crate::profile`): its values stand where a flag is not given, a flag
-    /// overrides it.
-    #[arg(long, value_name = "FILE")]
+    /// overrides it. A FILE, or a machine's NAME found in the machines directory.
+    #[arg(long, value_name = "FILE|NAME")]
     pub machine_profile: Option<PathBuf>,
 }
 
 /// Run `jdbb compensate`.
 pub fn run(args: &CompensateArgs) -> Result<()> {
     let profile = match &args.machine_profile {
-        Some(f) => MachineProfile::read(f)?,
+        Some(f) => MachineProfile::find(f)?,
         None => MachineProfile::default(),
     };
     let controller = match args.controller.as_ref().or(profile.controller.as_ref()) {

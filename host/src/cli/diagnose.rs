@@ -65,10 +65,10 @@ pub struct DiagnoseArgs {
     /// The machine's name, for the report and the history (`jdbb history add`).
     #[arg(long)]
     pub machine: Option<String>,
-    /// The machine profile (`crate::profile`): its name, pitches (of the axes that move, with
-    /// --samples), tolerance and table ball stand where `--machine`, `--pitch`, `--tolerance-um`,
-    /// `--table-ball` are not given.
-    #[arg(long, value_name = "FILE")]
+    /// The machine profile, a FILE or a machine's NAME (`crate::profile`): its name, pitches (of
+    /// the axes that move), tolerance and table ball stand where `--machine`, `--pitch`,
+    /// `--tolerance-um`, `--table-ball` are not given.
+    #[arg(long, value_name = "FILE|NAME")]
     pub machine_profile: Option<PathBuf>,
     /// Tolerance on the circular deviation G (µm): the run passes if every circle's G (each
     /// direction, minimum-zone centre) is at most this.
@@ -270,23 +270,33 @@ fn set_aside_json(rec: &Record) -> serde_json::Value {
 /// Most glitches listed one by one in the diagnosis JSON.
 const MAX_LISTED_GLITCHES: usize = 1000;
 
-/// The profile's pitches (`--pitch`) of the axes that move in the test: a record's plane is not
-/// known before it is read, so samples are read once to see which axes move; for a record the
-/// profile's pitches are not used (give --pitch).
+/// The profile's pitches (`--pitch`) of the axes that move in the test: samples are read once to
+/// see which axes move, a record's are the two of its plan's plane; a record with a hand-made
+/// `--path` does not use them (give --pitch).
 fn profile_pitch(
     args: &DiagnoseArgs,
     profile: &crate::profile::MachineProfile,
 ) -> Result<Option<String>> {
-    let (Some(samples), Some(all)) = (&args.samples, profile.pitch_arg()) else {
+    let Some(all) = profile.pitch_arg() else {
         return Ok(None);
     };
-    let (path, _) = read_samples(samples, [None; 3])?;
+    let moves: Box<dyn Fn(crate::model::Axis) -> bool> = match (&args.samples, &args.plan) {
+        (Some(samples), _) => {
+            let (path, _) = read_samples(samples, [None; 3])?;
+            Box::new(move |a| path.moves(a))
+        }
+        (None, Some(plan_file)) => {
+            let (i, j, _) = Plan::read(plan_file)?.plane.axes();
+            Box::new(move |a| a.index() == i || a.index() == j)
+        }
+        (None, None) => return Ok(None),
+    };
     let pitch = parse_pitch(&all)?;
     let moving: Vec<String> = crate::model::Axis::ALL
         .iter()
         .filter_map(|&a| {
             let p = pitch[a.index()]?;
-            path.moves(a).then(|| format!("{}={p}", a.letter()))
+            moves(a).then(|| format!("{}={p}", a.letter()))
         })
         .collect();
     Ok((!moving.is_empty()).then(|| moving.join(",")))
@@ -325,7 +335,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     let mut opts = Options::default();
     let args = match &args.machine_profile {
         Some(f) => {
-            let p = crate::profile::MachineProfile::read(f)?;
+            let p = crate::profile::MachineProfile::find(f)?;
             opts.controller = p
                 .controller
                 .as_deref()

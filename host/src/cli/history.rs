@@ -17,8 +17,9 @@ pub struct HistoryArgs {
     /// data directory, e.g. ~/.local/share/jdbb/) or a server, postgres://USER:PASSWORD@HOST/DB.
     #[arg(long, global = true, value_name = "PATH|URL")]
     pub db: Option<PathBuf>,
-    /// The machine profile (`crate::profile`), checked; history's own flags are given as before.
-    #[arg(long, global = true, value_name = "FILE")]
+    /// The machine profile, a FILE or a machine's NAME (`crate::profile`): its machine stands
+    /// where --machine is not given, its tolerance where `trend --figure g` has no --tolerance-um.
+    #[arg(long, global = true, value_name = "FILE|NAME")]
     pub machine_profile: Option<PathBuf>,
     #[command(subcommand)]
     pub command: HistoryCommand,
@@ -66,8 +67,9 @@ pub enum HistoryCommand {
     /// Each effect of a machine with its σ over time; runs not comparable with the latest are
     /// flagged with what differs (plane, circles, feed, plan, instrument calibration).
     Trend {
+        /// The machine (default: the machine profile's).
         #[arg(long)]
-        machine: String,
+        machine: Option<String>,
         /// Only this effect, e.g. backlash_x.
         #[arg(long, conflicts_with = "figure")]
         effect: Option<String>,
@@ -92,8 +94,9 @@ pub enum HistoryCommand {
     /// File a change of a machine's compensation (e.g. the settings `jdbb compensate` gave,
     /// once entered): `history trend` marks it and fits its slope only after it.
     Comp {
+        /// The machine (default: the machine profile's).
         #[arg(long)]
-        machine: String,
+        machine: Option<String>,
         /// When the change was made (YYYY-MM-DD or RFC 3339).
         #[arg(long, value_parser = crate::dates::parse_date)]
         date: String,
@@ -131,16 +134,18 @@ pub enum HistoryCommand {
     /// Take a run out of the history (e.g. one filed under the wrong machine); it says what
     /// it removed, so that it can be added again from its file.
     Remove {
+        /// The machine (default: the machine profile's).
         #[arg(long)]
-        machine: String,
+        machine: Option<String>,
         /// The run's number, as `history list --machine NAME` shows it.
         #[arg(long)]
         run: i64,
     },
     /// Correct a run: file it under another date (one added with the wrong date).
     Edit {
+        /// The machine (default: the machine profile's).
         #[arg(long)]
-        machine: String,
+        machine: Option<String>,
         /// The run's number, as `history list --machine NAME` shows it.
         #[arg(long)]
         run: i64,
@@ -230,11 +235,27 @@ fn rerun(kept: &Kept, machine: &str, location: &str) -> Result<String> {
     Ok(s)
 }
 
+/// The machine a subcommand is about: its --machine, else the machine profile's.
+fn machine_or_profile(
+    machine: &Option<String>,
+    profile: &crate::profile::MachineProfile,
+) -> Result<String> {
+    machine
+        .clone()
+        .or_else(|| profile.machine.clone())
+        .ok_or_else(|| {
+            crate::Error::Usage(
+                "give --machine NAME, or a --machine-profile with `machine = \"NAME\"`".into(),
+            )
+        })
+}
+
 /// Run `jdbb history`.
 pub fn run(args: &HistoryArgs) -> Result<()> {
-    if let Some(f) = &args.machine_profile {
-        crate::profile::MachineProfile::read(f)?;
-    }
+    let profile = match &args.machine_profile {
+        Some(f) => crate::profile::MachineProfile::find(f)?,
+        None => crate::profile::MachineProfile::default(),
+    };
     let db = crate::history::location(args.db.as_deref().map(|p| p.as_os_str()))?;
     // A file's path, to keep the outputs off it; none for a server.
     let path = PathBuf::from(&db);
@@ -257,7 +278,10 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             if let Some(f) = plan {
                 kept.push(KeptFile::read(keep::PLAN, f)?);
             }
-            let machine = match (machine, doc.machine.as_deref()) {
+            let machine = match (
+                machine.as_ref().or(profile.machine.as_ref()),
+                doc.machine.as_deref(),
+            ) {
                 (Some(m), _) => m.clone(),
                 (None, Some(named)) => named.to_string(),
                 (None, None) => {
@@ -338,14 +362,14 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
         }
         HistoryCommand::Rerun { machine, run } => {
             let mut h = crate::history::open(&db, true)?;
-            let machine = match machine {
+            let machine = match machine.as_ref().or(profile.machine.as_ref()) {
                 Some(m) => m.clone(),
                 None => machine_of_run(h.as_mut(), *run)?,
             };
             let kept = h.kept(&machine, *run)?;
             print(&rerun(&kept, &machine, &h.location())?)
         }
-        HistoryCommand::List { machine: None } => {
+        HistoryCommand::List { machine: None } if profile.machine.is_none() => {
             let mut h = crate::history::open(&db, true)?;
             let mut s = String::new();
             let machines = h.machines()?;
@@ -357,9 +381,8 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             }
             print(&s)
         }
-        HistoryCommand::List {
-            machine: Some(machine),
-        } => {
+        HistoryCommand::List { machine } => {
+            let machine = &machine_or_profile(machine, &profile)?;
             let mut h = crate::history::open(&db, true)?;
             let runs = h.runs(machine)?;
             // One effect order in every row: the trend's.
@@ -444,6 +467,11 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
                 }
             }
             let figure = figure.as_deref().map(trend::Figure::parse).transpose()?;
+            let machine = &machine_or_profile(machine, &profile)?;
+            // The profile's tolerance is on G: it holds the trend of G, not of H or an effect.
+            let tolerance_um = &tolerance_um.or(profile
+                .tolerance_um
+                .filter(|_| figure == Some(trend::Figure::G)));
             let mut h = crate::history::open(&db, true)?;
             let runs = h.runs(machine)?;
             let marks = trend::compensation_marks(&runs, &h.compensations(machine)?);
@@ -484,6 +512,7 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
                     ))
                 }
             };
+            let machine = &machine_or_profile(machine, &profile)?;
             // An existing history only (a mistyped --db is an error), opened to write.
             drop(crate::history::open(&db, true)?);
             let mut h = crate::history::open(&db, false)?;
@@ -544,6 +573,7 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             ))
         }
         HistoryCommand::Remove { machine, run } => {
+            let machine = &machine_or_profile(machine, &profile)?;
             drop(crate::history::open(&db, true)?);
             let mut h = crate::history::open(&db, false)?;
             let r = h.remove_run(machine, *run)?;
@@ -559,6 +589,7 @@ pub fn run(args: &HistoryArgs) -> Result<()> {
             ))
         }
         HistoryCommand::Edit { machine, run, date } => {
+            let machine = &machine_or_profile(machine, &profile)?;
             drop(crate::history::open(&db, true)?);
             let mut h = crate::history::open(&db, false)?;
             let was = h.set_date(machine, *run, date)?;

@@ -20,8 +20,10 @@ use crate::{Error, Result};
 /// Arguments of `jdbb plan`.
 #[derive(Debug, clap::Args)]
 pub struct PlanArgs {
-    /// The machine profile (`crate::profile`), checked; plan's own flags are given as before.
-    #[arg(long, value_name = "FILE")]
+    /// The machine profile, a FILE or a machine's NAME (`crate::profile`): its controller,
+    /// feeds, table ball (machine coordinates less its work offset) and travel stand where
+    /// --dialect, --feed, --centre and --travel are not given.
+    #[arg(long, value_name = "FILE|NAME")]
     pub machine_profile: Option<std::path::PathBuf>,
     /// Circle radius in mm (repeat for several radii: the instrument stays mounted between them).
     #[arg(long = "radius", value_name = "MM", value_parser = super::args::positive, required_unless_present_any = ["calibration_test", "volumetric"])]
@@ -35,14 +37,14 @@ pub struct PlanArgs {
     pub plane: Plane,
     /// Feed along the path, mm/min. Repeat for a feed sweep: the same circles again at each feed,
     /// in the order given, in one program (servo effects grow with feed, mechanical ones do not).
-    #[arg(long = "feed", value_name = "MM_PER_MIN", required = true, value_parser = super::args::positive)]
+    #[arg(long = "feed", value_name = "MM_PER_MIN", required_unless_present = "machine_profile", value_parser = super::args::positive)]
     pub feeds_mm_min: Vec<f64>,
     /// Where the table ball's centre is, in the program's coordinates: X,Y,Z in mm.
-    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_centre)]
-    pub centre: [f64; 3],
-    /// Controller dialect of the program: linuxcnc, grbl, fanuc or marlin.
-    #[arg(long, default_value = "linuxcnc", value_parser = parse_dialect)]
-    pub dialect: Dialect,
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_centre, required_unless_present = "machine_profile")]
+    pub centre: Option<[f64; 3]>,
+    /// Controller dialect of the program: linuxcnc, grbl, fanuc or marlin (default linuxcnc).
+    #[arg(long, value_parser = parse_dialect)]
+    pub dialect: Option<Dialect>,
     /// The instrument's calibration: TOML of its fields (l1_mm, l2_mm, tables enc1 and enc2).
     /// Default: the 50 mm bars of the default instrument.
     #[arg(long, value_name = "CAL.toml")]
@@ -134,11 +136,89 @@ fn parse_centre(s: &str) -> std::result::Result<[f64; 3], String> {
     Ok(p)
 }
 
+/// The program's dialect for the profile's `controller` (as `compensate --controller` names it),
+/// where `jdbb plan` writes one.
+fn profile_dialect(controller: &str) -> Result<Dialect> {
+    let c = crate::compensate::Controller::parse(controller)?;
+    use crate::compensate::Controller as C;
+    match c {
+        C::LinuxCnc => Ok(Dialect::Linuxcnc),
+        C::GrblHal => Ok(Dialect::Grbl),
+        C::Fanuc => Ok(Dialect::Fanuc),
+        C::Marlin => Ok(Dialect::Marlin),
+        _ => Err(Error::Usage(format!(
+            "the machine profile's controller {} has no program dialect in jdbb plan: give --dialect (linuxcnc, grbl, fanuc or marlin)",
+            c.name()
+        ))),
+    }
+}
+
+/// What `jdbb plan` takes from the machine profile where its flags are not given: dialect,
+/// feeds, the table ball's centre and the travel, all in the program's coordinates.
+struct FromProfile {
+    dialect: Dialect,
+    feeds_mm_min: Vec<f64>,
+    centre_mm: [f64; 3],
+    travel: Option<[Option<(f64, f64)>; 3]>,
+    /// Where the centre came from, when the profile gave it: a line of the printout.
+    centre_note: Option<String>,
+}
+
+/// The plan's dialect, feeds, centre and travel: each flag given, else the profile's value.
+fn from_profile(args: &PlanArgs) -> Result<FromProfile> {
+    let profile = match &args.machine_profile {
+        Some(f) => crate::profile::MachineProfile::find(f)?,
+        None => crate::profile::MachineProfile::default(),
+    };
+    let dialect = match (args.dialect, &profile.controller) {
+        (Some(d), _) => d,
+        (None, Some(c)) => profile_dialect(c)?,
+        (None, None) => Dialect::Linuxcnc,
+    };
+    let feeds_mm_min = if args.feeds_mm_min.is_empty() {
+        profile.feeds_mm_min.clone()
+    } else {
+        args.feeds_mm_min.clone()
+    };
+    if feeds_mm_min.is_empty() {
+        return Err(Error::Usage(
+            "give --feed MM_PER_MIN, or a machine profile with feeds_mm_min".into(),
+        ));
+    }
+    let mut centre_note = None;
+    let centre_mm = match (args.centre, profile.centre_mm()?) {
+        (Some(c), _) => c,
+        (None, Some(c)) => {
+            let offset: [f64; 3] = std::array::from_fn(|a| profile.work_offset(a));
+            centre_note = Some(format!(
+                "table ball from the machine profile: machine (G53) {} less the work offset {} (run the program with that work offset in force)\n",
+                point(&std::array::from_fn(|a| c[a] + offset[a])),
+                point(&offset)
+            ));
+            c
+        }
+        (None, None) => {
+            return Err(Error::Usage(
+                "give --centre X,Y,Z, or a machine profile with table_ball_mm".into(),
+            ))
+        }
+    };
+    let travel = match &args.travel {
+        Some(t) => Some(super::args::travel_mm("--travel", t)?),
+        None => (!profile.travel_mm.is_empty()).then(|| profile.travel_program_mm()),
+    };
+    Ok(FromProfile {
+        dialect,
+        feeds_mm_min,
+        centre_mm,
+        travel,
+        centre_note,
+    })
+}
+
 /// Run `jdbb plan`.
 pub fn run(args: &PlanArgs) -> Result<()> {
-    if let Some(f) = &args.machine_profile {
-        crate::profile::MachineProfile::read(f)?;
-    }
+    let given = from_profile(args)?;
     let cal = match &args.calibration {
         Some(path) => crate::instrument::file::read_calibration(path)?,
         None => Calibration::DEFAULT,
@@ -172,9 +252,9 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         purpose,
         circles,
         plane: args.plane,
-        feed_mm_min: args.feeds_mm_min[0],
-        centre_mm: args.centre,
-        dialect: args.dialect,
+        feed_mm_min: given.feeds_mm_min[0],
+        centre_mm: given.centre_mm,
+        dialect: given.dialect,
         start_deg: args.start_deg,
         arc_deg: args.arc_deg,
         lead_in_deg: args.lead_in_deg.unwrap_or(lead_in_deg),
@@ -185,7 +265,7 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         corner_dwell_s: args.corner_dwell_s,
         close: args.close,
     }
-    .feed_sweep(&args.feeds_mm_min);
+    .feed_sweep(&given.feeds_mm_min);
     let plan = if args.volumetric {
         let distances_mm = if args.distances_mm.is_empty() {
             vec![volumetric::default_distance_mm(&inst)]
@@ -203,10 +283,10 @@ pub fn run(args: &PlanArgs) -> Result<()> {
     } else {
         plan(&spec, &cal)?
     };
-    if let Some(t) = &args.travel {
-        volumetric::check_travel(&plan, &super::args::travel_mm("--travel", t)?)?;
+    if let Some(travel) = &given.travel {
+        volumetric::check_travel(&plan, travel)?;
     }
-    let program = write_program(&plan, args.dialect);
+    let program = write_program(&plan, given.dialect);
     let json_path = args.out.join("plan.json");
     let program_path = args.out.join(&plan.program);
     // plan.json and its program are one set: both new, or both as they were.
@@ -233,11 +313,14 @@ pub fn run(args: &PlanArgs) -> Result<()> {
     }
     set.commit()?;
     let blocks = program.lines().count();
-    emit(&if args.volumetric {
-        super::volumetric::setup_text(&plan, &json_path, &program_path, blocks)
-    } else {
-        setup_text(&plan, &json_path, &program_path, blocks)
-    })
+    emit(
+        &(given.centre_note.unwrap_or_default()
+            + &if args.volumetric {
+                super::volumetric::setup_text(&plan, &json_path, &program_path, blocks)
+            } else {
+                setup_text(&plan, &json_path, &program_path, blocks)
+            }),
+    )
 }
 
 /// The program named by the plan at `json` (a plan.json jdbb wrote), if it is one of jdbb's

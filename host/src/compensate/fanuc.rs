@@ -26,9 +26,12 @@
 //!   assumed), so it spans the tested travel and the reference position. At most 128 points
 //!   between the extremes (service literature); each value −7…+7 (Series 16i/0i literature; not
 //!   confirmed for 0i-F/30i), so the magnification is raised until they fit. Takes effect after
-//!   power off/on and a reference position return. Whether the value is output at the point or
-//!   spread over the section (interpolation-type, 30i option) was not confirmed: jdbb's tables are
-//!   right at the points in either case.
+//!   power off/on and a reference position return. Between points the value of a section is
+//!   output at its point ("the compensation value is output at the compensation position No.
+//!   corresponding to each section", B-63980EN p. 100, whose figure of the compensation amount
+//!   is a staircase): the compensation is held between points, so up to the largest step between
+//!   neighbouring points is left there; the output says how much, and which interval would
+//!   leave under 2 % (interpolation between points is a separate option, not assumed).
 //! - Not confirmed and said so in the output: the input format of the table (`N10000+point P…`,
 //!   as in a parameter backup), inclination compensation (Nos. 5861–5874) and the straightness
 //!   compensation option's parameters.
@@ -300,6 +303,14 @@ fn pitch_table(
             if (last_point - first_point) > MAX_POINTS {
                 p.notes.push(format!("{letter}: the table in force has {} points between its extremes; the service literature gives at most {MAX_POINTS}", last_point - first_point));
             }
+            p.notes.extend(between_points_note(
+                letter,
+                table_span_mm(m, a, placement, None)?,
+                |n| (n - reference_point) as f64 * interval_mm,
+                |n| correction_units(n) * unit_mm * 1e3,
+                (first_point, last_point),
+                interval_mm,
+            ));
             return Ok(Some(PitchTable {
                 reference_point,
                 first_point,
@@ -312,6 +323,42 @@ fn pitch_table(
         }
         magnification += 1;
     }
+}
+
+/// What is left between the points of a table at `interval_mm` over the tested travel
+/// `tested_mm`: the control holds a section's compensation between its points (a staircase,
+/// module docs), so up to the largest step between neighbouring points (µm) of the correction
+/// `correction_um` at point n (machine position `at_mm(n)`) is left; said with the interval that
+/// would leave under 2 % of the correction's range, if the table's leaves more.
+fn between_points_note(
+    letter: char,
+    tested_mm: (f64, f64),
+    at_mm: impl Fn(i64) -> f64,
+    correction_um: impl Fn(i64) -> f64,
+    (first_point, last_point): (i64, i64),
+    interval_mm: f64,
+) -> Option<String> {
+    let inside =
+        |n: i64| (tested_mm.0 - interval_mm..=tested_mm.1 + interval_mm).contains(&at_mm(n));
+    let points: Vec<i64> = (first_point..=last_point).filter(|&n| inside(n)).collect();
+    let c: Vec<f64> = points.iter().map(|&n| correction_um(n)).collect();
+    let range_um =
+        c.iter().cloned().fold(f64::MIN, f64::max) - c.iter().cloned().fold(f64::MAX, f64::min);
+    let step_um = c
+        .windows(2)
+        .map(|w| (w[1] - w[0]).abs())
+        .fold(0.0, f64::max);
+    if range_um.is_nan() || range_um <= 0.0 || step_um <= 0.02 * range_um {
+        return None;
+    }
+    // 1.5 % between points: room for what is left at the points (the integers, the fit).
+    let need_mm = interval_mm * 0.015 * range_um / step_um;
+    let count = ((tested_mm.1.max(0.0) - tested_mm.0.min(0.0)) / need_mm).ceil();
+    Some(format!(
+        "{letter}: between its points the control holds each section's compensation (a staircase, B-63980EN p. 100), so up to {step_um:.2} µm of the {range_um:.2} µm corrected over the tested travel is left between the points every {interval_mm} mm ({:.1} %); under 2 % with what is left at the points needs an interval No. 3624 of {need_mm:.2} mm or less ({count} points from the reference position{}), or the interpolation-type pitch error compensation option",
+        100.0 * step_um / range_um,
+        if count > MAX_POINTS as f64 { format!(", more than the {MAX_POINTS} of the service literature") } else { String::new() }
+    ))
 }
 
 /// What to change on a Fanuc control (module docs).
