@@ -120,7 +120,7 @@ fn plan_takes_dialect_feeds_table_ball_and_travel_from_the_profile_found_by_name
         MILL_1.replace("x = [0.0, 600.0]", "x = [230.0, 600.0]"),
     )
     .unwrap();
-    let o = ok(
+    let o = jdbb(
         &d,
         &[
             "plan",

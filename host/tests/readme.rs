@@ -108,6 +108,10 @@ fn run_blocks(doc: &str) {
     let work = tempfile::tempdir().unwrap();
     std::os::unix::fs::symlink(root.join("data"), work.path().join("data")).unwrap();
     let mut ran = 0;
+    // `JDBB_README_BLESS=1`: write what each block prints today into its expected output instead
+    // of failing, for a change whose new figures have been checked (review the diff).
+    let bless = std::env::var_os("JDBB_README_BLESS").is_some();
+    let mut blessed: Vec<(usize, String, String)> = vec![];
     for (k, b) in all.iter().enumerate() {
         if b.info != "sh" {
             continue;
@@ -129,7 +133,9 @@ fn run_blocks(doc: &str) {
             String::from_utf8_lossy(&o.stderr)
         );
         if let Some(next) = all.get(k + 1) {
-            if next.info == "text expected-output" {
+            if next.info == "text expected-output" && bless && stdout != next.text {
+                blessed.push((next.line, next.text.clone(), stdout.to_string()));
+            } else if next.info == "text expected-output" {
                 assert_eq!(
                     stdout, next.text,
                     "{doc}:{}: the output shown is not what the block above it prints today",
@@ -140,4 +146,17 @@ fn run_blocks(doc: &str) {
         ran += 1;
     }
     assert!(ran >= 3, "only {ran} blocks of {doc} ran");
+    if !blessed.is_empty() {
+        // Replace each expected block (its lines after the fence) by what was printed.
+        let mut lines: Vec<String> = readme.lines().map(str::to_string).collect();
+        for (line, old, new) in blessed.iter().rev() {
+            let n = old.lines().count();
+            lines.splice(*line..*line + n, new.lines().map(str::to_string));
+        }
+        let mut text = lines.join("\n");
+        text.push('\n');
+        std::fs::write(root.join(doc), text).unwrap();
+        let at: Vec<usize> = blessed.iter().map(|b| b.0).collect();
+        panic!("{doc}: expected outputs at lines {at:?} rewritten (JDBB_README_BLESS); review the diff");
+    }
 }
