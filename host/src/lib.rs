@@ -26,8 +26,7 @@
 //!
 //! Dependencies point one way: `cli` → `compensate`, `history`, `live_web`, `volumetric`,
 //! `instrument`, `link` → the test folders `report` → `diagnose` → `simulate` → `sync` → `plan`
-//! → `model`; these and `rotary`, `rrsps` → `numerics`, (one exception, older than the folders:
-//! `diagnose` asks `compensate` which effects a controller can set)
+//! → `model`; these and `rotary`, `rrsps` → `numerics`,
 //! `table` → `jdbb_core` (the instrument model, wire protocol and machine error models shared
 //! with the firmware). No module below `cli` prints or reads the command line.
 pub mod cli;

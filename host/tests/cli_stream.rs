@@ -1013,8 +1013,14 @@ fn record_with_a_plan_shows_progress_and_stops_after_the_program() {
     let err = stderr(&o);
     assert!(o.status.success(), "{stdout}{err}");
     assert!(stdout.contains("the plan's program ended"), "{stdout}");
+    // The first progress line comes with the first read that brings samples; when the pty has
+    // filled before jdbb reads (a loaded machine), that read is already on the circle, so the
+    // line's status is whichever the data reached (the tracker's states are tested in
+    // `simulate::progress`).
     assert!(
-        err.contains("samples, D 87.") && err.contains("lost 0, waiting for cycle start"),
+        err.contains(" samples, D 8")
+            && (err.contains("lost 0, waiting for cycle start")
+                || err.contains("lost 0, circle 1/1")),
         "a progress line: {err}"
     );
     assert!(!err.contains("cycle start was missed"), "{err}");

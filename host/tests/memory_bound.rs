@@ -89,7 +89,11 @@ fn a_record_of_over_a_million_samples_is_simulated_in_bounded_memory_and_diagnos
             "--json",
         ],
     );
-    println!("diagnose: peak {} MiB", children_peak_mib());
+    let peak = children_peak_mib();
+    println!("diagnose: peak {peak} MiB");
+    // Issue 31: a diagnosis in 200 MB; the record is held (20 bytes a sample) and at most
+    // `MAX_DATA_SAMPLES` data samples beyond it, 167 MB on 4.4 M samples (README).
+    assert!(peak < 200, "diagnose peaked at {peak} MiB");
     let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let named: Vec<&serde_json::Value> = json["effects"]
         .as_array()

@@ -343,8 +343,8 @@ fn reversal_spikes_and_drift() {
 }
 
 /// A record longer than the diagnosis takes whole: at 31.25 kHz the data arcs of a 90 mm circle
-/// hold about 2.1 M samples, over [`MAX_DATA_SAMPLES`] (2 M), so the diagnosis averages bins of
-/// two consecutive samples of one arc: the path holds between a third of the limit and the
+/// hold about 2.1 M samples, over [`MAX_DATA_SAMPLES`] (0.5 M), so the diagnosis averages bins
+/// of five consecutive samples of one arc: the path holds between a third of the limit and the
 /// limit, and 6 µm of play on X is named alone with its value, as at 1 kHz. (The record is
 /// handed over in memory, as `Record::read` would give it: 2.8 M CSV lines would only time the
 /// reader.)

@@ -57,59 +57,9 @@ pub mod marlin;
 pub mod plausible;
 pub mod sinumerik;
 
+/// What a controller can set, defined with the effects (the diagnosis's what-if G uses it too).
+pub use crate::model::settable::{is_setting, Controller, SIGNIFICANT_SIGMAS};
 pub use current::Current;
-
-/// A controller `jdbb compensate` knows.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Controller {
-    LinuxCnc,
-    GrblHal,
-    Marlin,
-    Klipper,
-    /// Fanuc Series 0i-F / 30i.
-    Fanuc,
-    /// Siemens SINUMERIK 840D sl / ONE.
-    Sinumerik,
-    /// Heidenhain iTNC 530 / TNC 640.
-    Heidenhain,
-}
-
-impl Controller {
-    pub const ALL: [Controller; 7] = [
-        Controller::LinuxCnc,
-        Controller::GrblHal,
-        Controller::Marlin,
-        Controller::Klipper,
-        Controller::Fanuc,
-        Controller::Sinumerik,
-        Controller::Heidenhain,
-    ];
-
-    /// The name on the command line.
-    pub fn name(self) -> &'static str {
-        match self {
-            Controller::LinuxCnc => "linuxcnc",
-            Controller::GrblHal => "grblhal",
-            Controller::Marlin => "marlin",
-            Controller::Klipper => "klipper",
-            Controller::Fanuc => "fanuc",
-            Controller::Sinumerik => "sinumerik",
-            Controller::Heidenhain => "heidenhain",
-        }
-    }
-
-    /// The controller called `name`; the error lists the known ones.
-    pub fn parse(name: &str) -> Result<Controller> {
-        Controller::ALL
-            .into_iter()
-            .find(|c| c.name() == name.trim().to_ascii_lowercase())
-            .ok_or_else(|| {
-                Error::Usage(format!(
-                    "--controller `{name}`: use one of linuxcnc, grblhal, marlin, klipper, fanuc, sinumerik, heidenhain"
-                ))
-            })
-    }
-}
 
 impl Current {
     /// Read `path` (`--current`) in the format of `controller`; a file with nothing of this
@@ -162,38 +112,6 @@ fn has_content(text: &str) -> bool {
         let t = l.trim();
         !t.is_empty() && !t.starts_with('#') && !t.starts_with(';')
     })
-}
-
-/// The standard-error multiple below which an effect is left alone.
-pub const SIGNIFICANT_SIGMAS: f64 = 3.0;
-
-/// Whether a controller setting removes `effect` (backlash, scale, squareness, cyclic/pitch
-/// error: what [`MachineErrors`] maps to settings), as opposed to tuning, repair or warm-up
-/// (`MachineErrors::tuning`). A reversal spike is a setting only of a controller that
-/// compensates it (`controller` Heidenhain); None stands for the settings every control has.
-/// The one definition of "compensable": the compensation plans and the diagnosis' what-if G
-/// ([`crate::diagnose::Diagnosis::g_if_compensated_um`]) both use it.
-pub fn is_setting(effect: Effect, controller: Option<Controller>) -> bool {
-    match effect {
-        Effect::Backlash(_)
-        | Effect::BacklashEnds(_)
-        | Effect::Scale(_)
-        | Effect::ScaleMismatch(_)
-        | Effect::Scale2(_)
-        | Effect::Cyclic(_)
-        | Effect::Squareness(_) => true,
-        Effect::ReversalSpike(_) => controller == Some(Controller::Heidenhain),
-        Effect::Straightness(..)
-        | Effect::LateralPlay(..)
-        | Effect::ServoMismatch(_)
-        | Effect::Interference(_)
-        | Effect::Drift
-        | Effect::ScaleDrift(_)
-        | Effect::PositionDrift(_)
-        | Effect::FollowingError
-        | Effect::SetupOffset
-        | Effect::LengthOffset => false,
-    }
 }
 
 /// One diagnosed effect as the source of a change: its name and value ± σ for people.

@@ -18,8 +18,8 @@ pub struct Options {
     pub correlated_noise: bool,
     /// The controller whose settings [`Diagnosis::g_if_compensated_um`] assumes entered (a
     /// reversal spike is compensable where it compensates it); None: the settings every
-    /// control has ([`crate::compensate::is_setting`]).
-    pub controller: Option<crate::compensate::Controller>,
+    /// control has ([`crate::model::settable::is_setting`]).
+    pub controller: Option<crate::model::settable::Controller>,
 }
 
 /// Most groups the selection names by default: a real machine carries eight effects at once
@@ -166,8 +166,8 @@ pub struct Diagnosis {
     pub circular_deviation_g_um: f64,
     /// What-if: the test's G (µm, as `circular_deviation_g_um`) with the deviation of every
     /// named effect a controller setting removes taken out of the measured traces — backlash,
-    /// scale, squareness, cyclic error ([`crate::compensate::is_setting`] with
-    /// [`Options::controller`]) at least [`crate::compensate::SIGNIFICANT_SIGMAS`] σ from zero,
+    /// scale, squareness, cyclic error ([`crate::model::settable::is_setting`] with
+    /// [`Options::controller`]) at least [`crate::model::settable::SIGNIFICANT_SIGMAS`] σ from zero,
     /// as `jdbb compensate` acts on them: the G the machine would have with those settings
     /// entered. Equal to the measured G where no such effect is named.
     pub g_if_compensated_um: f64,

@@ -777,9 +777,10 @@ fn diagnose_counting(path: &Path, d_mm: &[f64], opts: &Options, tau_int: f64) ->
     let mut compensable: Vec<usize> = (2..found.len())
         .filter(|&k| {
             let f = &found[k];
-            crate::compensate::is_setting(f.effect, opts.controller)
-                && f.sigma
-                    .is_some_and(|s| f.value.abs() >= crate::compensate::SIGNIFICANT_SIGMAS * s)
+            crate::model::settable::is_setting(f.effect, opts.controller)
+                && f.sigma.is_some_and(|s| {
+                    f.value.abs() >= crate::model::settable::SIGNIFICANT_SIGMAS * s
+                })
                 && !explained.iter().any(|e| e.0 == k)
         })
         .collect();

@@ -8,13 +8,18 @@
 use std::path::Path;
 
 use crate::plan::Plan;
-use crate::sync::{data_path, synchronise, Record, Sync};
+use crate::sync::{data_path_within, synchronise, Record, Sync};
 use crate::table::Table;
 use crate::{Error, Result};
 use jdbb_core::calib::Calibration;
 use jdbb_core::geometry::Model;
 
 use super::samples::CalSamples;
+
+/// Most data-arc samples a calibration takes: it uses each sample's counts as they are (no bins),
+/// so a longer record is refused (record at a lower rate). The diagnosis bins beyond its own,
+/// smaller bound ([`crate::sync::MAX_DATA_SAMPLES`]); a calibration also holds the counts.
+pub const MAX_CALIBRATION_SAMPLES: usize = 2_000_000;
 
 /// Calibrate from a machine run: synchronise on the record's D, fit, then synchronise again on
 /// D recomputed with that fit and fit once more (see [`run_samples`]).
@@ -82,7 +87,7 @@ pub fn run_samples(
         }
     }
     let sync = synchronise(plan, &rec)?;
-    let (path, _) = data_path(plan, &rec, &sync, [None; 3])?;
+    let (path, _) = data_path_within(plan, &rec, &sync, [None; 3], MAX_CALIBRATION_SAMPLES)?;
     let (mut e1, mut e2, mut p, mut line) = (vec![], vec![], vec![], vec![]);
     for (k, &t) in path.t_s.iter().enumerate() {
         // data_path's times are the record's own unless it averaged bins (very long records).
@@ -91,7 +96,7 @@ pub fn run_samples(
             return Err(Error::Usage(format!(
                 "{}: more than {} samples on the data arcs; a calibration takes each sample's counts as they are: record at a lower rate",
                 record.display(),
-                crate::sync::MAX_DATA_SAMPLES
+                MAX_CALIBRATION_SAMPLES
             )));
         }
         e1.push(enc1[i]);

@@ -20,6 +20,8 @@
 //! - this module: the candidate machine effects (seed 000) and the exact distance
 //!   D = |p + δ + c| + e built from them.
 //! - [`words`]: what each effect means in the trade's words (the causes every output shows).
+//! - [`settable`]: which effects a controller setting can remove ("compensable"), and the
+//!   controllers `jdbb compensate` knows.
 //!
 //! May use: [`crate::numerics`], `jdbb_core::machine`. The lowest of the test folders:
 //! `model` ← `plan`, `sync`, `simulate`, `diagnose`, `report`; it uses none of them.
@@ -27,6 +29,7 @@
 #![allow(clippy::needless_range_loop)]
 mod candidate;
 pub mod path;
+pub mod settable;
 pub mod words;
 pub use candidate::*;
 use std::fmt;
