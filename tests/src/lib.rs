@@ -199,6 +199,54 @@ pub fn chip_error_mm(
     )
 }
 
+/// A `jdbb record --plan` file read back against the scenario QEMU played (`expected`, the
+/// scenario's rows): the plan id, the column header and the instrument serial first (`serial`,
+/// or any); then every sample in order at `period_us`, with the scenario's counts (held after
+/// its last row) and D within the chip's accuracy budget of the host's f64 model, plus 0.05 nm
+/// (the CSV keeps 7 decimals). Returns each sample's D (mm) and the largest |D_chip − D_host|
+/// (nm).
+pub fn check_record_is_scenario(
+    text: &str,
+    expected: &[gmachine::Row],
+    period_us: u64,
+    serial: Option<&str>,
+) -> (Vec<f64>, f64) {
+    use jdbb_core::geometry;
+    let cal = jdbb_core::Calibration::DEFAULT;
+    let mut lines = text.lines();
+    assert!(lines.next().is_some_and(|l| l.starts_with("# plan_id: ")));
+    assert_eq!(lines.next(), Some("seq,t_us,enc1,enc2,d_mm"));
+    let serial_line = lines.next().unwrap_or("");
+    match serial {
+        Some(s) => assert_eq!(serial_line, format!("# instrument_serial: {s}")),
+        None => assert!(
+            serial_line.starts_with("# instrument_serial: "),
+            "{serial_line}"
+        ),
+    }
+    let (mut d_mm, mut worst_nm) = (vec![], 0.0f64);
+    for (i, line) in lines.enumerate() {
+        let v: Vec<&str> = line.split(',').collect();
+        let (seq, t_us): (u64, u64) = (v[0].parse().unwrap(), v[1].parse().unwrap());
+        let (enc1, enc2): (i64, i64) = (v[2].parse().unwrap(), v[3].parse().unwrap());
+        let d: f64 = v[4].parse().unwrap();
+        assert_eq!(seq, i as u64, "sequence gap at line {}", i + 4);
+        assert_eq!(t_us, period_us * seq, "t_us at seq {seq}");
+        let e = &expected[i.min(expected.len() - 1)];
+        assert_eq!((enc1, enc2), (e.enc1, e.enc2), "counts at seq {seq}");
+        let reference = geometry::distance_mm(&cal, enc1, enc2);
+        let err = (d - reference).abs();
+        let budget = geometry::accuracy_budget_mm(&cal, enc1, enc2) + 0.5e-7;
+        assert!(
+            err <= budget,
+            "seq {seq}: D chip {d} mm vs host {reference} mm"
+        );
+        worst_nm = worst_nm.max(err * 1e6);
+        d_mm.push(d);
+    }
+    (d_mm, worst_nm)
+}
+
 /// The `jdbb` binary built in this workspace (`target/<profile>/jdbb`, beside this test's
 /// `deps/` folder), or `$JDBB_BIN`. `cargo test` at the root builds it for the host crate's
 /// tests; alone, `cargo build -p jdbb` first.

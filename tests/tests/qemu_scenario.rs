@@ -18,10 +18,8 @@
 //! every D the host reference's within the on-chip budget.
 use std::process::{Command, Stdio};
 
-use jdbb_core::geometry;
-use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{Axis, Dialect, MachineErrors, SimConfig, Simulation, Squareness};
-use jdbb_tests::{jdbb_bin, qemu_available, qemu_elf, Qemu};
+use jdbb_tests::{check_record_is_scenario, jdbb_bin, qemu_available, qemu_elf, Qemu};
 
 const CENTRE: &str = "100,50,-20";
 const RATE_HZ: u32 = 5_000;
@@ -117,39 +115,11 @@ fn plan_scenario_qemu_record_diagnose_names_the_hidden_effects() {
 
     // The record is the scenario: every sample, in order, on time, with its counts and D.
     let expected: Vec<_> = sim.samples().map(|s| s.unwrap().row).collect();
-    let cal = Calibration::DEFAULT;
     let text = std::fs::read_to_string(&rec).unwrap();
-    let mut lines = text.lines();
-    assert!(lines.next().is_some_and(|l| l.starts_with("# plan_id: ")));
-    assert_eq!(lines.next(), Some("seq,t_us,enc1,enc2,d_mm"));
     // QEMU's chip ID is all zero: the serial the device reported, right after the header.
-    assert_eq!(
-        lines.next(),
-        Some("# instrument_serial: 000000000000000000000000")
-    );
-    let mut rows = 0u64;
-    let mut worst_nm = 0.0f64;
-    for (i, line) in lines.enumerate() {
-        let v: Vec<&str> = line.split(',').collect();
-        let (seq, t_us): (u64, u64) = (v[0].parse().unwrap(), v[1].parse().unwrap());
-        let (enc1, enc2): (i64, i64) = (v[2].parse().unwrap(), v[3].parse().unwrap());
-        let d_mm: f64 = v[4].parse().unwrap();
-        assert_eq!(seq, i as u64, "sequence gap at line {}", i + 2);
-        assert_eq!(t_us, 200 * seq, "t_us at seq {seq}");
-        // After its last record the scenario holds the counters.
-        let e = &expected[(i).min(expected.len() - 1)];
-        assert_eq!((enc1, enc2), (e.enc1, e.enc2), "counts at seq {seq}");
-        let reference = geometry::distance_mm(&cal, enc1, enc2);
-        let err = (d_mm - reference).abs();
-        // The CSV keeps 7 decimals: 0.05 nm of rounding on top of the chip's budget.
-        let budget = geometry::accuracy_budget_mm(&cal, enc1, enc2) + 0.5e-7;
-        assert!(
-            err <= budget,
-            "seq {seq}: D chip {d_mm} mm vs host {reference} mm"
-        );
-        worst_nm = worst_nm.max(err * 1e6);
-        rows += 1;
-    }
+    let (d_mm, worst_nm) =
+        check_record_is_scenario(&text, &expected, 200, Some("000000000000000000000000"));
+    let rows = d_mm.len() as u64;
     println!("record: {rows} samples at {RATE_HZ} Hz, max |D_chip − D_host| = {worst_nm:.2} nm");
     assert!(rows >= 100_000 && rows >= n, "only {rows} samples recorded");
 

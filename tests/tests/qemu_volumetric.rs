@@ -22,12 +22,10 @@ use std::process::{Command, Stdio};
 
 use jdbb::plan::{Plan, Plane};
 use jdbb::volumetric::elements::on_circle_s;
-use jdbb_core::geometry;
-use jdbb_core::Calibration;
 use jdbb_tests::gmachine::{
     Axis, BacklashEnds, Dialect, MachineErrors, SimConfig, Simulation, Squareness,
 };
-use jdbb_tests::{jdbb_bin, qemu_available, qemu_elf, Qemu};
+use jdbb_tests::{check_record_is_scenario, jdbb_bin, qemu_available, qemu_elf, Qemu};
 
 const CENTRE: &str = "100,50,-20";
 const RATE_HZ: u32 = 2_000;
@@ -149,33 +147,8 @@ fn a_volumetric_plan_plays_through_qemu_and_records_every_element() {
 
     // The record is the scenario: every sample, in order, on time, with its counts and D.
     let expected: Vec<_> = sim.samples().map(|s| s.unwrap().row).collect();
-    let cal = Calibration::DEFAULT;
-    let period_us = u64::from(header.period_us);
     let text = std::fs::read_to_string(&rec).unwrap();
-    let mut lines = text.lines();
-    assert!(lines.next().is_some_and(|l| l.starts_with("# plan_id: ")));
-    assert_eq!(lines.next(), Some("seq,t_us,enc1,enc2,d_mm"));
-    assert!(lines
-        .next()
-        .is_some_and(|l| l.starts_with("# instrument_serial: ")));
-    let mut d_mm = vec![];
-    for (i, line) in lines.enumerate() {
-        let v: Vec<&str> = line.split(',').collect();
-        let (seq, t_us): (u64, u64) = (v[0].parse().unwrap(), v[1].parse().unwrap());
-        let (enc1, enc2): (i64, i64) = (v[2].parse().unwrap(), v[3].parse().unwrap());
-        let d: f64 = v[4].parse().unwrap();
-        assert_eq!(seq, i as u64, "sequence gap at line {}", i + 4);
-        assert_eq!(t_us, period_us * seq, "t_us at seq {seq}");
-        let e = &expected[i.min(expected.len() - 1)];
-        assert_eq!((enc1, enc2), (e.enc1, e.enc2), "counts at seq {seq}");
-        let reference = geometry::distance_mm(&cal, enc1, enc2);
-        let budget = geometry::accuracy_budget_mm(&cal, enc1, enc2) + 0.5e-7;
-        assert!(
-            (d - reference).abs() <= budget,
-            "seq {seq}: D chip {d} mm vs host {reference} mm"
-        );
-        d_mm.push(d);
-    }
+    let (d_mm, _) = check_record_is_scenario(&text, &expected, u64::from(header.period_us), None);
     let rows = d_mm.len() as u64;
     println!("record: {rows} samples at {RATE_HZ} Hz of a scenario of {n}");
     assert!(rows >= n, "only {rows} samples of {n} recorded");
